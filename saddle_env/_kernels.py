@@ -1,0 +1,261 @@
+"""Compiled equations of motion: the one implementation every caller shares.
+
+Everything here is in the frame rotating with the saddle (PHYSICS.md, "Dynamics in the
+rotating frame"), per unit mass, with the contact point ``q = (x, y)`` as generalised
+coordinates. Vectors are handled as scalar triples so that numba keeps them in registers;
+no arrays are allocated on the hot path.
+
+State vectors always have ``STATE_WIDTH = 5`` slots so that single balls and batches of
+mixed contact models share one memory layout:
+
+* rolling:  ``(x, y, wx, wy, wz)`` — contact point [m] and the ball's angular velocity
+  relative to the saddle, in the saddle's axes [rad/s];
+* slipping / point: ``(x, y, vx, vy, 0)`` — contact point and its velocity [m/s]. The
+  spin is decoupled (PHYSICS.md §1) and is not integrated.
+
+Notation (derivations in docs/derivation.md):
+  m(q) = (-2x/a, 2y/b, 1) is the un-normalised normal — affine in q, so its second time
+  derivative along a trajectory vanishes; s = |m|, n = m/s; c = o + R n the ball's centre;
+  J = dc/dq; P = 1 - n nᵀ.  ṅ = P ṁ / s and, with q̈ = 0,
+  c̈ = (0, 0, 2 vx²/a - 2 vy²/b) - (R/s) (2 (n·ṁ) ṅ + (ṅ·ṁ) n)   ("kappa" below).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from .scene import P_A, P_ALPHA, P_B, P_DRILL, P_G, P_R, ROLLING
+
+STATE_WIDTH = 5
+
+# Layout of an Ω profile: Ω(t) = w0 + rate·t + amp·sin(freq·t + phase).
+PROFILE_WIDTH = 5
+
+# Layout of the per-row observables written by `observables`.
+OBS_VX, OBS_VY, OBS_N, OBS_H, OBS_CX, OBS_CY, OBS_CZ, OBS_OMEGA = range(8)
+OBS_WIDTH = 8
+
+jit = nb.njit(cache=True, fastmath=False, error_model="numpy")
+
+
+@jit
+def omega_at(prof, t):
+    """Saddle speed Ω(t) [rad/s] and its rate Ω̇(t) [rad/s²] from a profile row."""
+    phase = prof[3] * t + prof[4]
+    return (prof[0] + prof[1] * t + prof[2] * math.sin(phase),
+            prof[1] + prof[2] * prof[3] * math.cos(phase))
+
+
+@jit
+def geometry(a, b, R, x, y):
+    """Normal, centre and the two columns of J = dc/dq at contact point (x, y).
+
+    Returns ``(s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z)``.
+    """
+    fx = 2.0 * x / a
+    fy = -2.0 * y / b
+    s = math.sqrt(1.0 + fx * fx + fy * fy)
+    nx, ny, nz = -fx / s, -fy / s, 1.0 / s
+    cx = x + R * nx
+    cy = y + R * ny
+    cz = x * x / a - y * y / b + R * nz
+    # dn/dq_i = P (dm/dq_i) / s with dm/dx = (-2/a, 0, 0), dm/dy = (0, 2/b, 0).
+    k1 = -2.0 * R / (a * s)
+    k2 = 2.0 * R / (b * s)
+    J1x = 1.0 + k1 * (1.0 - nx * nx)
+    J1y = -k1 * ny * nx
+    J1z = fx - k1 * nz * nx
+    J2x = -k2 * nx * ny
+    J2y = 1.0 + k2 * (1.0 - ny * ny)
+    J2z = fy - k2 * nz * ny
+    return s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z
+
+
+@jit
+def _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, rx, ry, rz):
+    """Least-squares coordinates u with J u = tangential part of r: (JᵀJ) u = Jᵀ r."""
+    g11 = J1x * J1x + J1y * J1y + J1z * J1z
+    g12 = J1x * J2x + J1y * J2y + J1z * J2z
+    g22 = J2x * J2x + J2y * J2y + J2z * J2z
+    b1 = J1x * rx + J1y * ry + J1z * rz
+    b2 = J2x * rx + J2y * ry + J2z * rz
+    det = g11 * g22 - g12 * g12
+    return (g22 * b1 - g12 * b2) / det, (g11 * b2 - g12 * b1) / det
+
+
+@jit
+def _normal_rate(a, b, s, nx, ny, nz, vx, vy):
+    """ṁ (its z part is 0), n·ṁ and ṅ for contact-point velocity (vx, vy)."""
+    mdx = -2.0 * vx / a
+    mdy = 2.0 * vy / b
+    nm = nx * mdx + ny * mdy
+    return mdx, mdy, nm, (mdx - nx * nm) / s, (mdy - ny * nm) / s, -nz * nm / s
+
+
+@jit
+def _effective_gravity(g, Om, Omd, cx, cy, cdx, cdy):
+    """g_eff = -g k - Ω̇ k×c - 2Ω k×ċ - Ω² k×(k×c) (gravity, Euler, Coriolis, centrifugal)."""
+    Om2 = Om * Om
+    return (Omd * cy + 2.0 * Om * cdy + Om2 * cx,
+            -Omd * cx - 2.0 * Om * cdx + Om2 * cy,
+            -g)
+
+
+@jit
+def rhs(model, p, prof, t, y, dy, want_normal):
+    """Write dy/dt into ``dy``; return N/m [m/s²] if ``want_normal`` else 0.
+
+    Parameters
+    ----------
+    model : int
+        ``ROLLING`` or ``SLIPPING`` (the point model is slipping with p[P_R] = 0).
+    p : (7,) float64 — packed scene parameters (Scene.params()).
+    prof : (5,) float64 — Ω profile.
+    t : float — time [s].
+    y, dy : (5,) float64 — state and its derivative.
+    want_normal : bool — whether to return the normal force per unit mass.
+    """
+    a, b, R, g = p[P_A], p[P_B], p[P_R], p[P_G]
+    Om, Omd = omega_at(prof, t)
+    s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, y[0], y[1])
+    if model == ROLLING:
+        wx, wy, wz = y[2], y[3], y[4]
+        # Rolling constraint ċ = R w × n fixes the contact-point velocity.
+        cdx = R * (wy * nz - wz * ny)
+        cdy = R * (wz * nx - wx * nz)
+        cdz = R * (wx * ny - wy * nx)
+        vx, vy = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, cdx, cdy, cdz)
+        mdx, mdy, nm, ndx, ndy, ndz = _normal_rate(a, b, s, nx, ny, nz, vx, vy)
+        gx, gy, gz = _effective_gravity(g, Om, Omd, cx, cy, cdx, cdy)
+        # Euler's equation with the contact force eliminated:
+        # [(1+α) 1 - n nᵀ] ẇ = -α(Ω̇ k + Ω k×w) - n×(w×ṅ) + n×g_eff/R, and n×(w×ṅ) = -(n·w) ṅ
+        # because n·ṅ = 0. The matrix is inverted in closed form (Sherman–Morrison):
+        # its inverse is (1 + n nᵀ/α)/(1+α).
+        alpha = p[P_ALPHA]
+        nw = nx * wx + ny * wy + nz * wz
+        rx = alpha * Om * wy + nw * ndx + (ny * gz - nz * gy) / R
+        ry = -alpha * Om * wx + nw * ndy + (nz * gx - nx * gz) / R
+        rz = -alpha * Omd + nw * ndz + (nx * gy - ny * gx) / R
+        # n·r / α: only the frame terms survive (n·ṅ = 0, n·(n×·) = 0).
+        nr_over_alpha = -(Omd * nz + Om * (ny * wx - nx * wy))
+        inv = 1.0 / (1.0 + alpha)
+        drill = p[P_DRILL] * nw
+        dy[0] = vx
+        dy[1] = vy
+        dy[2] = (rx + nr_over_alpha * nx) * inv - drill * nx
+        dy[3] = (ry + nr_over_alpha * ny) * inv - drill * ny
+        dy[4] = (rz + nr_over_alpha * nz) * inv - drill * nz
+        if want_normal:
+            # n·c̈ = R n·(w×ṅ) (the ẇ×n part is tangential); N/m = n·(c̈ - g_eff).
+            wnx = wy * ndz - wz * ndy
+            wny = wz * ndx - wx * ndz
+            wnz = wx * ndy - wy * ndx
+            return R * (nx * wnx + ny * wny + nz * wnz) - (nx * gx + ny * gy + nz * gz)
+        return 0.0
+    vx, vy = y[2], y[3]
+    cdx = J1x * vx + J2x * vy
+    cdy = J1y * vx + J2y * vy
+    mdx, mdy, nm, ndx, ndy, ndz = _normal_rate(a, b, s, nx, ny, nz, vx, vy)
+    ndm = ndx * mdx + ndy * mdy
+    kR = R / s
+    kapx = -kR * (2.0 * nm * ndx + ndm * nx)
+    kapy = -kR * (2.0 * nm * ndy + ndm * ny)
+    kapz = 2.0 * (vx * vx / a - vy * vy / b) - kR * (2.0 * nm * ndz + ndm * nz)
+    gx, gy, gz = _effective_gravity(g, Om, Omd, cx, cy, cdx, cdy)
+    # The centre is a particle on the offset surface: q̈ = (JᵀJ)⁻¹ Jᵀ (g_eff - J̇ q̇).
+    rx, ry, rz = gx - kapx, gy - kapy, gz - kapz
+    ax, ay = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, rx, ry, rz)
+    dy[0] = vx
+    dy[1] = vy
+    dy[2] = ax
+    dy[3] = ay
+    dy[4] = 0.0
+    if want_normal:
+        # N/m = n·(c̈ - g_eff) and n·J q̈ = 0.
+        return -(nx * rx + ny * ry + nz * rz)
+    return 0.0
+
+
+@jit
+def contact_velocity(model, p, y):
+    """Contact-point velocity (vx, vy) in the rotating frame [m/s]."""
+    if model != ROLLING:
+        return y[2], y[3]
+    a, b, R = p[P_A], p[P_B], p[P_R]
+    s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, y[0], y[1])
+    wx, wy, wz = y[2], y[3], y[4]
+    return _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z,
+                          R * (wy * nz - wz * ny), R * (wz * nx - wx * nz), R * (wx * ny - wy * nx))
+
+
+@jit
+def jacobi(model, p, prof, t, y):
+    """Jacobi integral per unit mass [J/kg] (conserved when Ω is constant).
+
+    rolling: ½|ċ|² + ½ α R² |w|² - ½ Ω² (cx² + cy²) + g cz; slipping: without the spin term.
+    """
+    a, b, R, g = p[P_A], p[P_B], p[P_R], p[P_G]
+    Om = omega_at(prof, t)[0]
+    s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, y[0], y[1])
+    vx, vy = contact_velocity(model, p, y)
+    cdx = J1x * vx + J2x * vy
+    cdy = J1y * vx + J2y * vy
+    cdz = J1z * vx + J2z * vy
+    h = 0.5 * (cdx * cdx + cdy * cdy + cdz * cdz) - 0.5 * Om * Om * (cx * cx + cy * cy) + g * cz
+    if model == ROLLING:
+        h += 0.5 * p[P_ALPHA] * R * R * (y[2] * y[2] + y[3] * y[3] + y[4] * y[4])
+    return h
+
+
+@jit
+def observables(model, p, prof, T, Y, want_normal, out):
+    """Fill ``out[i]`` (OBS_WIDTH columns) for every row of the trajectory ``Y`` at times ``T``."""
+    dy = np.empty(STATE_WIDTH)
+    for i in range(T.shape[0]):
+        y = Y[i]
+        vx, vy = contact_velocity(model, p, y)
+        out[i, OBS_VX] = vx
+        out[i, OBS_VY] = vy
+        out[i, OBS_N] = rhs(model, p, prof, T[i], y, dy, True) if want_normal else np.nan
+        out[i, OBS_H] = jacobi(model, p, prof, T[i], y)
+        geo = geometry(p[P_A], p[P_B], p[P_R], y[0], y[1])
+        out[i, OBS_CX] = geo[4]
+        out[i, OBS_CY] = geo[5]
+        out[i, OBS_CZ] = geo[6]
+        out[i, OBS_OMEGA] = omega_at(prof, T[i])[0]
+
+
+@jit
+def state_from_velocity(model, p, x, y, vx, vy, spin_normal, out):
+    """Build a state from the contact point, its rotating-frame velocity and (rolling) the spin
+    about the normal relative to the saddle: w = n × ċ / R + spin_normal · n."""
+    out[0] = x
+    out[1] = y
+    if model != ROLLING:
+        out[2] = vx
+        out[3] = vy
+        out[4] = 0.0
+        return
+    a, b, R = p[P_A], p[P_B], p[P_R]
+    s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, x, y)
+    cdx = J1x * vx + J2x * vy
+    cdy = J1y * vx + J2y * vy
+    cdz = J1z * vx + J2z * vy
+    out[2] = (ny * cdz - nz * cdy) / R + spin_normal * nx
+    out[3] = (nz * cdx - nx * cdz) / R + spin_normal * ny
+    out[4] = (nx * cdy - ny * cdx) / R + spin_normal * nz
+
+
+@jit
+def lab_rest_velocity(p, Om, x, y):
+    """Contact-point velocity in the rotating frame of a ball placed at rest in the laboratory.
+
+    The centre's rotating-frame velocity is the tangential part of -Ω k×c (its normal part
+    cannot be matched by a ball that stays on the surface); returns the (vx, vy) that produce it.
+    """
+    a, b, R = p[P_A], p[P_B], p[P_R]
+    s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, x, y)
+    return _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, Om * cy, -Om * cx, 0.0)

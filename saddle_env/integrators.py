@@ -1,0 +1,403 @@
+"""Explicit Runge–Kutta integrators with error control and event location.
+
+Methods are named, declare their order and live in one registry, ``METHODS`` (the shape of
+scipy's ``ivp.METHODS``). Every method runs on one compiled stepping loop, `integrate`,
+which the single-ball path calls directly and the batch path calls once per ball, in
+parallel. The loop:
+
+* takes fixed steps (``dt > 0``) or adaptive steps (``dt == 0``: embedded error estimate,
+  the usual step-size controller of Hairer, Nørsett & Wanner, Vol. I §II.4);
+* lands exactly on every output time, so outputs are integrator steps, not interpolants;
+* after each step checks the events — detachment (N crosses 0 from above) and escape (the
+  contact point leaves the rim) — and, when one fired, finds its time by root-finding on
+  the partial step ``y(t_n + τ) = RK-step(y_n, τ)``. The event time is then as accurate as
+  the integrator itself; the root-finder's own tolerance is ``EVENT_TIME_TOL``.
+
+The Butcher tableaus of Dormand–Prince 5(4) and 8(5,3) are taken from scipy (a
+dependency), so no coefficient is transcribed by hand.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+from scipy.integrate._ivp import dop853_coefficients as _dop853_tableau
+from scipy.integrate._ivp import rk as _scipy_rk
+
+from ._kernels import STATE_WIDTH, jit, rhs
+from .scene import P_A, P_B, P_G, P_R, P_RIM, ROLLING
+
+# Event flags (a bit mask) and the status codes `integrate` returns.
+EVENT_DETACH, EVENT_ESCAPE = 1, 2
+STATUS_DONE, STATUS_DETACH, STATUS_ESCAPE = 0, 1, 2
+STATUS_FAILED, STATUS_MAX_STEPS = -1, -2
+EVENT_KINDS = {STATUS_DETACH: "detach", STATUS_ESCAPE: "escape"}
+
+EVENT_TIME_TOL = 1e-12  # [s] width of the final bracket around an event time
+
+# Error-estimate kinds.
+ERR_NONE, ERR_EMBEDDED, ERR_DOP853 = 0, 1, 2
+
+# Step-size controller constants (as in Hairer's codes and scipy).
+SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0
+
+
+@dataclass(frozen=True)
+class Method:
+    """An explicit Runge–Kutta method.
+
+    Attributes
+    ----------
+    name : str
+    order : int
+        Order of the propagated solution (what a fixed-step convergence test measures).
+    adaptive : bool
+        Whether it carries an embedded error estimate (usable with ``rtol``).
+    error_order : int
+        Order of the error estimator (sets the controller exponent), 0 when none.
+    C, A, B : ndarray
+        Butcher tableau (nodes, coefficients, weights), ``s`` stages.
+    E, E3 : ndarray
+        Error-estimate weights over the ``s + 1`` stages (the last is f at the new point).
+    """
+
+    name: str
+    order: int
+    adaptive: bool
+    error_order: int
+    err_kind: int
+    C: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+    E: np.ndarray
+    E3: np.ndarray
+    description: str
+
+    @property
+    def stages(self) -> int:
+        return len(self.B)
+
+
+def _rk4() -> Method:
+    A = np.zeros((4, 4))
+    A[1, 0] = A[2, 1] = 0.5
+    A[3, 2] = 1.0
+    return Method("rk4", 4, False, 0, ERR_NONE, np.array([0.0, 0.5, 0.5, 1.0]), A,
+                  np.array([1 / 6, 1 / 3, 1 / 3, 1 / 6]), np.zeros(5), np.zeros(5),
+                  "classical 4th-order Runge–Kutta, fixed step only")
+
+
+def _dopri5() -> Method:
+    s = _scipy_rk.RK45
+    A = np.zeros((6, 6))
+    A[:, :5] = s.A
+    return Method("dopri5", 5, True, s.error_estimator_order, ERR_EMBEDDED, np.array(s.C, float),
+                  A, np.array(s.B, float), np.array(s.E, float), np.zeros(7),
+                  "Dormand–Prince 5(4), adaptive (or fixed step with dt)")
+
+
+def _dop853() -> Method:
+    n = _dop853_tableau.N_STAGES
+    return Method("dop853", 8, True, 7, ERR_DOP853, np.array(_dop853_tableau.C[:n]),
+                  np.array(_dop853_tableau.A[:n, :n]), np.array(_dop853_tableau.B), np.array(_dop853_tableau.E5),
+                  np.array(_dop853_tableau.E3), "Dormand–Prince 8(5,3), adaptive (or fixed step with dt)")
+
+
+METHODS: dict[str, Method] = {m.name: m for m in (_rk4(), _dopri5(), _dop853())}
+
+
+@jit
+def _stages(model, p, prof, t, y, h, d, C, A, K, ytmp, ynew, B):
+    """Stages 2..s of one explicit RK step from (t, y) with K[0] = f(t, y) given; the
+    new point goes to ``ynew``."""
+    s = B.shape[0]
+    for i in range(1, s):
+        for j in range(d):
+            acc = 0.0
+            for l in range(i):
+                acc += A[i, l] * K[l, j]
+            ytmp[j] = y[j] + h * acc
+        for j in range(d, STATE_WIDTH):
+            ytmp[j] = y[j]
+        rhs(model, p, prof, t + C[i] * h, ytmp, K[i], False)
+    for j in range(d):
+        acc = 0.0
+        for l in range(s):
+            acc += B[l] * K[l, j]
+        ynew[j] = y[j] + h * acc
+    for j in range(d, STATE_WIDTH):
+        ynew[j] = y[j]
+
+
+@jit
+def _error_norm(err_kind, h, d, K, E, E3, sc):
+    """Scaled error norm of the step just taken (≤ 1 means accept)."""
+    s1 = K.shape[0]
+    if err_kind == ERR_EMBEDDED:
+        acc = 0.0
+        for j in range(d):
+            e = 0.0
+            for l in range(s1):
+                e += E[l] * K[l, j]
+            e *= h / sc[j]
+            acc += e * e
+        return math.sqrt(acc / d)
+    # Dormand–Prince 8(5,3): the 5th-order estimate, damped by the 3rd-order one.
+    e5 = 0.0
+    e3 = 0.0
+    for j in range(d):
+        a5 = 0.0
+        a3 = 0.0
+        for l in range(s1):
+            a5 += E[l] * K[l, j]
+            a3 += E3[l] * K[l, j]
+        e5 += (a5 / sc[j]) ** 2
+        e3 += (a3 / sc[j]) ** 2
+    if e5 == 0.0 and e3 == 0.0:
+        return 0.0
+    return abs(h) * e5 / math.sqrt((e5 + 0.01 * e3) * d)
+
+
+@jit
+def _event_value(kind, model, p, prof, t, y, dy):
+    """Signed event function: positive while nothing has happened."""
+    if kind == STATUS_DETACH:
+        return rhs(model, p, prof, t, y, dy, True)
+    rim = p[P_RIM]
+    return rim * rim - (y[0] * y[0] + y[1] * y[1])
+
+
+@jit
+def _fired(events, model, p, prof, t, y, dy, normal):
+    """Which event (status code) holds at (t, y), detachment first; 0 if none."""
+    if events & EVENT_DETACH and normal < 0.0:
+        return STATUS_DETACH
+    if events & EVENT_ESCAPE and _event_value(STATUS_ESCAPE, model, p, prof, t, y, dy) < 0.0:
+        return STATUS_ESCAPE
+    return 0
+
+
+@jit
+def _locate(kind, model, p, prof, t, y, hstep, d, C, A, B, K, ytmp, yout, dy):
+    """Smallest τ in (0, hstep] with event function < 0 at RK-step(y, τ).
+
+    Illinois regula falsi with a bisection fall-back, on the partial step from (t, y);
+    K[0] must hold f(t, y). Leaves the state at the returned τ in ``yout``.
+    """
+    lo, hi = 0.0, hstep
+    flo = _event_value(kind, model, p, prof, t, y, dy)
+    _stages(model, p, prof, t, y, hi, d, C, A, K, ytmp, yout, B)
+    fhi = _event_value(kind, model, p, prof, t + hi, yout, dy)
+    side = 0
+    width = hi - lo
+    for _ in range(200):
+        if hi - lo <= EVENT_TIME_TOL:
+            break
+        tm = (lo * fhi - hi * flo) / (fhi - flo)
+        # Bisect when regula falsi stalls (bracket not halved in two tries) or misbehaves.
+        if not (lo < tm < hi) or (side != 0 and hi - lo > 0.5 * width):
+            tm = 0.5 * (lo + hi)
+            width = hi - lo
+        _stages(model, p, prof, t, y, tm, d, C, A, K, ytmp, yout, B)
+        fm = _event_value(kind, model, p, prof, t + tm, yout, dy)
+        if fm < 0.0:
+            hi, fhi = tm, fm
+            if side == -1:
+                flo *= 0.5
+            side = -1
+        else:
+            lo, flo = tm, fm
+            if side == 1:
+                fhi *= 0.5
+            side = 1
+    _stages(model, p, prof, t, y, hi, d, C, A, K, ytmp, yout, B)
+    return hi
+
+
+@jit
+def _initial_step(model, p, prof, t, y, f0, d, sc, order, ytmp, f1, hmax):
+    """Hairer's starting-step heuristic (Vol. I, §II.4)."""
+    d0 = 0.0
+    d1 = 0.0
+    for j in range(d):
+        d0 += (y[j] / sc[j]) ** 2
+        d1 += (f0[j] / sc[j]) ** 2
+    d0 = math.sqrt(d0 / d)
+    d1 = math.sqrt(d1 / d)
+    h0 = 1e-6 if (d0 < 1e-5 or d1 < 1e-5) else 0.01 * d0 / d1
+    h0 = min(h0, hmax)
+    for j in range(STATE_WIDTH):
+        ytmp[j] = y[j] + h0 * f0[j] if j < d else y[j]
+    rhs(model, p, prof, t + h0, ytmp, f1, False)
+    d2 = 0.0
+    for j in range(d):
+        d2 += ((f1[j] - f0[j]) / sc[j]) ** 2
+    d2 = math.sqrt(d2 / d) / h0
+    if d1 <= 1e-15 and d2 <= 1e-15:
+        h1 = max(1e-6, h0 * 1e-3)
+    else:
+        h1 = (0.01 / max(d1, d2)) ** (1.0 / (order + 1))
+    return min(100.0 * h0, h1, hmax)
+
+
+@jit
+def integrate(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order, dt,
+              rtol, atol, scale, max_step, events, max_steps, Y_out, stats):
+    """Advance ``y`` (in place) from ``t0`` through the output times ``t_out``.
+
+    Parameters
+    ----------
+    model : int — ROLLING or SLIPPING.
+    p : (7,) — packed scene parameters.  prof : (5,) — Ω profile.
+    y : (5,) — state at t0; on return, the state at the final time (or at the event).
+    t0 : float.  t_out : (m,) ascending output times, all ≥ t0.
+    C, A, B, E, E3, err_kind, err_order : the method (see `Method`).
+    dt : float — fixed step [s]; 0 selects adaptive steps.
+    rtol, atol : float — tolerances; the error of component j is measured against
+        ``atol·scale[j] + rtol·|y_j|``.  scale : (5,) characteristic size of each component.
+    max_step : float — largest step [s].  events : int — EVENT_* bit mask.
+    max_steps : int — give up (STATUS_MAX_STEPS) after this many steps.
+    Y_out : (m, 5) — written with the state at each output time reached.
+    stats : (4,) int64 — incremented: steps accepted, steps rejected, f evaluations, outputs written.
+
+    Returns
+    -------
+    status : int — STATUS_DONE, STATUS_DETACH, STATUS_ESCAPE, STATUS_FAILED or STATUS_MAX_STEPS.
+    t_final : float — time of the final state (the event time if an event fired).
+    """
+    d = 5 if model == ROLLING else 4
+    s = B.shape[0]
+    K = np.empty((s + 1, STATE_WIDTH))
+    ytmp = np.empty(STATE_WIDTH)
+    ynew = np.empty(STATE_WIDTH)
+    dy = np.empty(STATE_WIDTH)
+    sc = np.empty(STATE_WIDTH)
+    adaptive = dt <= 0.0
+    want_normal = (events & EVENT_DETACH) != 0
+    m = t_out.shape[0]
+    k = 0
+    t = t0
+    normal = rhs(model, p, prof, t, y, K[0], want_normal)
+    stats[2] += 1
+    fired = _fired(events, model, p, prof, t, y, dy, normal)
+    if fired:
+        return fired, t
+    while k < m and t_out[k] <= t:
+        Y_out[k, :] = y
+        k += 1
+    stats[3] += k
+    if k == m:
+        return STATUS_DONE, t
+    if adaptive:
+        for j in range(d):
+            sc[j] = atol * scale[j] + rtol * abs(y[j])
+        h = _initial_step(model, p, prof, t, y, K[0], d, sc, err_order, ytmp, dy, max_step)
+    else:
+        h = min(dt, max_step)
+    exponent = -1.0 / (err_order + 1.0) if adaptive else 0.0
+    n_steps = 0
+    while k < m:
+        if n_steps >= max_steps:
+            return STATUS_MAX_STEPS, t
+        target = t_out[k]
+        hstep = h
+        clipped = False
+        # Land exactly on the output time; treat a sliver left over by rounding as reached.
+        if t + hstep >= target - 1e-13 * max(1.0, abs(target)):
+            hstep = target - t
+            clipped = True
+        if not (hstep > 1e-14 * max(1.0, abs(t))):
+            return STATUS_FAILED, t
+        _stages(model, p, prof, t, y, hstep, d, C, A, K, ytmp, ynew, B)
+        normal = rhs(model, p, prof, t + hstep, ynew, K[s], want_normal)
+        stats[2] += s
+        finite = True
+        for j in range(d):
+            if not math.isfinite(ynew[j]) or not math.isfinite(K[s, j]):
+                finite = False
+        if adaptive:
+            for j in range(d):
+                sc[j] = atol * scale[j] + rtol * max(abs(y[j]), abs(ynew[j]))
+            err = _error_norm(err_kind, hstep, d, K, E, E3, sc) if finite else np.inf
+            if not err <= 1.0:
+                # Rejected: shrink and retry (an infinite/NaN error shrinks by the maximum).
+                factor = MIN_FACTOR if not math.isfinite(err) else max(
+                    MIN_FACTOR, SAFETY * err ** exponent)
+                h = hstep * factor
+                stats[1] += 1
+                continue
+        elif not finite:
+            return STATUS_FAILED, t
+        n_steps += 1
+        stats[0] += 1
+        fired = _fired(events, model, p, prof, t + hstep, ynew, dy, normal) if events else 0
+        if fired:
+            # The state at t is still in y and f(t, y) in K[0]: locate on the partial step.
+            # Each event that fired is located on the whole step; the earliest wins.
+            ybest = np.empty(STATE_WIDTH)
+            yend = ynew.copy()
+            best_tau = hstep
+            best_kind = 0
+            for kind in (STATUS_DETACH, STATUS_ESCAPE):
+                if _fired(events & kind, model, p, prof, t + hstep, yend, dy, normal) == kind:
+                    tau = _locate(kind, model, p, prof, t, y, hstep, d, C, A, B, K,
+                                  ytmp, ynew, dy)
+                    if best_kind == 0 or tau < best_tau:
+                        best_tau, best_kind = tau, kind
+                        ybest[:] = ynew
+            y[:] = ybest
+            stats[2] += 1
+            return best_kind, t + best_tau
+        t = target if clipped else t + hstep
+        for j in range(STATE_WIDTH):
+            y[j] = ynew[j]
+            K[0, j] = K[s, j]
+        if clipped:
+            Y_out[k, :] = y
+            k += 1
+            stats[3] += 1
+        if adaptive:
+            factor = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR, max(
+                MIN_FACTOR, SAFETY * err ** exponent))
+            hnew = hstep * factor
+            # A step shortened to hit an output says nothing against the natural step.
+            h = min(max(hnew, h) if clipped else hnew, max_step)
+    return STATUS_DONE, t
+
+
+@nb.njit(cache=True, parallel=True)
+def integrate_batch(models, P, profiles, Y, t0, t_out, C, A, B, E, E3, err_kind, err_order,
+                    dt, rtol, atol, scales, max_step, events, max_steps, active, Y_out,
+                    status, t_final, stats):
+    """`integrate` for many balls at once, each with its own scene row, Ω profile and state.
+
+    All balls start at ``t0`` and share the output times. Balls with ``active[i] == False``
+    are not touched. Arrays are indexed by ball first:
+    models (n,), P (n, 7), profiles (n, 5), Y (n, 5), scales (n, 5),
+    max_step (n,), Y_out (n, m, 5), status (n,), t_final (n,), stats (n, 4).
+    """
+    n = Y.shape[0]
+    for i in nb.prange(n):
+        if active[i]:
+            status[i], t_final[i] = integrate(
+                models[i], P[i], profiles[i], Y[i], t0, t_out, C, A, B, E, E3, err_kind,
+                err_order, dt, rtol, atol, scales[i], max_step[i], events, max_steps,
+                Y_out[i], stats[i])
+
+
+def state_scale(p: np.ndarray, model: int) -> np.ndarray:
+    """Characteristic size of each state component, so one tolerance fits all of them.
+
+    Lengths scale with the saddle length a; velocities with a·ω₀ where ω₀ = sqrt(2g/a)
+    (1 s⁻¹ when g = 0); a rolling ball's spin with a·ω₀/R.
+    """
+    a = p[P_A]
+    omega0 = math.sqrt(2.0 * p[P_G] / a) if p[P_G] > 0 else 1.0
+    v = a * omega0
+    sc = np.array([a, min(a, p[P_B]), v, v, v])
+    if model == ROLLING:
+        sc[2:] = v / p[P_R]
+    return sc

@@ -1,0 +1,188 @@
+"""Linear theory about the saddle point (the paper's §III–IV, Table I).
+
+Near the centre the ball's centre obeys (paper Eq. LinearizedEOM)
+
+    ẍ_c = A x_c + B ẏ_c,      ÿ_c = C y_c + D ẋ_c,
+
+with A, B, C, D from Table I. For the asymmetric saddle z = x²/a − y²/b the same
+derivation gives Table I with (a − 2R) in A and D (the x direction) and (b + 2R) in B and C
+(the y direction); the tests check every coefficient, for a ≠ b and ω_z ≠ 0, against a
+finite-difference linearisation of the exact model. Eigen-frequencies ϖ (x ∝ e^{iϖt})
+solve ϖ⁴ + (A + C + BD) ϖ² + AC = 0; the motion is (marginally) stable iff both roots
+ϖ² are real and positive.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .scene import Scene, _finite_number
+
+
+@dataclass(frozen=True)
+class ABCD:
+    A: float
+    B: float
+    C: float
+    D: float
+
+    def matrix(self) -> np.ndarray:
+        """First-order system matrix for the state (x_c, y_c, ẋ_c, ẏ_c)."""
+        return np.array([[0.0, 0.0, 1.0, 0.0],
+                         [0.0, 0.0, 0.0, 1.0],
+                         [self.A, 0.0, 0.0, self.B],
+                         [0.0, self.C, self.D, 0.0]])
+
+
+def abcd(scene: Scene, omega: float, spin_z: float = 0.0) -> ABCD:
+    """Table I coefficients at saddle speed ``omega`` [rad/s].
+
+    ``spin_z`` is the ball's spin about the vertical relative to the saddle [rad/s] (the
+    paper's ω_z); it enters only for a rolling ball. Slipping and point use Table I's
+    right column with R = scene.radius (0 for the point).
+    """
+    W = _finite_number("omega", omega)
+    wz = _finite_number("spin_z", spin_z)
+    a, b, R, g, al = scene.a, scene.b, scene.radius, scene.g, scene.alpha
+    am, bp = a - 2.0 * R, b + 2.0 * R
+    if scene.rolling:
+        k = 1.0 + al
+        return ABCD(A=(am * W * W + 2 * al * R * wz * W - 2 * g) / (k * am),
+                    B=((2 + al) * bp * W - 2 * al * R * wz) / (k * bp),
+                    C=(bp * W * W - 2 * al * R * wz * W + 2 * g) / (k * bp),
+                    D=(-(2 + al) * am * W - 2 * al * R * wz) / (k * am))
+    return ABCD(A=W * W - 2 * g / am, B=2 * W, C=W * W + 2 * g / bp, D=-2 * W)
+
+
+def _biquadratic(c: ABCD) -> tuple[float, float]:
+    """(P, Q) of ϖ⁴ + P ϖ² + Q = 0."""
+    return c.A + c.C + c.B * c.D, c.A * c.C
+
+
+def eigenfrequencies(scene: Scene, omega: float, spin_z: float = 0.0) -> np.ndarray:
+    """The four complex eigen-frequencies ϖ [rad/s] (x ∝ e^{iϖt}), sorted by real part.
+
+    A negative imaginary part means growth, e^{|Im ϖ| t}: the paper's instability.
+    """
+    P, Q = _biquadratic(abcd(scene, omega, spin_z))
+    disc = np.sqrt(complex(P * P - 4 * Q))
+    roots = []
+    for w2 in ((-P + disc) / 2, (-P - disc) / 2):
+        r = np.sqrt(complex(w2))
+        roots += [r, -r]
+    return np.array(sorted(roots, key=lambda z: (z.real, z.imag)))
+
+
+def is_stable(scene: Scene, omega: float, spin_z: float = 0.0) -> bool:
+    """Linear (marginal) stability: both roots ϖ² real and positive (paper Eq. Inequalities)."""
+    P, Q = _biquadratic(abcd(scene, omega, spin_z))
+    return Q > 0 and P < 0 and P * P - 4 * Q >= 0
+
+
+def critical_omega(scene: Scene) -> float:
+    """Lowest stabilising speed Ω_crt [rad/s] (ω_z = 0).
+
+    Symmetric saddle: sqrt(2g/(a − 2R)) for a rigid ball (rolling or slipping), sqrt(2g/a)
+    for the mass point (paper Eqs. RigidBodyThreshold, MassPointThreshold). Asymmetric
+    saddle: the lower edge of `stable_band` (``nan`` if no speed stabilises the ball).
+    """
+    if scene.a == scene.b:
+        return math.sqrt(2 * scene.g / (scene.a - 2 * scene.radius))
+    band = stable_band(scene)
+    return band[0][0] if band else math.nan
+
+
+def mass_point_band(a: float, b: float, g: float = 9.8) -> tuple[float, float] | None:
+    """Closed-form stable band (Ω_low, Ω_high) of the mass point, or None if there is none.
+
+    Stable iff Q = AC > 0 (Ω² > 2g/a), the discriminant P² − 4Q ≥ 0 (when b < a:
+    Ω² ≤ g(a + b)²/(4ab(a − b))) and P = A + C + BD < 0 (Ω² > g(a − b)/(ab)). The last
+    condition holds across the band iff a < 3b; for a ≥ 3b both roots ϖ² are negative there
+    and no speed stabilises the point. Ω_high = inf when b ≥ a.
+    """
+    low = math.sqrt(2 * g / a)
+    if b >= a:
+        return low, math.inf
+    if a >= 3 * b:
+        return None
+    return low, math.sqrt(g * (a + b) ** 2 / (4 * a * b * (a - b)))
+
+
+def stable_band(scene: Scene, spin_z: float = 0.0, omega_max: float | None = None,
+                n_grid: int = 4000) -> list[tuple[float, float]]:
+    """Intervals of Ω in (0, omega_max] where the linearised motion is stable.
+
+    Scans a grid (geometric above Ω_ref = sqrt(2g/min(a, b))) and refines every edge by
+    bisection to ~1e-12 relative. An interval reaching ``omega_max`` is reported with an
+    upper end of ``inf`` (no upper bound was found below omega_max; for the symmetric
+    saddle there is none).
+    """
+    ref = math.sqrt(2 * max(scene.g, 1e-12) / min(scene.a, scene.b))
+    top = 100.0 * ref if omega_max is None else _finite_number("omega_max", omega_max)
+    if top <= 0:
+        raise ValueError(f"omega_max must be > 0, got {top}")
+    grid = np.unique(np.concatenate([np.linspace(top * 1e-4, ref * 4, n_grid // 2),
+                                     np.geomspace(ref * 4, top, n_grid // 2)]))
+    grid = grid[grid <= top]
+    stable = [is_stable(scene, w, spin_z) for w in grid]
+
+    def edge(lo: float, hi: float, stable_lo: bool) -> float:
+        for _ in range(200):
+            mid = 0.5 * (lo + hi)
+            if (hi - lo) <= 1e-13 * hi:
+                break
+            if is_stable(scene, mid, spin_z) == stable_lo:
+                lo = mid
+            else:
+                hi = mid
+        return 0.5 * (lo + hi)
+
+    bands: list[tuple[float, float]] = []
+    start = grid[0] if stable[0] else None
+    for i in range(1, len(grid)):
+        if stable[i] != stable[i - 1]:
+            e = edge(grid[i - 1], grid[i], stable[i - 1])
+            if stable[i]:
+                start = e
+            else:
+                bands.append((start, e))  # type: ignore[arg-type]
+                start = None
+    if start is not None:
+        bands.append((start, math.inf))
+    return bands
+
+
+def centre_from_contact(scene: Scene, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Linearised map from contact point to ball centre: x_c = (1 − 2R/a) x, y_c = (1 + 2R/b) y."""
+    R = scene.radius
+    return (1 - 2 * R / scene.a) * np.asarray(x), (1 + 2 * R / scene.b) * np.asarray(y)
+
+
+def linear_trajectory(scene: Scene, omega: float, centre_state: np.ndarray, t: np.ndarray,
+                      spin_z: float = 0.0) -> np.ndarray:
+    """Exact solution of the linearised equations: (len(t), 4) rows (x_c, y_c, ẋ_c, ẏ_c).
+
+    ``t`` must be evenly spaced from 0; the solution is advanced by the matrix exponential
+    of one spacing, so it carries no discretisation error.
+    """
+    from scipy.linalg import expm
+
+    t = np.asarray(t, dtype=float)
+    z0 = np.asarray(centre_state, dtype=float)
+    if z0.shape != (4,) or not np.all(np.isfinite(z0)):
+        raise ValueError(f"centre_state must be 4 finite numbers (x_c, y_c, vx_c, vy_c), got {z0}")
+    if t.ndim != 1 or len(t) < 1 or t[0] != 0:
+        raise ValueError("t must be a 1-D array starting at 0")
+    out = np.empty((len(t), 4))
+    out[0] = z0
+    if len(t) > 1:
+        step = np.diff(t)
+        if not np.allclose(step, step[0], rtol=1e-9, atol=0):
+            raise ValueError("t must be evenly spaced")
+        E = expm(abcd(scene, omega, spin_z).matrix() * step[0])
+        for i in range(1, len(t)):
+            out[i] = E @ out[i - 1]
+    return out

@@ -1,0 +1,72 @@
+"""The saddle's speed as a function of time."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .scene import _finite_number
+
+
+@dataclass(frozen=True)
+class OmegaProfile:
+    """Ω(t) = w0 + rate·t + amp·sin(freq·t + phase)  [rad/s].
+
+    Covers constant speed (the paper), a ramp (a motor at constant torque; within one
+    control step of the environment) and a ripple. Ω̇ is finite everywhere, so the Euler
+    force is well defined.
+    """
+
+    w0: float = 0.0
+    rate: float = 0.0
+    amp: float = 0.0
+    freq: float = 0.0
+    phase: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("w0", "rate", "amp", "freq", "phase"):
+            label = {"w0": "omega"}.get(name, f"omega {name}")
+            object.__setattr__(self, name, _finite_number(label, getattr(self, name)))
+
+    @classmethod
+    def coerce(cls, omega: object) -> OmegaProfile:
+        """Accept a profile, a number (constant speed) or a (w0, rate, amp, freq, phase) tuple."""
+        if isinstance(omega, OmegaProfile):
+            return omega
+        if isinstance(omega, (tuple, list)):
+            if not 1 <= len(omega) <= 5:
+                raise ValueError("omega as a sequence must be (w0[, rate[, amp[, freq[, phase]]]]), "
+                                 f"got {len(omega)} values")
+            return cls(*omega)
+        return cls(_finite_number("omega", omega))
+
+    def array(self) -> np.ndarray:
+        return np.array([self.w0, self.rate, self.amp, self.freq, self.phase])
+
+    @property
+    def constant(self) -> bool:
+        return self.rate == 0.0 and (self.amp == 0.0 or self.freq == 0.0)
+
+    def __call__(self, t: np.ndarray | float) -> np.ndarray | float:
+        """Ω(t)."""
+        return self.w0 + self.rate * t + self.amp * np.sin(self.freq * t + self.phase)
+
+    def rate_at(self, t: np.ndarray | float) -> np.ndarray | float:
+        """Ω̇(t)."""
+        return self.rate + self.amp * self.freq * np.cos(self.freq * t + self.phase)
+
+    def angle(self, t: np.ndarray | float) -> np.ndarray | float:
+        """Saddle angle θ(t) = ∫₀ᵗ Ω dt' [rad] (θ(0) = 0): rotates rotating-frame vectors into the lab."""
+        theta = self.w0 * t + 0.5 * self.rate * np.square(t)
+        if self.freq != 0.0:
+            theta = theta - self.amp / self.freq * (np.cos(self.freq * t + self.phase)
+                                                    - math.cos(self.phase))
+        else:
+            theta = theta + self.amp * math.sin(self.phase) * t
+        return theta
+
+    def bound(self, t_end: float) -> float:
+        """An upper bound of |Ω| on [0, t_end]."""
+        return max(abs(self.w0), abs(self.w0 + self.rate * t_end)) + abs(self.amp)

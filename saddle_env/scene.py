@@ -1,0 +1,146 @@
+"""Scene parameters: the saddle, the ball, gravity and the contact model.
+
+One frozen, validated dataclass holds every physical parameter. Derived quantities
+(the effective radius, the packed parameter vector the compiled kernels read) are
+computed from it, never stored twice.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+from typing import Literal
+
+import numpy as np
+
+ContactModel = Literal["rolling", "slipping", "point"]
+CONTACT_MODELS: tuple[str, ...] = ("rolling", "slipping", "point")
+
+# Integer codes the compiled kernels switch on (kept in one place).
+ROLLING, SLIPPING = 0, 1
+
+# Layout of the packed parameter vector read by the kernels (saddle_env._kernels).
+P_A, P_B, P_R, P_ALPHA, P_G, P_DRILL, P_RIM = range(7)
+N_PARAMS = 7
+
+
+def _finite_number(name: str, value: object) -> float:
+    """Return ``value`` as a float, or raise a ValueError that names ``name``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a real number, got {value!r} ({type(value).__name__})")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value}")
+    return value
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A ball on a rotating saddle ``z = x**2/a - y**2/b``.
+
+    Parameters
+    ----------
+    a, b : float
+        Saddle lengths [m]; the surface is ``z = x²/a − y²/b``. ``b`` defaults to ``a``
+        (the symmetric saddle of the paper, a = 0.159 m).
+    R : float
+        Ball radius [m], ``0 < R < min(a, b)/2``. Ignored (taken as 0) by ``contact="point"``.
+    alpha : float
+        Moment-of-inertia factor, ``I = alpha·m·R²`` (2/5 solid ball, 2/3 thin shell), ``0 < alpha <= 1``.
+    g : float
+        Gravitational acceleration [m/s²], ``>= 0``.
+    contact : {"rolling", "slipping", "point"}
+        ``"rolling"``: rolls without slipping (spin integrated). ``"slipping"``: frictionless,
+        spin decoupled and not integrated. ``"point"``: the mass-point (Brouwer) model, i.e.
+        slipping with R = 0.
+    rim_radius : float
+        Horizontal radius [m] of the saddle's edge; the ball escapes when its contact point
+        leaves it. ``math.inf`` for an unbounded saddle.
+    drilling_friction : float
+        Rate [1/s] at which friction about the contact normal relaxes the spin about the
+        normal toward the saddle's own rate (the paper's ω_z → 0). Acts on rolling balls only
+        (a slipping ball has no friction by definition). ``0`` disables it.
+    """
+
+    a: float = 0.159
+    b: float | None = None
+    R: float = 0.02
+    alpha: float = 0.4
+    g: float = 9.8
+    contact: ContactModel = "rolling"
+    rim_radius: float = 0.1
+    drilling_friction: float = 0.0
+
+    def __post_init__(self) -> None:
+        a = _finite_number("a", self.a)
+        if a <= 0:
+            raise ValueError(f"a must be > 0 (saddle length in metres), got {a}")
+        b = a if self.b is None else _finite_number("b", self.b)
+        if b <= 0:
+            raise ValueError(f"b must be > 0 (saddle length in metres), got {b}")
+        if not isinstance(self.contact, str) or self.contact not in CONTACT_MODELS:
+            raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {self.contact!r}")
+        R = _finite_number("R", self.R)
+        if self.contact != "point":
+            limit = min(a, b) / 2
+            if not 0 < R < limit:
+                raise ValueError(
+                    f"R must satisfy 0 < R < min(a, b)/2 = {limit:g} m for contact={self.contact!r} "
+                    f"(the ball must fit the saddle's curvature), got R = {R:g}"
+                )
+        elif R < 0:
+            raise ValueError(f"R must be >= 0, got {R}")
+        alpha = _finite_number("alpha", self.alpha)
+        if not 0 < alpha <= 1:
+            raise ValueError(f"alpha must satisfy 0 < alpha <= 1 (I = alpha m R^2), got {alpha}")
+        g = _finite_number("g", self.g)
+        if g < 0:
+            raise ValueError(f"g must be >= 0 (m/s^2), got {g}")
+        rim = self.rim_radius
+        if isinstance(rim, bool) or not isinstance(rim, (int, float, np.integer, np.floating)):
+            raise ValueError(f"rim_radius must be a real number, got {rim!r}")
+        rim = float(rim)
+        if not (rim > 0) or math.isnan(rim):
+            raise ValueError(f"rim_radius must be > 0 (metres, or math.inf), got {rim}")
+        drill = _finite_number("drilling_friction", self.drilling_friction)
+        if drill < 0:
+            raise ValueError(f"drilling_friction must be >= 0 (1/s), got {drill}")
+        # Normalise to plain floats so equality, hashing and pickling behave.
+        for name, value in (("a", a), ("b", b), ("R", R), ("alpha", alpha), ("g", g),
+                            ("rim_radius", rim), ("drilling_friction", drill)):
+            object.__setattr__(self, name, value)
+
+    # -- derived quantities -------------------------------------------------------------
+    @property
+    def radius(self) -> float:
+        """The radius the dynamics use [m]: 0 for the mass point, ``R`` otherwise."""
+        return 0.0 if self.contact == "point" else self.R
+
+    @property
+    def rolling(self) -> bool:
+        """True when the spin is integrated (pure rolling)."""
+        return self.contact == "rolling"
+
+    @property
+    def state_size(self) -> int:
+        """Length of the state vector: (x, y, wx, wy, wz) rolling, (x, y, vx, vy) otherwise."""
+        return 5 if self.rolling else 4
+
+    @property
+    def model_code(self) -> int:
+        return ROLLING if self.rolling else SLIPPING
+
+    def params(self) -> np.ndarray:
+        """The packed float64 parameter vector read by the compiled kernels."""
+        p = np.empty(N_PARAMS)
+        p[P_A], p[P_B], p[P_R], p[P_ALPHA] = self.a, self.b, self.radius, self.alpha
+        p[P_G], p[P_DRILL], p[P_RIM] = self.g, self.drilling_friction, self.rim_radius
+        return p
+
+    def with_(self, **changes: object) -> Scene:
+        """A copy with some parameters changed (validated again)."""
+        unknown = set(changes) - {f.name for f in fields(self)}
+        if unknown:
+            raise ValueError(f"unknown Scene parameter(s) {sorted(unknown)}; "
+                             f"known: {[f.name for f in fields(self)]}")
+        return replace(self, **changes)  # type: ignore[arg-type]

@@ -1,0 +1,353 @@
+"""Independent LAB-FRAME reference model of a ball on a rotating saddle.
+
+Used only by tests, to cross-check the production simulator (which works in the
+rotating frame). Everything here is derived in the inertial (laboratory) frame so that
+it shares no algebra with a rotating-frame implementation: no centrifugal, Coriolis or
+Euler forces appear anywhere below.
+
+Geometry (body = saddle-fixed coordinates):
+    f(x, y) = x^2/a - y^2/b,  o = (x, y, f),  n = (-2x/a, 2y/b, 1)/|.|,  c = o + R n.
+The saddle turns about the vertical lab axis k by theta(t), theta' = Omega(t), so a body
+vector v appears in the lab as Rz(theta) v.  m = 1 throughout (forces are per unit mass).
+
+Contact models
+--------------
+slipping / point : holonomic. The centre is a particle constrained to the moving offset
+    surface c_lab(q, t) = Rz(theta(t)) c(q). Euler-Lagrange equations of the lab
+    Lagrangian L = 1/2 |d c_lab/dt|^2 - g c_lab_z are derived with sympy.
+    Frictionless contact => the spin never couples to the orbit, so it is not integrated.
+rolling : nonholonomic. Newton + Euler about the centre in the lab, with the rolling
+    constraint "ball material point at the contact moves with the saddle material point
+    there" differentiated in time to close the system for the absolute spin omega_lab.
+
+Only numpy / scipy / sympy are used; nothing is imported from the production package.
+"""
+
+from functools import lru_cache
+
+import numpy as np
+import sympy as sp
+from scipy.integrate import solve_ivp
+
+__all__ = [
+    "simulate_lab_frame",
+    "body_geometry",
+    "jacobi_integral",
+]
+
+_K = np.array([0.0, 0.0, 1.0])
+
+
+# ----------------------------------------------------------------------------------
+# Symbolic derivation (done once, cached).  a, b, R, g are kept symbolic so that one
+# lambdified function serves every parameter set.
+# ----------------------------------------------------------------------------------
+def _rz(th):
+    c, s = sp.cos(th), sp.sin(th)
+    return sp.Matrix([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+def _body_geometry_sym(x, y, a, b, R):
+    """Contact point o, unit normal n and centre c in body axes (sympy)."""
+    f = x**2 / a - y**2 / b
+    o = sp.Matrix([x, y, f])
+    grad = sp.Matrix([-2 * x / a, 2 * y / b, 1])
+    n = grad / sp.sqrt(grad.dot(grad))
+    return o, n, o + R * n
+
+
+@lru_cache(maxsize=None)
+def _slipping_functions():
+    """Lab-frame Lagrangian -> M(q, ...) q'' = rhs, plus the lab acceleration of c.
+
+    theta is a genuine function of time here (theta' = Omega, theta'' = Omegadot), so the
+    time dependence of the constraint c_lab(q, t) enters exactly as in the inertial
+    Lagrangian; nothing about rotating frames is assumed.
+    """
+    t = sp.Symbol("t")
+    a, b, R, g = sp.symbols("a b R g", positive=True)
+    xf, yf, thf = (sp.Function(s)(t) for s in ("x", "y", "theta"))
+
+    _, n_body, c_body = _body_geometry_sym(xf, yf, a, b, R)
+    c_lab = _rz(thf) * c_body
+    v_lab = c_lab.diff(t)
+    L = sp.Rational(1, 2) * v_lab.dot(v_lab) - g * c_lab[2]
+
+    # Plain symbols to replace derivatives after differentiation.
+    x, y, vx, vy, ax, ay, th, Om, Omd = sp.symbols("x y vx vy ax ay th Om Omd")
+    subs_order = [  # highest derivatives first, so lower ones are not clobbered
+        (xf.diff(t, 2), ax), (yf.diff(t, 2), ay), (thf.diff(t, 2), Omd),
+        (xf.diff(t), vx), (yf.diff(t), vy), (thf.diff(t), Om),
+        (xf, x), (yf, y), (thf, th),
+    ]
+
+    def to_syms(expr):
+        for old, new in subs_order:
+            expr = expr.subs(old, new)
+        return expr
+
+    el = []
+    for qf in (xf, yf):
+        eq = sp.diff(sp.diff(L, qf.diff(t)), t) - sp.diff(L, qf)
+        el.append(to_syms(eq))
+
+    # Euler-Lagrange is linear in (ax, ay): split into mass matrix and right-hand side.
+    M = sp.Matrix([[sp.diff(e, acc) for acc in (ax, ay)] for e in el])
+    rhs = sp.Matrix([-e.subs({ax: 0, ay: 0}) for e in el])
+
+    acc_lab = to_syms(c_lab.diff(t, 2))   # needs ax, ay for the normal force
+    n_lab = to_syms(_rz(thf) * n_body)
+
+    args = (x, y, vx, vy, th, Om, Omd, a, b, R, g)
+    f_M = sp.lambdify(args, M, modules="numpy", cse=True)
+    f_rhs = sp.lambdify(args, rhs, modules="numpy", cse=True)
+    f_acc = sp.lambdify(args + (ax, ay), acc_lab, modules="numpy", cse=True)
+    f_n = sp.lambdify((x, y, th, a, b), n_lab, modules="numpy", cse=True)
+    return f_M, f_rhs, f_acc, f_n
+
+
+@lru_cache(maxsize=None)
+def _rolling_functions():
+    """Lab-frame o, n, c and the partial derivatives the rolling model needs.
+
+    Returned as one lambdified function of (x, y, theta; a, b, R) giving
+    o, n, J_lab = dc_lab/dq, do/dq, do/dtheta, dn/dq, dn/dtheta  (all lab axes).
+    """
+    x, y, th = sp.symbols("x y th")
+    a, b, R = sp.symbols("a b R", positive=True)
+    o_b, n_b, c_b = _body_geometry_sym(x, y, a, b, R)
+    Rz = _rz(th)
+    o, n, c = Rz * o_b, Rz * n_b, Rz * c_b
+    q = sp.Matrix([x, y])
+    out = [
+        o, n,
+        c.jacobian(q),
+        o.jacobian(q), o.diff(th),
+        n.jacobian(q), n.diff(th),
+    ]
+    return sp.lambdify((x, y, th, a, b, R), out, modules="numpy", cse=True)
+
+
+@lru_cache(maxsize=None)
+def _body_functions():
+    """Body-frame c and J = dc/dq and n (for initial conditions and invariants)."""
+    x, y = sp.symbols("x y")
+    a, b, R = sp.symbols("a b R", positive=True)
+    _, n_b, c_b = _body_geometry_sym(x, y, a, b, R)
+    J = c_b.jacobian(sp.Matrix([x, y]))
+    return sp.lambdify((x, y, a, b, R), [c_b, J, n_b], modules="numpy", cse=True)
+
+
+# ----------------------------------------------------------------------------------
+# Small numeric helpers
+# ----------------------------------------------------------------------------------
+def _rz_num(th):
+    c, s = np.cos(th), np.sin(th)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _vec(m):
+    return np.asarray(m, dtype=float).reshape(-1)
+
+
+def body_geometry(a, b, R, x, y):
+    """(c, J, n) in body axes at contact point (x, y): centre, dc/dq (3x2), normal."""
+    c, J, n = _body_functions()(float(x), float(y), a, b, R)
+    return _vec(c), np.asarray(J, dtype=float), _vec(n)
+
+
+def _check_params(contact, a, b, R):
+    if contact not in ("rolling", "slipping", "point"):
+        raise ValueError(f"unknown contact model {contact!r}")
+    if a <= 0 or b <= 0:
+        raise ValueError("a and b must be positive")
+    if R < 0:
+        raise ValueError("R must be >= 0")
+    # The only direction in which the surface is concave towards the ball is x (the
+    # valley, curvature 2/a at the centre, its maximum).  Along y the surface falls
+    # away from the ball, so b imposes no limit.  R >= a/2 makes c(q) singular.
+    if R >= a / 2:
+        raise ValueError(f"R={R} must be < a/2={a / 2} (offset surface singular)")
+    if contact == "rolling" and R == 0:
+        raise ValueError("rolling needs R > 0 (use contact='point' for a mass point)")
+
+
+# ----------------------------------------------------------------------------------
+# Slipping / point
+# ----------------------------------------------------------------------------------
+def _simulate_slipping(a, b, R, g, omega, omega_dot, q0, qdot0, t_eval, theta0,
+                       rtol, atol):
+    f_M, f_rhs, f_acc, f_n = _slipping_functions()
+
+    def accel(t, s):
+        x, y, vx, vy, th = s
+        args = (x, y, vx, vy, th, omega(t), omega_dot(t), a, b, R, g)
+        M = np.asarray(f_M(*args), dtype=float)
+        rhs = _vec(f_rhs(*args))
+        return np.linalg.solve(M, rhs)
+
+    def deriv(t, s):
+        qdd = accel(t, s)
+        return [s[2], s[3], qdd[0], qdd[1], omega(t)]
+
+    s0 = [q0[0], q0[1], qdot0[0], qdot0[1], theta0]
+    sol = _integrate(deriv, s0, t_eval, rtol, atol)
+
+    n_out = len(t_eval)
+    N = np.empty(n_out)
+    for i, (t, s) in enumerate(zip(t_eval, sol.T)):
+        x, y, vx, vy, th = s
+        qdd = accel(t, s)
+        acc = _vec(f_acc(x, y, vx, vy, th, omega(t), omega_dot(t), a, b, R, g,
+                         qdd[0], qdd[1]))
+        n = _vec(f_n(x, y, th, a, b))
+        # m c'' = F - m g k; frictionless so F = N n and N = n.(c'' + g k).
+        N[i] = n @ (acc + g * _K)
+    return {
+        "t": np.asarray(t_eval, dtype=float),
+        "x": sol[0], "y": sol[1], "vx": sol[2], "vy": sol[3],
+        "theta": sol[4],
+        "N_over_mg": N / g,
+    }
+
+
+# ----------------------------------------------------------------------------------
+# Rolling
+# ----------------------------------------------------------------------------------
+def _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot):
+    """Everything the rolling model needs at one state: returns (qdot, wdot, F, n)."""
+    x, y, th = s[0], s[1], s[2]
+    w = np.asarray(s[3:6], dtype=float)          # absolute spin, lab axes
+    Om, Omd = omega(t), omega_dot(t)
+    o, n, J, do_dq, do_dth, dn_dq, dn_dth = _rolling_functions()(x, y, th, a, b, R)
+    o, n, do_dth, dn_dth = _vec(o), _vec(n), _vec(do_dth), _vec(dn_dth)
+    J = np.asarray(J, dtype=float)
+    do_dq = np.asarray(do_dq, dtype=float)
+    dn_dq = np.asarray(dn_dq, dtype=float)
+    c = o + R * n
+
+    # Rolling: v_c + w x (-R n) = Omega k x o  (ball point at contact = saddle point).
+    # With c_lab = Rz(theta) c(q):  J q' + Omega k x c = Omega k x o + R w x n.
+    # The right side minus Omega k x c is tangent to the offset surface, so the normal
+    # equations recover q' exactly (residual is round-off).
+    rhs = np.cross(Om * _K, o) + R * np.cross(w, n) - np.cross(Om * _K, c)
+    qdot = np.linalg.solve(J.T @ J, J.T @ rhs)
+
+    # Time derivatives of the lab contact point and lab normal along the motion.
+    thdot = Om
+    odot = do_dq @ qdot + do_dth * thdot
+    ndot = dn_dq @ qdot + dn_dth * thdot
+
+    # Differentiate v_c = Omega k x o + R w x n:
+    #   c'' = Omegadot k x o + Omega k x o' + R w' x n + R w x n'
+    #       = R w' x n + known_part
+    known = np.cross(Omd * _K, o) + np.cross(Om * _K, odot) + R * np.cross(w, ndot)
+    # Newton:  F = c'' + g k  (m = 1).  Euler about the centre: I w' = (-R n) x F.
+    #   alpha R^2 w' = -R n x (R w' x n + known + g k)
+    #   n x (w' x n) = w' - n (n.w')  =>
+    #   [(alpha+1) R^2 1 - R^2 n n^T] w' = -R n x (known + g k)
+    A = (alpha + 1.0) * R**2 * np.eye(3) - R**2 * np.outer(n, n)
+    wdot = np.linalg.solve(A, -R * np.cross(n, known + g * _K))
+    F = R * np.cross(wdot, n) + known + g * _K
+    return qdot, wdot, F, n
+
+
+def _simulate_rolling(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
+                      spin_normal, theta0, rtol, atol):
+    # Initial spin: relative to the saddle, rolling needs R w_rel x n = c_rot'.
+    # w_rel = n x c_rot'/R satisfies it (c_rot' is tangent); spin about n is free.
+    _, Jb, nb = body_geometry(a, b, R, q0[0], q0[1])
+    c_rot_dot = Jb @ np.asarray(qdot0, dtype=float)
+    w_rel = np.cross(nb, c_rot_dot) / R + spin_normal * nb
+    w_abs_lab = _rz_num(theta0) @ (w_rel + omega(0.0) * _K)
+
+    def deriv(t, s):
+        qdot, wdot, _, _ = _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot)
+        return [qdot[0], qdot[1], omega(t), wdot[0], wdot[1], wdot[2]]
+
+    s0 = [q0[0], q0[1], theta0, *w_abs_lab]
+    sol = _integrate(deriv, s0, t_eval, rtol, atol)
+
+    n_out = len(t_eval)
+    vx, vy, N = np.empty(n_out), np.empty(n_out), np.empty(n_out)
+    w_body = np.empty((n_out, 3))
+    for i, (t, s) in enumerate(zip(t_eval, sol.T)):
+        qdot, _, F, n = _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot)
+        vx[i], vy[i] = qdot
+        N[i] = F @ n
+        # Back to saddle axes and subtract the saddle's own rotation.
+        w_body[i] = _rz_num(-s[2]) @ s[3:6] - omega(t) * _K
+    return {
+        "t": np.asarray(t_eval, dtype=float),
+        "x": sol[0], "y": sol[1], "vx": vx, "vy": vy,
+        "w": w_body,
+        "N_over_mg": N / g,
+        "theta": sol[2],
+    }
+
+
+def _integrate(deriv, s0, t_eval, rtol, atol):
+    t_eval = np.asarray(t_eval, dtype=float)
+    if t_eval.ndim != 1 or t_eval.size == 0 or t_eval[0] != 0.0:
+        raise ValueError("t_eval must be a non-empty 1-D array starting at 0")
+    if t_eval.size == 1:
+        return np.asarray(s0, dtype=float).reshape(-1, 1)
+    sol = solve_ivp(deriv, (0.0, float(t_eval[-1])), s0, method="DOP853",
+                    t_eval=t_eval, rtol=rtol, atol=atol)
+    if not sol.success:
+        raise RuntimeError(f"solve_ivp failed: {sol.message}")
+    return sol.y
+
+
+# ----------------------------------------------------------------------------------
+# Public API
+# ----------------------------------------------------------------------------------
+def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
+                       spin_normal=0.0, theta0=0.0, rtol=1e-12, atol=1e-14):
+    """contact in {"rolling", "slipping", "point"} ("point" means R is treated as 0, slipping).
+    omega, omega_dot: callables t -> float (Omega(t), dOmega/dt).
+    q0 = (x0, y0): contact point, body coords [m].
+    qdot0 = (vx0, vy0): contact point velocity RELATIVE TO THE ROTATING SADDLE, body coords [m/s].
+    spin_normal (rolling only): initial angular velocity about the normal n, RELATIVE to the saddle [rad/s].
+    For rolling, the initial angular velocity relative to the saddle is w_rel = n x c_rot' / R + spin_normal n,
+    where c_rot' = J q' is the centre velocity relative to the saddle (J = dc/dq); the absolute one is
+    w_rel + Omega(0) k (then rotated by theta0 into lab axes).
+    t_eval: 1-D array of output times starting at 0.
+    Returns dict of arrays, one entry per t_eval, all expressed back in the ROTATING (body) frame:
+      "t", "x", "y" (contact point, body coords),
+      "vx", "vy" (contact point velocity relative to the saddle, body coords),
+      "w" (shape (n, 3): rolling only - ball angular velocity RELATIVE to the saddle, in body
+           axes: Rz(-theta) omega_lab - Omega k),
+      "N_over_mg" (normal force / (m g)),
+      "theta".
+    Slipping results have no "w": with a frictionless contact the spin is decoupled and constant.
+    Mass m = 1 (results are independent of m).  Omega(t) should be smooth between output
+    times for DOP853 to reach its tolerance efficiently (kinks are handled, just slowly).
+    """
+    if contact == "point":
+        R = 0.0
+    _check_params(contact, a, b, R)
+    if contact == "rolling":
+        return _simulate_rolling(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
+                                 spin_normal, theta0, rtol, atol)
+    return _simulate_slipping(a, b, R, g, omega, omega_dot, q0, qdot0, t_eval, theta0,
+                              rtol, atol)
+
+
+def jacobi_integral(res, a, b, R, alpha, g, Omega, contact):
+    """Jacobi integral per unit mass from body-frame results (constant Omega only).
+
+    rolling : 1/2|c_rot'|^2 + 1/2 alpha R^2 |w_rel|^2 - 1/2 Omega^2 (c_x^2+c_y^2) + g c_z
+    slipping: the same without the spin term.
+    """
+    if contact == "point":
+        R = 0.0
+    h = np.empty(len(res["t"]))
+    for i in range(len(h)):
+        c, J, _ = body_geometry(a, b, R, res["x"][i], res["y"][i])
+        cdot = J @ np.array([res["vx"][i], res["vy"][i]])
+        h[i] = 0.5 * cdot @ cdot - 0.5 * Omega**2 * (c[0]**2 + c[1]**2) + g * c[2]
+        if contact == "rolling":
+            w = res["w"][i]
+            h[i] += 0.5 * alpha * R**2 * (w @ w)
+    return h

@@ -1,0 +1,97 @@
+"""Integrators: declared order, adaptive accuracy, event location."""
+
+import math
+
+import numpy as np
+import pytest
+
+from saddle_env import METHODS, Scene, initial_state, simulate
+from saddle_env.integrators import EVENT_TIME_TOL
+
+
+@pytest.fixture(scope="module")
+def case():
+    sc = Scene()
+    s0 = initial_state(sc, 0.003, 0.002)
+    # DOP853 at a step 20x below the smallest tested: its error is at roundoff level
+    ref = simulate(sc, s0, 1.0, omega=20.0, dt_out=None, method="dop853", dt=5e-4, events=())
+    return sc, s0, ref.state[-1]
+
+
+STEPS = {"rk4": [0.02, 0.01, 0.005, 0.0025], "dopri5": [0.02, 0.01, 0.005, 0.0025],
+         "dop853": [0.04, 0.02, 0.01]}
+
+
+@pytest.mark.parametrize("name", sorted(METHODS))
+def test_measured_order_matches_declared(case, name):
+    sc, s0, exact = case
+    errs = []
+    for dt in STEPS[name]:
+        tr = simulate(sc, s0, 1.0, omega=20.0, dt_out=None, method=name, dt=dt, events=())
+        errs.append(np.max(np.abs(tr.state[-1, :2] - exact[:2])))
+    order = np.polyfit(np.log(STEPS[name]), np.log(errs), 1)[0]
+    assert abs(order - METHODS[name].order) < 0.6, (name, order, errs)
+
+
+@pytest.mark.parametrize("name", ["dopri5", "dop853"])
+def test_adaptive_error_follows_tolerance(case, name):
+    sc, s0, exact = case
+    errs = []
+    for rtol in (1e-6, 1e-8, 1e-10):
+        # max_step lifted so that the tolerance, not the step cap, sets the steps
+        tr = simulate(sc, s0, 1.0, omega=20.0, dt_out=None, method=name, rtol=rtol,
+                      events=(), max_step=1.0)
+        errs.append(np.max(np.abs(tr.state[-1, :2] - exact[:2])))
+    assert errs[2] < errs[1] < errs[0]
+    assert errs[2] < 1e-9 * sc.a * 100
+
+
+def test_registry_declares_orders():
+    assert {n: m.order for n, m in METHODS.items()} == {"rk4": 4, "dopri5": 5, "dop853": 8}
+    assert not METHODS["rk4"].adaptive and METHODS["dop853"].adaptive
+
+
+def _detach_case():
+    sc = Scene(R=0.033)
+    return sc, initial_state(sc, 0.005, 0.005)
+
+
+def test_detach_time_located_to_1e_9_s():
+    sc, s0 = _detach_case()
+    tight = simulate(sc, s0, 1.0, omega=30.0, rtol=1e-13)
+    default = simulate(sc, s0, 1.0, omega=30.0)
+    assert tight.event.kind == default.event.kind == "detach"
+    assert abs(default.event.t - tight.event.t) <= 1e-9
+    # N vanishes at the located time and is positive just before it
+    ev = tight.event
+    at = simulate(sc, s0, ev.t, omega=30.0, rtol=1e-13, dt_out=None, events=())
+    before = simulate(sc, s0, ev.t - 1e-9, omega=30.0, rtol=1e-13, dt_out=None, events=())
+    assert abs(at.N_over_mg[-1]) < 1e-6
+    assert before.N_over_mg[-1] > 0
+    assert np.allclose(at.state[-1], ev.state, rtol=0, atol=1e-9)
+
+
+def test_fixed_step_event_uses_the_same_root_finder():
+    sc, s0 = _detach_case()
+    tight = simulate(sc, s0, 1.0, omega=30.0, rtol=1e-13)
+    fixed = simulate(sc, s0, 1.0, omega=30.0, method="dop853", dt=2e-3)
+    assert fixed.event.kind == "detach"
+    assert abs(fixed.event.t - tight.event.t) < 1e-8
+
+
+def test_escape_time_located_on_the_rim():
+    sc = Scene(contact="point", rim_radius=0.05)
+    s0 = initial_state(sc, 0.001, 0.001)
+    tr = simulate(sc, s0, 10.0, omega=30.0, events=("escape",), rtol=1e-12)
+    assert tr.event.kind == "escape"
+    r = math.hypot(*tr.event.state[:2])
+    assert r >= 0.05 and r - 0.05 < 1e-9
+    loose = simulate(sc, s0, 10.0, omega=30.0, events=("escape",), rtol=1e-10)
+    assert abs(loose.event.t - tr.event.t) < 1e-9
+    assert EVENT_TIME_TOL <= 1e-11
+
+
+def test_events_off_means_no_stop():
+    sc, s0 = _detach_case()
+    tr = simulate(sc, s0, 0.3, omega=30.0, events=())
+    assert tr.event is None and tr.N_over_mg.min() < 0  # N < 0 is visible, not acted on
