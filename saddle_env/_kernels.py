@@ -31,8 +31,11 @@ from .scene import P_A, P_ALPHA, P_B, P_DRILL, P_G, P_R, ROLLING
 
 STATE_WIDTH = 5
 
-# Layout of an Ω profile: Ω(t) = w0 + rate·t + amp·sin(freq·t + phase).
-PROFILE_WIDTH = 5
+# Layout of a drive row: the saddle speed Ω(t) = w0 + rate·t + amp·sin(freq·t + phase),
+# the saddle angle θ0 at t = 0, and a horizontal force per unit mass (fx, fy) [m/s²] fixed
+# in the laboratory (air currents), which the rotating frame sees turn at -Ω.
+DRIVE_W0, DRIVE_RATE, DRIVE_AMP, DRIVE_FREQ, DRIVE_PHASE, DRIVE_THETA0, DRIVE_FX, DRIVE_FY = range(8)
+DRIVE_WIDTH = 8
 
 # Layout of the per-row observables written by `observables`.
 OBS_VX, OBS_VY, OBS_N, OBS_H, OBS_CX, OBS_CY, OBS_CZ, OBS_OMEGA = range(8)
@@ -47,6 +50,15 @@ def omega_at(prof, t):
     phase = prof[3] * t + prof[4]
     return (prof[0] + prof[1] * t + prof[2] * math.sin(phase),
             prof[1] + prof[2] * prof[3] * math.cos(phase))
+
+
+@jit
+def angle_at(prof, t):
+    """Saddle angle θ(t) = θ0 + ∫₀ᵗ Ω dt' [rad]."""
+    theta = prof[5] + prof[0] * t + 0.5 * prof[1] * t * t
+    if prof[3] != 0.0:
+        return theta + prof[2] / prof[3] * (math.cos(prof[4]) - math.cos(prof[3] * t + prof[4]))
+    return theta + prof[2] * math.sin(prof[4]) * t
 
 
 @jit
@@ -96,12 +108,19 @@ def _normal_rate(a, b, s, nx, ny, nz, vx, vy):
 
 
 @jit
-def _effective_gravity(g, Om, Omd, cx, cy, cdx, cdy):
-    """g_eff = -g k - Ω̇ k×c - 2Ω k×ċ - Ω² k×(k×c) (gravity, Euler, Coriolis, centrifugal)."""
+def _effective_gravity(g, prof, t, Om, Omd, cx, cy, cdx, cdy):
+    """g_eff = -g k - Ω̇ k×c - 2Ω k×ċ - Ω² k×(k×c) (gravity, Euler, Coriolis, centrifugal),
+    plus the external horizontal force, turned from the lab into the saddle's axes."""
     Om2 = Om * Om
-    return (Omd * cy + 2.0 * Om * cdy + Om2 * cx,
-            -Omd * cx - 2.0 * Om * cdx + Om2 * cy,
-            -g)
+    gx = Omd * cy + 2.0 * Om * cdy + Om2 * cx
+    gy = -Omd * cx - 2.0 * Om * cdx + Om2 * cy
+    fx, fy = prof[6], prof[7]
+    if fx != 0.0 or fy != 0.0:
+        th = angle_at(prof, t)
+        ct, st = math.cos(th), math.sin(th)
+        gx += ct * fx + st * fy
+        gy += -st * fx + ct * fy
+    return gx, gy, -g
 
 
 @jit
@@ -113,7 +132,7 @@ def rhs(model, p, prof, t, y, dy, want_normal):
     model : int
         ``ROLLING`` or ``SLIPPING`` (the point model is slipping with p[P_R] = 0).
     p : (7,) float64 — packed scene parameters (Scene.params()).
-    prof : (5,) float64 — Ω profile.
+    prof : (8,) float64 — drive row (Ω profile, θ0, external force).
     t : float — time [s].
     y, dy : (5,) float64 — state and its derivative.
     want_normal : bool — whether to return the normal force per unit mass.
@@ -129,7 +148,7 @@ def rhs(model, p, prof, t, y, dy, want_normal):
         cdz = R * (wx * ny - wy * nx)
         vx, vy = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, cdx, cdy, cdz)
         mdx, mdy, nm, ndx, ndy, ndz = _normal_rate(a, b, s, nx, ny, nz, vx, vy)
-        gx, gy, gz = _effective_gravity(g, Om, Omd, cx, cy, cdx, cdy)
+        gx, gy, gz = _effective_gravity(g, prof, t, Om, Omd, cx, cy, cdx, cdy)
         # Euler's equation with the contact force eliminated:
         # [(1+α) 1 - n nᵀ] ẇ = -α(Ω̇ k + Ω k×w) - n×(w×ṅ) + n×g_eff/R, and n×(w×ṅ) = -(n·w) ṅ
         # because n·ṅ = 0. The matrix is inverted in closed form (Sherman–Morrison):
@@ -164,7 +183,7 @@ def rhs(model, p, prof, t, y, dy, want_normal):
     kapx = -kR * (2.0 * nm * ndx + ndm * nx)
     kapy = -kR * (2.0 * nm * ndy + ndm * ny)
     kapz = 2.0 * (vx * vx / a - vy * vy / b) - kR * (2.0 * nm * ndz + ndm * nz)
-    gx, gy, gz = _effective_gravity(g, Om, Omd, cx, cy, cdx, cdy)
+    gx, gy, gz = _effective_gravity(g, prof, t, Om, Omd, cx, cy, cdx, cdy)
     # The centre is a particle on the offset surface: q̈ = (JᵀJ)⁻¹ Jᵀ (g_eff - J̇ q̇).
     rx, ry, rz = gx - kapx, gy - kapy, gz - kapz
     ax, ay = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, rx, ry, rz)

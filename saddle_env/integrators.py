@@ -251,7 +251,7 @@ def integrate(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order,
     Parameters
     ----------
     model : int — ROLLING or SLIPPING.
-    p : (7,) — packed scene parameters.  prof : (5,) — Ω profile.
+    p : (7,) — packed scene parameters.  prof : (8,) — drive row (see _kernels).
     y : (5,) — state at t0; on return, the state at the final time (or at the event).
     t0 : float.  t_out : (m,) ascending output times, all ≥ t0.
     C, A, B, E, E3, err_kind, err_order : the method (see `Method`).
@@ -376,7 +376,7 @@ def integrate_batch(models, P, profiles, Y, t0, t_out, C, A, B, E, E3, err_kind,
 
     All balls start at ``t0`` and share the output times. Balls with ``active[i] == False``
     are not touched. Arrays are indexed by ball first:
-    models (n,), P (n, 7), profiles (n, 5), Y (n, 5), scales (n, 5),
+    models (n,), P (n, 7), profiles (n, 8) drive rows, Y (n, 5), scales (n, 5),
     max_step (n,), Y_out (n, m, 5), status (n,), t_final (n,), stats (n, 4).
     """
     n = Y.shape[0]

@@ -81,6 +81,19 @@ def initial_state(scene: Scene, x: float, y: float, vx: float = 0.0, vy: float =
     return out[: scene.state_size].copy()
 
 
+def _check_force(force: object) -> tuple[float, float]:
+    if not isinstance(force, (tuple, list, np.ndarray)) or len(force) != 2:
+        raise ValueError(f"force must be a pair (fx, fy) of lab-frame accelerations [m/s^2], "
+                         f"got {force!r}")
+    return _finite_number("force fx", force[0]), _finite_number("force fy", force[1])
+
+
+def drive_row(profile: OmegaProfile, force: tuple[float, float] = (0.0, 0.0),
+              theta0: float = 0.0) -> np.ndarray:
+    """The kernels' drive row: Ω profile, saddle angle at t = 0, lab-frame force per unit mass."""
+    return np.concatenate([profile.array(), [theta0, force[0], force[1]]])
+
+
 def _check_state(scene: Scene, state: object, name: str = "state") -> np.ndarray:
     try:
         arr = np.asarray(state, dtype=float)
@@ -229,6 +242,7 @@ class Trajectory:
     event: Event | None
     settings: str
     stats: Stats
+    force: tuple[float, float] = (0.0, 0.0)
     _obs: np.ndarray | None = field(default=None, repr=False)
     _obs_has_normal: bool = field(default=False, repr=False)
 
@@ -237,8 +251,8 @@ class Trajectory:
             padded = np.zeros((len(self.t), K.STATE_WIDTH))
             padded[:, : self.scene.state_size] = self.state
             out = np.empty((len(self.t), K.OBS_WIDTH))
-            K.observables(self.scene.model_code, self.scene.params(), self.omega.array(),
-                          self.t, padded, want_normal, out)
+            K.observables(self.scene.model_code, self.scene.params(),
+                          drive_row(self.omega, self.force), self.t, padded, want_normal, out)
             self._obs, self._obs_has_normal = out, want_normal
         return self._obs
 
@@ -311,7 +325,8 @@ def simulate(scene: Scene, state: np.ndarray, t_end: float, *,
              omega: float | OmegaProfile | Sequence[float] = 20.0, dt_out: float | None = 0.01,
              method: str | None = None, rtol: float | None = None, atol: float | None = None,
              dt: float | None = None, events: Sequence[str] = DEFAULT_EVENTS,
-             max_step: float | None = None, max_steps: int = 50_000_000) -> Trajectory:
+             max_step: float | None = None, max_steps: int = 50_000_000,
+             force: tuple[float, float] = (0.0, 0.0)) -> Trajectory:
     """Integrate one ball from t = 0 to ``t_end`` in the frame rotating with the saddle.
 
     Parameters
@@ -330,6 +345,8 @@ def simulate(scene: Scene, state: np.ndarray, t_end: float, *,
         integration only if "detach" is asked for.
     max_step : float — largest step [s] (default: an eighth of π/max|Ω|).
     max_steps : int — give up after this many steps.
+    force : (fx, fy) — constant horizontal force per unit mass [m/s²] fixed in the
+        laboratory (whose axes coincide with the saddle's at t = 0), e.g. an air current.
 
     Returns
     -------
@@ -344,6 +361,7 @@ def simulate(scene: Scene, state: np.ndarray, t_end: float, *,
         raise ValueError(f"scene must be a saddle_env.Scene, got {type(scene).__name__}")
     y = _check_state(scene, state)
     profile = OmegaProfile.coerce(omega)
+    force = _check_force(force)
     t_out = _output_times(t_end, dt_out)
     settings = Settings.build(method, rtol, atol, dt, events, max_step, max_steps)
     p = scene.params()
@@ -351,7 +369,7 @@ def simulate(scene: Scene, state: np.ndarray, t_end: float, *,
     Y_out = np.empty((len(t_out), K.STATE_WIDTH))
     stats = np.zeros(4, dtype=np.int64)
     status, t_final = integrate(
-        scene.model_code, p, profile.array(), y, 0.0, t_out, m.C, m.A, m.B, m.E, m.E3,
+        scene.model_code, p, drive_row(profile, force), y, 0.0, t_out, m.C, m.A, m.B, m.E, m.E3,
         m.err_kind, m.error_order, settings.dt, settings.rtol, settings.atol,
         state_scale(p, scene.model_code), settings.max_step_for(profile, float(t_out[-1])),
         settings.events, settings.max_steps, Y_out, stats)
@@ -362,7 +380,7 @@ def simulate(scene: Scene, state: np.ndarray, t_end: float, *,
         event = Event(EVENT_KINDS[status], float(t_final), y[: scene.state_size].copy())
     return Trajectory(scene, profile, t_out[:n].copy(), Y_out[:n, : scene.state_size].copy(),
                       event, settings.describe(),
-                      Stats(int(stats[0]), int(stats[1]), int(stats[2])))
+                      Stats(int(stats[0]), int(stats[1]), int(stats[2])), force)
 
 
 def _raise_on_failure(status: int, t_final: float, r: float, scene: Scene) -> None:
@@ -410,7 +428,8 @@ def simulate_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: f
                    dt_out: float | None = 0.01, method: str | None = None,
                    rtol: float | None = None, atol: float | None = None,
                    dt: float | None = None, events: Sequence[str] = DEFAULT_EVENTS,
-                   max_step: float | None = None, max_steps: int = 50_000_000) -> BatchResult:
+                   max_step: float | None = None, max_steps: int = 50_000_000,
+                   force: tuple[float, float] = (0.0, 0.0)) -> BatchResult:
     """Integrate many balls at once (threads over balls; same kernel as `simulate`).
 
     ``scenes`` is one Scene for all balls or one per ball (contact models may differ).
@@ -432,6 +451,8 @@ def simulate_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: f
             row = row[: sc.state_size]
         Y[i] = _check_state(sc, row, f"states[{i}]")
     profiles = _profiles(omega, n)
+    force = _check_force(force)
+    drives = np.array([drive_row(OmegaProfile(*row), force) for row in profiles])
     t_out = _output_times(t_end, dt_out)
     settings = Settings.build(method, rtol, atol, dt, events, max_step, max_steps)
     P = np.array([sc.params() for sc in scene_list])
@@ -444,7 +465,7 @@ def simulate_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: f
     status = np.zeros(n, dtype=np.int64)
     t_final = np.zeros(n)
     stats = np.zeros((n, 4), dtype=np.int64)
-    integrate_batch(models, P, profiles, Y, 0.0, t_out, m.C, m.A, m.B, m.E, m.E3, m.err_kind,
+    integrate_batch(models, P, drives, Y, 0.0, t_out, m.C, m.A, m.B, m.E, m.E3, m.err_kind,
                     m.error_order, settings.dt, settings.rtol, settings.atol, scales,
                     max_step_arr, settings.events, settings.max_steps, np.ones(n, dtype=bool),
                     Y_out, status, t_final, stats)

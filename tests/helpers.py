@@ -25,7 +25,11 @@ def centre_state(scene: Scene, state: np.ndarray) -> np.ndarray:
 
 
 def rhs(scene: Scene, state: np.ndarray, omega: float | np.ndarray = 0.0, t: float = 0.0) -> np.ndarray:
-    prof = np.array([omega, 0, 0, 0, 0], float) if np.isscalar(omega) else np.asarray(omega, float)
+    prof = np.zeros(K.DRIVE_WIDTH)
+    if np.isscalar(omega):
+        prof[0] = omega
+    else:
+        prof[: len(omega)] = omega
     dy = np.zeros(K.STATE_WIDTH)
     K.rhs(scene.model_code, scene.params(), prof, t, padded(state), dy, False)
     return dy[: scene.state_size]

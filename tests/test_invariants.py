@@ -74,3 +74,32 @@ def test_slipping_ball_becomes_a_mass_point_as_R_vanishes():
     # converges linearly in R
     assert gaps[1] == pytest.approx(gaps[0] / 10, rel=0.02)
     assert gaps[2] == pytest.approx(gaps[1] / 10, rel=0.02)
+
+
+@pytest.mark.parametrize("contact", ["rolling", "slipping", "point"])
+@pytest.mark.parametrize("theta0, sign", [(0.0, 1.0), (np.pi, -1.0)])
+def test_lab_force_balances_gravity_on_a_still_saddle(contact, theta0, sign):
+    # The surface slope 2x/a equals f/g at the equilibrium, for any ball radius (the offset
+    # surface has the same slope): x = f a / (2 g). The force is fixed in the lab, so a
+    # saddle turned by θ0 = π sees it along -x.
+    from helpers import rhs
+    sc = Scene(contact=contact)
+    f = 0.4
+    x_eq = sign * f * sc.a / (2 * sc.g)
+    state = initial_state(sc, x_eq, 0.0)
+    drive = [0.0, 0.0, 0.0, 0.0, 0.0, theta0, f, 0.0]
+    assert np.allclose(rhs(sc, state, drive), 0.0, atol=1e-13)  # terms are O(g/R · slope) ~ 20
+    off = initial_state(sc, 1.1 * x_eq, 0.0)
+    assert np.sign(rhs(sc, off, drive)[2 if not sc.rolling else 3]) != 0
+
+
+def test_simulate_applies_the_lab_force():
+    sc = Scene(contact="point")
+    x_eq = 0.3 * sc.a / (2 * sc.g)
+    still = simulate(sc, initial_state(sc, x_eq, 0.0), 1.0, omega=0.0, force=(0.3, 0.0),
+                     rtol=1e-12)
+    assert np.allclose(still.x, x_eq, atol=1e-12) and np.allclose(still.y, 0.0, atol=1e-12)
+    pushed = simulate(sc, initial_state(sc, 0.0, 0.0), 1.0, omega=0.0, force=(0.3, 0.0))
+    assert pushed.x.max() > 1.5 * x_eq  # released from the centre it overshoots
+    with pytest.raises(ValueError, match="force fx must be finite"):
+        simulate(sc, initial_state(sc, 0.0, 0.0), 1.0, force=(np.nan, 0.0))
