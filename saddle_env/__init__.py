@@ -10,3 +10,7 @@ __all__ = ["CONTACT_MODELS", "DEFAULT_METHOD", "DEFAULT_RTOL", "METHODS", "Batch
            "Method", "OmegaProfile", "Scene", "SimulationError", "Trajectory", "initial_state",
            "simulate", "simulate_batch"]
 __version__ = "0.1.0"
+
+from .envs import register as _register_envs  # noqa: E402
+
+_register_envs()

@@ -110,10 +110,12 @@ METHODS: dict[str, Method] = {m.name: m for m in (_rk4(), _dopri5(), _dop853())}
 
 
 @jit
-def _stages(model, p, prof, t, y, h, d, C, A, K, ytmp, ynew, B):
+def _stages(model, p, prof, t, y, h, d, C, A, K, ytmp, ynew, B, want_normal=False):
     """Stages 2..s of one explicit RK step from (t, y) with K[0] = f(t, y) given; the
-    new point goes to ``ynew``."""
+    new point goes to ``ynew``. Returns the smallest normal force per unit mass seen at the
+    stage points (a by-product of the right-hand side) if ``want_normal``, else +inf."""
     s = B.shape[0]
+    lowest = np.inf
     for i in range(1, s):
         for j in range(d):
             acc = 0.0
@@ -122,7 +124,9 @@ def _stages(model, p, prof, t, y, h, d, C, A, K, ytmp, ynew, B):
             ytmp[j] = y[j] + h * acc
         for j in range(d, STATE_WIDTH):
             ytmp[j] = y[j]
-        rhs(model, p, prof, t + C[i] * h, ytmp, K[i], False)
+        n = rhs(model, p, prof, t + C[i] * h, ytmp, K[i], want_normal)
+        if want_normal and n < lowest:
+            lowest = n
     for j in range(d):
         acc = 0.0
         for l in range(s):
@@ -130,6 +134,7 @@ def _stages(model, p, prof, t, y, h, d, C, A, K, ytmp, ynew, B):
         ynew[j] = y[j] + h * acc
     for j in range(d, STATE_WIDTH):
         ynew[j] = y[j]
+    return lowest
 
 
 @jit
@@ -178,6 +183,20 @@ def _fired(events, model, p, prof, t, y, dy, normal):
     if events & EVENT_ESCAPE and _event_value(STATUS_ESCAPE, model, p, prof, t, y, dy) < 0.0:
         return STATUS_ESCAPE
     return 0
+
+
+@jit
+def _probe_dip(model, p, prof, t, y, hstep, d, C, A, B, K, ytmp, yout, dy):
+    """First stage time τ = c_i·h at which a true partial step has N < 0, or 0 if none."""
+    s = B.shape[0]
+    for i in range(1, s):
+        tau = C[i] * hstep
+        if tau <= 0.0 or tau >= hstep:
+            continue
+        _stages(model, p, prof, t, y, tau, d, C, A, K, ytmp, yout, B)
+        if rhs(model, p, prof, t + tau, yout, dy, True) < 0.0:
+            return tau
+    return 0.0
 
 
 @jit
@@ -248,6 +267,17 @@ def integrate(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order,
               rtol, atol, scale, max_step, events, max_steps, Y_out, stats):
     """Advance ``y`` (in place) from ``t0`` through the output times ``t_out``.
 
+    See `integrate_h`, which this calls with no step-size hint."""
+    hio = np.zeros(2)
+    return integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order, dt,
+                       rtol, atol, scale, max_step, events, max_steps, Y_out, stats, hio)
+
+
+@jit
+def integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order, dt,
+                rtol, atol, scale, max_step, events, max_steps, Y_out, stats, hio):
+    """Advance ``y`` (in place) from ``t0`` through the output times ``t_out``.
+
     Parameters
     ----------
     model : int — ROLLING or SLIPPING.
@@ -262,6 +292,10 @@ def integrate(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order,
     max_steps : int — give up (STATUS_MAX_STEPS) after this many steps.
     Y_out : (m, 5) — written with the state at each output time reached.
     stats : (4,) int64 — incremented: steps accepted, steps rejected, f evaluations, outputs written.
+    hio : (2,) float — hio[0], adaptive only: the starting step if > 0 (a caller continuing
+        a run, e.g. the environment's next control step, passes the last one back); on
+        return, the step the controller would take next. hio[1] on return: the normal force
+        per unit mass at the final state when detachment events are on (else NaN).
 
     Returns
     -------
@@ -282,6 +316,7 @@ def integrate(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order,
     t = t0
     normal = rhs(model, p, prof, t, y, K[0], want_normal)
     stats[2] += 1
+    hio[1] = normal if want_normal else np.nan
     fired = _fired(events, model, p, prof, t, y, dy, normal)
     if fired:
         return fired, t
@@ -291,7 +326,9 @@ def integrate(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order,
     stats[3] += k
     if k == m:
         return STATUS_DONE, t
-    if adaptive:
+    if adaptive and hio[0] > 0.0:
+        h = min(hio[0], max_step)
+    elif adaptive:
         for j in range(d):
             sc[j] = atol * scale[j] + rtol * abs(y[j])
         h = _initial_step(model, p, prof, t, y, K[0], d, sc, err_order, ytmp, dy, max_step)
@@ -311,7 +348,8 @@ def integrate(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order,
             clipped = True
         if not (hstep > 1e-14 * max(1.0, abs(t))):
             return STATUS_FAILED, t
-        _stages(model, p, prof, t, y, hstep, d, C, A, K, ytmp, ynew, B)
+        stage_normal = _stages(model, p, prof, t, y, hstep, d, C, A, K, ytmp, ynew, B,
+                               want_normal)
         normal = rhs(model, p, prof, t + hstep, ynew, K[s], want_normal)
         stats[2] += s
         finite = True
@@ -334,6 +372,20 @@ def integrate(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order,
         n_steps += 1
         stats[0] += 1
         fired = _fired(events, model, p, prof, t + hstep, ynew, dy, normal) if events else 0
+        if not fired and stage_normal < 0.0:
+            # N is positive at both ends but a stage point saw it negative: a brief dip
+            # inside the step. Probe with true partial steps at the stage times; the first
+            # negative one brackets a crossing, located as usual.
+            tau_dip = _probe_dip(model, p, prof, t, y, hstep, d, C, A, B, K, ytmp, ynew, dy)
+            if tau_dip > 0.0:
+                tau = _locate(STATUS_DETACH, model, p, prof, t, y, tau_dip, d, C, A, B, K,
+                              ytmp, ynew, dy)
+                y[:] = ynew
+                stats[2] += 1
+                return STATUS_DETACH, t + tau
+            # a false alarm: the stage values are low-order estimates; redo the full step
+            _stages(model, p, prof, t, y, hstep, d, C, A, K, ytmp, ynew, B)
+            rhs(model, p, prof, t + hstep, ynew, K[s], False)
         if fired:
             # The state at t is still in y and f(t, y) in K[0]: locate on the partial step.
             # Each event that fired is located on the whole step; the earliest wins.
@@ -352,6 +404,8 @@ def integrate(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order,
             stats[2] += 1
             return best_kind, t + best_tau
         t = target if clipped else t + hstep
+        if want_normal:
+            hio[1] = normal
         for j in range(STATE_WIDTH):
             y[j] = ynew[j]
             K[0, j] = K[s, j]
@@ -365,6 +419,7 @@ def integrate(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order,
             hnew = hstep * factor
             # A step shortened to hit an output says nothing against the natural step.
             h = min(max(hnew, h) if clipped else hnew, max_step)
+    hio[0] = h
     return STATUS_DONE, t
 
 

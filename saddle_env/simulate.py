@@ -167,21 +167,25 @@ class Settings:
                    int(max_steps))
 
     def max_step_for(self, profile: OmegaProfile, t_end: float) -> float:
-        """Largest step: the user's; else, for adaptive steps, an eighth of the half-turn
-        period π/|Ω| so that a brief dip of the normal force is not stepped over. A fixed
-        step ``dt`` is taken as given."""
+        """Largest step: the user's; else, for adaptive steps, half the half-turn period
+        π/|Ω| (N oscillates at 2Ω; the stage points sample it about ten times per step, so a
+        dip is not stepped over). A fixed step ``dt`` is taken as given."""
         if self.max_step is not None:
             return self.max_step
         if self.dt > 0:
             return math.inf
-        bound = profile.bound(t_end)
-        return math.pi / (8.0 * bound) if bound > 0 else math.inf
+        return default_max_step(profile.bound(t_end))
 
     def describe(self) -> str:
         if self.dt > 0:
             return f"{self.method.name} (order {self.method.order}), fixed dt = {self.dt:g} s"
         return (f"{self.method.name} (order {self.method.order}), adaptive, "
                 f"rtol = {self.rtol:g}, atol = {self.atol:g}")
+
+
+def default_max_step(omega_bound: float) -> float:
+    """Default largest adaptive step [s] for saddle speeds up to ``omega_bound``: π/(2Ω)."""
+    return math.pi / (2.0 * omega_bound) if omega_bound > 0 else math.inf
 
 
 def _output_times(t_end: float, dt_out: float | None) -> np.ndarray:

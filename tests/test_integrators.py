@@ -95,3 +95,15 @@ def test_events_off_means_no_stop():
     sc, s0 = _detach_case()
     tr = simulate(sc, s0, 0.3, omega=30.0, events=())
     assert tr.event is None and tr.N_over_mg.min() < 0  # N < 0 is visible, not acted on
+
+
+def test_a_dip_of_N_inside_one_step_is_not_stepped_over():
+    # N < 0 from t = 0.2410 s to 0.3058 s. With fixed steps of 0.08 s the step ends 0.24 and
+    # 0.32 both have N > 0; the stage points see the dip and the crossing is still found.
+    sc, s0 = _detach_case()
+    ends = simulate(sc, s0, 0.32, omega=30.0, method="dop853", dt=0.08, dt_out=0.08, events=())
+    assert np.all(ends.N_over_mg > 0)
+    tight = simulate(sc, s0, 1.0, omega=30.0, rtol=1e-13)
+    coarse = simulate(sc, s0, 1.0, omega=30.0, method="dop853", dt=0.08)
+    assert coarse.event is not None and coarse.event.kind == "detach"
+    assert abs(coarse.event.t - tight.event.t) < 1e-3

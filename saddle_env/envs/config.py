@@ -1,0 +1,193 @@
+"""Every option of the SaddleTrap environment, in one frozen, validated dataclass."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Literal
+
+from ..integrators import METHODS
+from ..scene import CONTACT_MODELS, Scene, _finite_number
+
+# The paper's three polyfoam balls [m].
+PAPER_BALL_RADII = (0.0223, 0.0265, 0.0330)
+
+ActionMode = Literal["acceleration", "target"]
+ObsFrame = Literal["rotating", "lab"]
+
+
+def _positive(name: str, value: object, allow_zero: bool = False) -> float:
+    v = _finite_number(name, value)
+    if v < 0 or (v == 0 and not allow_zero):
+        raise ValueError(f"{name} must be {'>= 0' if allow_zero else '> 0'}, got {v}")
+    return v
+
+
+def _range(name: str, value: object, lo: float = -math.inf) -> tuple[float, float]:
+    if not isinstance(value, (tuple, list)) or len(value) != 2:
+        raise ValueError(f"{name} must be a (low, high) pair, got {value!r}")
+    low, high = (_finite_number(f"{name}[{i}]", v) for i, v in enumerate(value))
+    if not lo <= low <= high:
+        raise ValueError(f"{name} must satisfy {lo:g} <= low <= high, got ({low:g}, {high:g})")
+    return low, high
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Options of `SaddleTrapEnv` (all are constructor keywords of the environment).
+
+    Scene (see `saddle_env.Scene`): ``a, b, R, alpha, g, contact, rim_radius,
+    drilling_friction``.
+
+    Control: ``control_period`` [s] (20 ms); ``max_accel`` [rad/s²], the motor's limit on
+    |Ω̇| (20: 0 → 45 s⁻¹ in 2.25 s); ``omega_max`` [rad/s], the motor's top speed (45, about
+    what the paper's apparatus reached); ``action_mode``: ``"acceleration"`` (action × max_accel
+    is Ω̇) or ``"target"`` (the action picks a target speed in [0, omega_max], approached at
+    up to max_accel).
+
+    Observation: ``obs_frame`` ``"rotating"`` or ``"lab"``; sensor noise standard deviations
+    ``position_noise`` [m], ``velocity_noise`` [m/s], ``omega_noise`` [rad/s].
+
+    Episode start (the ball placed by hand near the centre): offset uniform in a disc of
+    radius ``init_offset`` [m]; ``init_start`` ``"lab-rest"`` (placed at rest in the lab) or
+    ``"rotating-rest"``, plus a random velocity of up to ``init_speed`` [m/s]; Ω₀ uniform in
+    ``omega0_range`` [rad/s]. Domain randomisation: ``ball_radii`` (a tuple to draw R from,
+    e.g. `PAPER_BALL_RADII`), ``a_range`` ((low, high) for the saddle length, b = a
+    unless ``b`` is given) and ``contact_models`` (a tuple to draw from).
+
+    Reward per step: the fraction of the step the ball stayed trapped, minus
+    ``distance_cost``·(r/rim)², minus ``effort_cost``·action², minus ``loss_penalty`` when the
+    ball detaches or escapes.
+
+    Disturbances (off by default): ``air_force`` [m/s²], the standard deviation of a random
+    horizontal force per unit mass fixed in the lab, an Ornstein–Uhlenbeck process with
+    correlation time ``air_force_tau`` [s] (constant within a step); ``ripple_amp`` [rad/s]
+    and ``ripple_freq`` [rad/s], a sinusoidal ripple of the motor's speed with random phase.
+
+    Integration: ``method`` (a name in ``saddle_env.METHODS``), ``rtol`` for adaptive
+    methods or ``substep`` [s] for fixed steps.
+    """
+
+    a: float = 0.159
+    b: float | None = None
+    R: float = 0.0265
+    alpha: float = 0.4
+    g: float = 9.8
+    contact: str = "rolling"
+    rim_radius: float = 0.1
+    drilling_friction: float = 0.0
+    control_period: float = 0.02
+    max_accel: float = 20.0
+    omega_max: float = 45.0
+    action_mode: str = "acceleration"
+    obs_frame: str = "rotating"
+    position_noise: float = 0.0
+    velocity_noise: float = 0.0
+    omega_noise: float = 0.0
+    init_offset: float = 0.01
+    init_start: str = "lab-rest"
+    init_speed: float = 0.0
+    omega0_range: tuple[float, float] = (15.0, 25.0)
+    ball_radii: tuple[float, ...] | None = None
+    a_range: tuple[float, float] | None = None
+    contact_models: tuple[str, ...] | None = None
+    loss_penalty: float = 10.0
+    distance_cost: float = 0.0
+    effort_cost: float = 0.0
+    air_force: float = 0.0
+    air_force_tau: float = 1.0
+    ripple_amp: float = 0.0
+    ripple_freq: float = 0.0
+    method: str = "dop853"
+    rtol: float | None = 1e-8
+    substep: float | None = None
+
+    def __post_init__(self) -> None:
+        # Scene parameters are validated by building the nominal scene.
+        self.scene()
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
+        set_("control_period", _positive("control_period", self.control_period))
+        if self.control_period > 1.0:
+            raise ValueError(f"control_period must be <= 1 s, got {self.control_period}")
+        set_("max_accel", _positive("max_accel", self.max_accel))
+        set_("omega_max", _positive("omega_max", self.omega_max))
+        if self.action_mode not in ("acceleration", "target"):
+            raise ValueError(f"action_mode must be 'acceleration' or 'target', got {self.action_mode!r}")
+        if self.obs_frame not in ("rotating", "lab"):
+            raise ValueError(f"obs_frame must be 'rotating' or 'lab', got {self.obs_frame!r}")
+        for name in ("position_noise", "velocity_noise", "omega_noise", "init_offset",
+                     "init_speed", "loss_penalty", "distance_cost", "effort_cost",
+                     "air_force", "ripple_amp", "ripple_freq"):
+            set_(name, _positive(name, getattr(self, name), allow_zero=True))
+        set_("air_force_tau", _positive("air_force_tau", self.air_force_tau))
+        if self.init_offset >= self.rim_radius:
+            raise ValueError(f"init_offset must be < rim_radius = {self.rim_radius}, got {self.init_offset}")
+        if self.init_start not in ("lab-rest", "rotating-rest"):
+            raise ValueError(f"init_start must be 'lab-rest' or 'rotating-rest', got {self.init_start!r}")
+        low, high = _range("omega0_range", self.omega0_range, lo=0.0)
+        if high > self.omega_max:
+            raise ValueError(f"omega0_range must lie within [0, omega_max = {self.omega_max}], "
+                             f"got ({low}, {high})")
+        set_("omega0_range", (low, high))
+        if self.ball_radii is not None:
+            radii = tuple(_positive(f"ball_radii[{i}]", r) for i, r in enumerate(self.ball_radii))
+            if not radii:
+                raise ValueError("ball_radii must be None or a non-empty tuple of radii")
+            set_("ball_radii", radii)
+        if self.a_range is not None:
+            set_("a_range", _range("a_range", self.a_range, lo=1e-12))
+        if self.contact_models is not None:
+            models = tuple(self.contact_models)
+            if not models or any(m not in CONTACT_MODELS for m in models):
+                raise ValueError(f"contact_models must be a non-empty tuple from {CONTACT_MODELS}, "
+                                 f"got {self.contact_models!r}")
+            set_("contact_models", models)
+        # Every randomised scene must be valid: check the extremes now, not mid-training.
+        for scene in self.extreme_scenes():
+            scene.with_()  # re-validates
+        if not isinstance(self.method, str) or self.method not in METHODS:
+            raise ValueError(f"method must be one of {sorted(METHODS)}, got {self.method!r}")
+        if self.substep is not None:
+            set_("substep", _positive("substep", self.substep))
+            if self.rtol is not None and METHODS[self.method].adaptive:
+                set_("rtol", None)
+        elif not METHODS[self.method].adaptive:
+            raise ValueError(f"method {self.method!r} is fixed-step: give substep [s]")
+        if self.rtol is not None:
+            r = _finite_number("rtol", self.rtol)
+            if not 1e-15 <= r < 1:
+                raise ValueError(f"rtol must satisfy 1e-15 <= rtol < 1, got {r}")
+            set_("rtol", r)
+
+    @classmethod
+    def from_kwargs(cls, **kwargs: object) -> EnvConfig:
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(kwargs) - known)
+        if unknown:
+            raise ValueError(f"unknown SaddleTrap option(s) {unknown}; known options: {sorted(known)}")
+        return cls(**kwargs)  # type: ignore[arg-type]
+
+    def as_dict(self) -> dict[str, object]:
+        return asdict(self)
+
+    def scene(self, **changes: object) -> Scene:
+        """The nominal scene (or one with randomised parameters changed)."""
+        kw = dict(a=self.a, b=self.b, R=self.R, alpha=self.alpha, g=self.g, contact=self.contact,
+                  rim_radius=self.rim_radius, drilling_friction=self.drilling_friction)
+        kw.update(changes)
+        return Scene(**kw)  # type: ignore[arg-type]
+
+    def extreme_scenes(self) -> list[Scene]:
+        radii = self.ball_radii or (self.R,)
+        a_values = self.a_range or (self.a,)
+        models = self.contact_models or (self.contact,)
+        out = []
+        for R in (min(radii), max(radii)):
+            for a in (min(a_values), max(a_values)):
+                for m in models:
+                    try:
+                        out.append(self.scene(R=R, a=a, contact=m))
+                    except ValueError as exc:
+                        raise ValueError(f"randomised scene R={R}, a={a}, contact={m!r} is "
+                                         f"invalid: {exc}") from None
+        return out

@@ -1,0 +1,231 @@
+"""State and episode logic shared by the single and the vector environment.
+
+`TrapEngine` holds n balls as arrays, places them at reset (randomised from the caller's
+generator), steps them through the compiled control step (`_step`) and exposes the
+observations, rewards and events. The single environment is an engine with n = 1; the
+vector environment adds autoreset on top. Physics is never duplicated here.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from .. import _kernels as K
+from ..integrators import (EVENT_DETACH, EVENT_ESCAPE, EVENT_KINDS, METHODS, STATUS_MAX_STEPS,
+                           state_scale)
+from ..scene import Scene
+from ..simulate import SimulationError, default_max_step, initial_state
+from . import _step as S
+from .config import EnvConfig
+
+RESET_OPTION_KEYS = ("x", "y", "vx", "vy", "omega", "R", "a", "contact", "start", "spin_normal")
+VELOCITY_SCALE = 1.0  # [m/s] observation scale of velocities
+
+
+class TrapEngine:
+    """n balls on n saddles, stepped together.
+
+    Parameters
+    ----------
+    config : EnvConfig
+    n : int — number of balls.
+    parallel : bool — step with numba threads (worth it from a few dozen balls).
+    """
+
+    def __init__(self, config: EnvConfig, n: int, parallel: bool | None = None):
+        if not isinstance(n, (int, np.integer)) or n < 1:
+            raise ValueError(f"num_envs must be a positive integer, got {n!r}")
+        self.config = config
+        self.n = int(n)
+        self.parallel = self.n >= 32 if parallel is None else parallel
+        self.obs_dim = 7 if config.obs_frame == "lab" else 5
+        m = METHODS[config.method]
+        self.method = m
+        self._method_args = (m.C, m.A, m.B, m.E, m.E3, m.err_kind, m.error_order)
+        self.cfg = self._build_cfg(config)
+        self.models = np.zeros(self.n, dtype=np.int64)
+        self.P = np.zeros((self.n, 7))
+        self.scales = np.ones((self.n, K.STATE_WIDTH))
+        self.Y = np.zeros((self.n, K.STATE_WIDTH))
+        self.balls = np.zeros((self.n, S.BALL_WIDTH))
+        self.out = np.zeros((self.n, S.OUT_WIDTH))
+        self.obs = np.zeros((self.n, self.obs_dim), dtype=np.float32)
+        self.noise = np.zeros((self.n, self.obs_dim))
+        self.scenes: list[Scene] = [config.scene()] * self.n
+        self._noise_scale = self._build_noise_scale(config)
+        self._air_decay = math.exp(-config.control_period / config.air_force_tau)
+
+    # -- configuration -------------------------------------------------------------------
+    def _build_cfg(self, c: EnvConfig) -> np.ndarray:
+        cfg = np.zeros(S.CFG_WIDTH)
+        cfg[S.C_DT] = c.control_period
+        cfg[S.C_MAX_ACCEL] = c.max_accel
+        cfg[S.C_OMEGA_MAX] = c.omega_max
+        cfg[S.C_TARGET_MODE] = 1.0 if c.action_mode == "target" else 0.0
+        cfg[S.C_LAB_FRAME] = 1.0 if c.obs_frame == "lab" else 0.0
+        cfg[S.C_POS_SCALE] = c.rim_radius
+        cfg[S.C_VEL_SCALE] = VELOCITY_SCALE
+        cfg[S.C_RIPPLE_AMP] = c.ripple_amp
+        cfg[S.C_RIPPLE_FREQ] = c.ripple_freq
+        cfg[S.C_SUBSTEP] = c.substep or 0.0
+        cfg[S.C_RTOL] = c.rtol if c.rtol is not None else 1e-8
+        cfg[S.C_ATOL] = cfg[S.C_RTOL]
+        # The same step cap as `simulate` for adaptive steps; fixed substeps are as given.
+        cfg[S.C_MAX_STEP] = (math.inf if c.substep else
+                             default_max_step(c.omega_max + c.ripple_amp))
+        cfg[S.C_LOSS] = c.loss_penalty
+        cfg[S.C_DIST_COST] = c.distance_cost
+        cfg[S.C_EFFORT_COST] = c.effort_cost
+        cfg[S.C_EVENTS] = EVENT_DETACH | EVENT_ESCAPE
+        return cfg
+
+    def _build_noise_scale(self, c: EnvConfig) -> np.ndarray | None:
+        if c.position_noise == c.velocity_noise == c.omega_noise == 0.0:
+            return None
+        scale = np.zeros(self.obs_dim)
+        scale[:2] = c.position_noise / c.rim_radius
+        scale[2:4] = c.velocity_noise / VELOCITY_SCALE
+        scale[-1] = c.omega_noise / c.omega_max
+        return scale
+
+    # -- reset ---------------------------------------------------------------------------
+    def reset(self, idx: np.ndarray, rngs: Sequence[np.random.Generator],
+              options: Mapping[str, object] | None = None) -> None:
+        """Place balls ``idx`` at the start of a new episode (randomised from ``rngs[i]``, one
+        generator per ball, or as ``options`` say)."""
+        opts = _check_options(options)
+        c = self.config
+        check_reset_omega(opts, c.omega_max)
+        idx = np.atleast_1d(idx)
+        for i in idx:
+            rng = rngs[i]
+            scene = self._draw_scene(rng, opts)
+            omega0 = opts["omega"] if "omega" in opts else rng.uniform(*c.omega0_range)
+            if "x" in opts or "y" in opts:
+                x, y = float(opts.get("x", 0.0)), float(opts.get("y", 0.0))
+            else:
+                r = c.init_offset * math.sqrt(rng.uniform())
+                phi = rng.uniform(0.0, 2.0 * math.pi)
+                x, y = r * math.cos(phi), r * math.sin(phi)
+            start = opts.get("start", c.init_start)
+            if "vx" in opts or "vy" in opts:
+                state = initial_state(scene, x, y, float(opts.get("vx", 0.0)),
+                                      float(opts.get("vy", 0.0)),
+                                      spin_normal=float(opts.get("spin_normal", 0.0)))
+            else:
+                vx, vy = 0.0, 0.0
+                if start == "lab-rest":
+                    vx, vy = K.lab_rest_velocity(scene.params(), omega0, x, y)
+                if c.init_speed > 0 and "x" not in opts and "y" not in opts:
+                    sp = c.init_speed * math.sqrt(rng.uniform())
+                    ang = rng.uniform(0.0, 2.0 * math.pi)
+                    vx, vy = vx + sp * math.cos(ang), vy + sp * math.sin(ang)
+                state = initial_state(scene, x, y, vx, vy,
+                                      spin_normal=float(opts.get("spin_normal", 0.0)))
+            self.scenes[i] = scene
+            self.models[i] = scene.model_code
+            self.P[i] = scene.params()
+            self.scales[i] = state_scale(self.P[i], scene.model_code)
+            self.Y[i] = 0.0
+            self.Y[i, : scene.state_size] = state
+            b = self.balls[i]
+            b[:] = 0.0
+            b[S.B_OMEGA] = omega0
+            b[S.B_PHASE] = rng.uniform(0.0, 2.0 * math.pi) if c.ripple_amp > 0 else 0.0
+            if c.air_force > 0:
+                b[S.B_FX], b[S.B_FY] = rng.normal(0.0, c.air_force, size=2)
+            self.out[i] = 0.0
+            self.out[i, S.O_TRAPPED] = 1.0
+        mask = np.zeros(self.n, dtype=bool)
+        mask[idx] = True
+        self._draw_noise(rngs, mask)
+        S.observe_all(self.models, self.P, self.Y, self.balls, self.cfg, mask, self.noise,
+                      self.obs)
+        for i in np.atleast_1d(idx):
+            self.out[i, S.O_NORMAL] = S.normal_over_mg(self.models[i], self.P[i], self.Y[i],
+                                                       self.balls[i], self.cfg)
+
+    def _draw_scene(self, rng: np.random.Generator, opts: Mapping[str, object]) -> Scene:
+        c = self.config
+        changes: dict[str, object] = {}
+        if "R" in opts:
+            changes["R"] = opts["R"]
+        elif c.ball_radii is not None:
+            changes["R"] = c.ball_radii[rng.integers(len(c.ball_radii))]
+        if "a" in opts:
+            changes["a"] = opts["a"]
+        elif c.a_range is not None:
+            changes["a"] = rng.uniform(*c.a_range)
+        if "contact" in opts:
+            changes["contact"] = opts["contact"]
+        elif c.contact_models is not None:
+            changes["contact"] = c.contact_models[rng.integers(len(c.contact_models))]
+        return c.scene(**changes)
+
+    def _draw_noise(self, rngs: Sequence[np.random.Generator], mask: np.ndarray) -> None:
+        if self._noise_scale is not None:
+            for i in np.flatnonzero(mask):
+                self.noise[i] = rngs[i].standard_normal(self.obs_dim) * self._noise_scale
+
+    # -- step ----------------------------------------------------------------------------
+    def step(self, actions: np.ndarray, active: np.ndarray,
+             rngs: Sequence[np.random.Generator]) -> None:
+        """Advance the ``active`` balls by one control period.
+
+        Per-step random draws (air current, sensor noise) come from each ball's own
+        generator, so a ball's run does not depend on how many others share the batch.
+        """
+        c = self.config
+        if c.air_force > 0:
+            kick_std = c.air_force * math.sqrt(1 - self._air_decay ** 2)
+            for i in np.flatnonzero(active):
+                f = self.balls[i, S.B_FX:S.B_FY + 1]
+                f[:] = self._air_decay * f + rngs[i].normal(0.0, kick_std, size=2)
+        if self._noise_scale is not None:
+            self._draw_noise(rngs, active)
+        kernel = S.step_parallel if self.parallel else S.step_serial
+        failed = kernel(self.models, self.P, self.scales, self.Y, self.balls, self.cfg, actions,
+                        active, *self._method_args, self.noise, self.obs, self.out)
+        if failed:
+            bad = int(np.flatnonzero(active & (self.out[:, S.O_STATUS] < 0))[0])
+            code = int(self.out[bad, S.O_STATUS])
+            why = "the step limit was hit" if code == STATUS_MAX_STEPS else "the state became non-finite"
+            raise SimulationError(
+                f"ball {bad}: integration failed at t = {self.balls[bad, S.B_TIME]:.6f} s "
+                f"({why}); scene {self.scenes[bad]}")
+
+    # -- views ---------------------------------------------------------------------------
+    def cause(self, i: int) -> str | None:
+        return EVENT_KINDS.get(int(self.out[i, S.O_STATUS]))
+
+
+def _check_options(options: Mapping[str, object] | None) -> dict[str, object]:
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise ValueError(f"options must be a dict, got {type(options).__name__}")
+    unknown = sorted(set(options) - set(RESET_OPTION_KEYS))
+    if unknown:
+        raise ValueError(f"unknown reset option(s) {unknown}; allowed: {list(RESET_OPTION_KEYS)}")
+    out = dict(options)
+    for key in ("x", "y", "vx", "vy", "omega", "R", "a", "spin_normal"):
+        if key in out:
+            v = out[key]
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
+                    or not math.isfinite(float(v)):
+                raise ValueError(f"reset option {key!r} must be a finite number, got {v!r}")
+            out[key] = float(v)
+    if "start" in out and out["start"] not in ("lab-rest", "rotating-rest"):
+        raise ValueError(f"reset option 'start' must be 'lab-rest' or 'rotating-rest', "
+                         f"got {out['start']!r}")
+    return out
+
+
+def check_reset_omega(opts: Mapping[str, object], omega_max: float) -> None:
+    if "omega" in opts and not 0 <= float(opts["omega"]) <= omega_max:  # type: ignore[arg-type]
+        raise ValueError(f"reset option 'omega' must lie in [0, omega_max = {omega_max}], "
+                         f"got {opts['omega']}")
+
