@@ -330,7 +330,7 @@ def simulate(scene: Scene, state: np.ndarray, t_end: float, *,
              method: str | None = None, rtol: float | None = None, atol: float | None = None,
              dt: float | None = None, events: Sequence[str] = DEFAULT_EVENTS,
              max_step: float | None = None, max_steps: int = 50_000_000,
-             force: tuple[float, float] = (0.0, 0.0)) -> Trajectory:
+             force: tuple[float, float] = (0.0, 0.0), tol: float | None = None) -> Trajectory:
     """Integrate one ball from t = 0 to ``t_end`` in the frame rotating with the saddle.
 
     Parameters
@@ -351,6 +351,9 @@ def simulate(scene: Scene, state: np.ndarray, t_end: float, *,
     max_steps : int — give up after this many steps.
     force : (fx, fy) — constant horizontal force per unit mass [m/s²] fixed in the
         laboratory (whose axes coincide with the saddle's at t = 0), e.g. an air current.
+    tol : float — instead of method/rtol/atol/dt/max_step: the largest position error [m]
+        allowed over the run; the cheapest integrator setting that meets it for this scene
+        is picked by a short pilot run (`saddle_env.accuracy`) and named in ``settings``.
 
     Returns
     -------
@@ -367,6 +370,11 @@ def simulate(scene: Scene, state: np.ndarray, t_end: float, *,
     profile = OmegaProfile.coerce(omega)
     force = _check_force(force)
     t_out = _output_times(t_end, dt_out)
+    auto = None
+    if tol is not None:  # automatic accuracy (saddle_env.accuracy)
+        auto = _auto([scene], [y[: scene.state_size]], [profile], t_out, dt_out, tol,
+                     (method, rtol, atol, dt, max_step), events, force)
+        method, rtol, dt, max_step = auto.method, auto.rtol, auto.dt, auto.max_step
     settings = Settings.build(method, rtol, atol, dt, events, max_step, max_steps)
     p = scene.params()
     m = settings.method
@@ -383,8 +391,20 @@ def simulate(scene: Scene, state: np.ndarray, t_end: float, *,
     if status in EVENT_KINDS:
         event = Event(EVENT_KINDS[status], float(t_final), y[: scene.state_size].copy())
     return Trajectory(scene, profile, t_out[:n].copy(), Y_out[:n, : scene.state_size].copy(),
-                      event, settings.describe(),
+                      event, settings.describe() if auto is None else auto.describe(),
                       Stats(int(stats[0]), int(stats[1]), int(stats[2])), force)
+
+
+def _auto(scenes, states, profiles, t_out, dt_out, tol, explicit, events, force):
+    """Pick the integrator for ``tol`` (see saddle_env.accuracy); ``explicit`` must be unset."""
+    from .accuracy import check_tol, choose
+
+    if any(v is not None for v in explicit):
+        raise ValueError("give either tol (automatic accuracy) or method/rtol/atol/dt/"
+                         "max_step, not both")
+    check_tol(tol)
+    return choose(scenes, states, float(t_out[-1]), tol, omegas=profiles, dt_out=dt_out,
+                  events=events, force=force)
 
 
 def _raise_on_failure(status: int, t_final: float, r: float, scene: Scene) -> None:
@@ -422,6 +442,7 @@ class BatchResult:
     t_final: np.ndarray
     final_state: np.ndarray
     stats: np.ndarray
+    settings: str = ""
 
     def event(self, i: int) -> str | None:
         return EVENT_KINDS.get(int(self.status[i]))
@@ -433,14 +454,17 @@ def simulate_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: f
                    rtol: float | None = None, atol: float | None = None,
                    dt: float | None = None, events: Sequence[str] = DEFAULT_EVENTS,
                    max_step: float | None = None, max_steps: int = 50_000_000,
-                   force: tuple[float, float] = (0.0, 0.0)) -> BatchResult:
+                   force: tuple[float, float] = (0.0, 0.0),
+                   tol: float | None = None) -> BatchResult:
     """Integrate many balls at once (threads over balls; same kernel as `simulate`).
 
     ``scenes`` is one Scene for all balls or one per ball (contact models may differ).
     ``states`` is (n, k) with k = 5 (padded) or the common ``state_size``.
     ``omega`` is one value/profile for all, or one per ball (a sequence, or an (n,) array of
     constant speeds, or an (n, 5) array of profile rows). Failures do not raise; they are
-    reported per ball in ``status``.
+    reported per ball in ``status``. ``tol`` [m] picks the integrator automatically as in
+    `simulate`, from pilot runs of up to four balls spread over the batch (first, last and
+    two between); the pick is in ``settings``.
     """
     states = np.asarray(states, dtype=float)
     if states.ndim != 2 or states.shape[0] < 1:
@@ -458,6 +482,14 @@ def simulate_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: f
     force = _check_force(force)
     drives = np.array([drive_row(OmegaProfile(*row), force) for row in profiles])
     t_out = _output_times(t_end, dt_out)
+    auto = None
+    if tol is not None:  # automatic accuracy, piloted on a few balls spread over the batch
+        pick = sorted({0, n // 3, (2 * n) // 3, n - 1})
+        auto = _auto([scene_list[i] for i in pick],
+                     [Y[i, : scene_list[i].state_size] for i in pick],
+                     [OmegaProfile(*profiles[i]) for i in pick], t_out, dt_out, tol,
+                     (method, rtol, atol, dt, max_step), events, force)
+        method, rtol, dt, max_step = auto.method, auto.rtol, auto.dt, auto.max_step
     settings = Settings.build(method, rtol, atol, dt, events, max_step, max_steps)
     P = np.array([sc.params() for sc in scene_list])
     models = np.array([sc.model_code for sc in scene_list], dtype=np.int64)
@@ -473,7 +505,8 @@ def simulate_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: f
                     m.error_order, settings.dt, settings.rtol, settings.atol, scales,
                     max_step_arr, settings.events, settings.max_steps, np.ones(n, dtype=bool),
                     Y_out, status, t_final, stats)
-    return BatchResult(t_out, Y_out, stats[:, 3].copy(), status, t_final, Y, stats)
+    return BatchResult(t_out, Y_out, stats[:, 3].copy(), status, t_final, Y, stats,
+                       settings.describe() if auto is None else auto.describe())
 
 
 def _profiles(omega: object, n: int) -> np.ndarray:

@@ -1,0 +1,215 @@
+"""Automatic accuracy: ask for a position error, get the cheapest integrator that meets it.
+
+``simulate(..., tol=1e-6)`` (and ``simulate_batch``) call `choose`, which picks a method and
+a tolerance or step for *this* scene, speed profile and horizon:
+
+1. **Candidates.** Three families, each ordered from cheap to expensive: ``rk4`` at fixed
+   steps ``h0/k``, ``dopri5`` and ``dop853`` at rtol = 1e-4 … 1e-13. ``h0`` is
+   π/(8·max(|Ω|, ω₀)), ω₀ = sqrt(2g/a), and at most the simulator's default step cap. While the
+   detachment event is on, every candidate respects that cap, so a brief dip of the normal
+   force is not stepped over (the event is checked at step ends); without it, the adaptive
+   families run uncapped. The work-precision benchmark (``saddle-bench``, docs/accuracy.md)
+   shows which family wins where: rk4 at the cap for millimetres, dopri5 around 1e-5 m,
+   dop853 below.
+2. **Pilot.** Every candidate is run over a pilot window (the first 10 % of the run, at
+   least one second and four saddle turns, at most the whole run) and compared with a
+   DOP853 solve at rtol = 1e-13, on the run's own output grid; the measured error is
+   extrapolated to the full run as e ∝ t^p with p measured from the pilot's two halves
+   (at least 1: the error of a trapped orbit is mostly phase error, which grows linearly;
+   at most 3) and must come out below ``tol / SAFETY``. Within a family the first passing
+   candidate is the cheapest; a family stops once it costs more right-hand-side
+   evaluations than the best pick so far.
+3. **Pick.** The passing candidate with the fewest right-hand-side evaluations in the pilot.
+
+`Choice.describe()` says what was picked and why; the Trajectory's ``settings`` string
+carries it. The pilot costs about as much as the run it calibrates (less for long runs),
+so `tol` is for "how accurate is this and what does it cost", not for the inner loop of
+training: pick once with `choose`, then pass the chosen method/rtol/dt explicitly.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .omega import OmegaProfile
+from .scene import Scene, _finite_number
+
+SAFETY = 2.0                     # predicted error must be below tol / SAFETY
+PILOT_FRACTION = 0.1
+PILOT_MIN_S = 1.0
+PILOT_MIN_TURNS = 4
+REFERENCE_RTOL = 1e-13
+TOL_FLOOR = 1e-11                # [m] below this the reference itself cannot vouch for it
+TOL_CEIL = 1.0                   # [m]
+ADAPTIVE_RTOLS = tuple(10.0 ** -k for k in range(4, 14))
+RK4_DIVISORS = (1, 2, 4, 8, 16, 32)
+
+
+@dataclass(frozen=True)
+class Choice:
+    """An integrator setting picked by `choose` (pass ``kwargs()`` to `simulate`)."""
+
+    method: str
+    rtol: float | None
+    dt: float | None
+    max_step: float | None
+    tol: float
+    predicted_error: float
+    pilot_t: float
+    t_end: float
+    candidates_tried: int
+    pilot_rhs_evaluations: int
+
+    def kwargs(self) -> dict[str, object]:
+        out: dict[str, object] = {"method": self.method}
+        if self.dt is not None:
+            out["dt"] = self.dt
+        else:
+            out["rtol"] = self.rtol
+        if self.max_step is not None:
+            out["max_step"] = self.max_step
+        return out
+
+    def describe(self) -> str:
+        what = (f"{self.method} fixed dt = {self.dt:.4g} s" if self.dt is not None
+                else f"{self.method} rtol = {self.rtol:g}"
+                + ("" if self.max_step is None else f", max_step = {self.max_step:g} s"))
+        return (f"auto (tol = {self.tol:g} m): picked {what}; pilot over {self.pilot_t:.3g} s "
+                f"of {self.t_end:.3g} s predicts {self.predicted_error:.2g} m "
+                f"({self.candidates_tried} candidates tried)")
+
+
+def check_tol(tol: object) -> float:
+    tol = _finite_number("tol", tol)
+    if not TOL_FLOOR <= tol <= TOL_CEIL:
+        raise ValueError(f"tol must satisfy {TOL_FLOOR:g} <= tol <= {TOL_CEIL:g} metres (the "
+                         f"largest position error allowed over the run), got {tol:g}")
+    return tol
+
+
+def _base_step(scene: Scene, profile: OmegaProfile, t_end: float) -> float:
+    """Largest fixed step tried: π/(8·max(|Ω|, ω₀)), and never above the simulator's
+    default adaptive step cap (which keeps the detachment event from being stepped over)."""
+    from .simulate import Settings
+
+    omega0 = math.sqrt(2.0 * scene.g / scene.a) if scene.g > 0 else 0.0
+    rate = max(profile.bound(t_end), omega0)
+    h0 = math.pi / (8.0 * rate) if rate > 0 else t_end / 64.0
+    cap = Settings.build(None, None, None, None, (), None, 1).max_step_for(profile, t_end)
+    return min(h0, cap, t_end)
+
+
+def _families(h0: float, t_end: float, detach: bool) -> list[list[dict[str, object]]]:
+    fixed = [{"method": "rk4", "dt": h0 / k} for k in RK4_DIVISORS]
+    cap = None if detach else max(t_end, h0)
+    out = [fixed]
+    for m in ("dopri5", "dop853"):
+        fam = []
+        for r in ADAPTIVE_RTOLS:
+            if m == "dopri5" and r < 1e-10:
+                continue
+            kw: dict[str, object] = {"method": m, "rtol": r}
+            if cap is not None:
+                kw["max_step"] = cap
+            fam.append(kw)
+        out.append(fam)
+    return out
+
+
+def _pilot_window(profile: OmegaProfile, t_end: float) -> float:
+    turns = 2.0 * math.pi * PILOT_MIN_TURNS / profile.bound(t_end) if profile.bound(t_end) > 0 \
+        else 0.0
+    return min(t_end, max(PILOT_FRACTION * t_end, PILOT_MIN_S, turns))
+
+
+def _extrapolate(e_half: float, e_full: float, ratio: float) -> float:
+    """Error over the run from the pilot's first half and whole: e ∝ t^p, with p measured
+    from the two and kept in [1, 3] (1: phase error of a trapped orbit)."""
+    if ratio <= 1.0 or not math.isfinite(e_full):
+        return e_full
+    if e_full <= 0.0:
+        return 0.0
+    p = 3.0 if e_half <= 0.0 else min(3.0, max(1.0, math.log2(e_full / e_half)))
+    return e_full * ratio ** p
+
+
+def _positions(tr) -> tuple[np.ndarray, object]:
+    xy = np.column_stack([tr.x, tr.y])
+    if tr.event is not None:
+        xy = np.vstack([xy, tr.event.state[:2]])
+    return xy, None if tr.event is None else tr.event.kind
+
+
+def choose(scenes: Scene | Sequence[Scene], states: Sequence[np.ndarray], t_end: float,
+           tol: float, *, omegas: Sequence[OmegaProfile], dt_out: float | None = None,
+           events: Sequence[str] = ("detach", "escape"),
+           force: tuple[float, float] = (0.0, 0.0)) -> Choice:
+    """Cheapest setting that keeps every given ball within ``tol`` metres of the exact
+    trajectory (contact-point position, maximum over the run). See the module docstring.
+
+    ``scenes``/``states``/``omegas`` are one or more balls (a batch passes a few
+    representatives); the pick must pass for all of them.
+    """
+    from .simulate import simulate
+
+    tol = check_tol(tol)
+    scene_list = [scenes] * len(states) if isinstance(scenes, Scene) else list(scenes)
+    detach = "detach" in (events if not isinstance(events, str) else (events,))
+    t_end = float(t_end)
+    t_p = min(_pilot_window(om, t_end) for om in omegas)
+    # The pilot lands on the run's own output grid (landing changes the steps), or on t_p/2.
+    out_dt = dt_out if dt_out is not None and t_p / 2000 <= dt_out <= t_p / 2 else t_p / 2
+    balls = list(zip(scene_list, states, omegas))
+    refs = []
+    for sc, s0, om in balls:
+        tr = simulate(sc, s0, t_p, omega=om, dt_out=out_dt, method="dop853",
+                      rtol=REFERENCE_RTOL, events=events, force=force)
+        refs.append(_positions(tr))
+    h0 = min(_base_step(sc, om, t_end) for sc, _, om in balls)
+    fams = _families(h0, t_end, detach)
+    best: tuple[int, dict[str, object], float] | None = None
+    tried = 0
+    total_evals = 0
+    for fam in fams:
+        for kw in fam:
+            evals = 0
+            worst = 0.0
+            worst_half = 0.0
+            for b, (sc, s0, om) in enumerate(balls):
+                try:
+                    tr = simulate(sc, s0, t_p, omega=om, dt_out=out_dt, events=events,
+                                  force=force, **kw)
+                except Exception:  # noqa: BLE001 — a failed candidate simply does not pass
+                    worst = math.inf
+                    break
+                evals += tr.stats.rhs_evaluations
+                xy, kind = _positions(tr)
+                ref_xy, ref_kind = refs[b]
+                if kind != ref_kind or xy.shape != ref_xy.shape:
+                    worst = math.inf
+                    break
+                dist = np.hypot(*(xy - ref_xy).T)
+                worst = max(worst, float(np.max(dist)))
+                half = len(dist) // 2 + 1
+                worst_half = max(worst_half, float(np.max(dist[:half])))
+            tried += 1
+            total_evals += evals
+            predicted = _extrapolate(worst_half, worst, t_end / t_p)
+            if best is not None and evals >= best[0]:
+                break  # this family is already dearer than the best pick
+            if predicted <= tol / SAFETY:
+                best = (evals, kw, predicted)
+                break
+    if best is None:
+        raise ValueError(f"no integrator setting reaches tol = {tol:g} m for this scene "
+                         f"(the pilot's reference is DOP853 at rtol {REFERENCE_RTOL:g}); "
+                         "ask for a larger tol")
+    kw = best[1]
+    return Choice(method=str(kw["method"]), rtol=kw.get("rtol"), dt=kw.get("dt"),  # type: ignore[arg-type]
+                  max_step=kw.get("max_step"), tol=tol, predicted_error=best[2],  # type: ignore[arg-type]
+                  pilot_t=t_p, t_end=t_end, candidates_tried=tried,
+                  pilot_rhs_evaluations=total_evals)

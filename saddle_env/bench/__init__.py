@@ -1,0 +1,205 @@
+"""``saddle-bench``: work-precision benchmark of the simulator against scipy.
+
+Writes, to ``--out DIR`` (default ``./bench_results``):
+
+* ``bench.csv`` — one row per (model tier, solver, method, step or tolerance), appended as
+  each completes (Ctrl-C keeps the finished rows);
+* ``bench_single.png``, ``bench_batch.png`` — work-precision diagrams (wall time per
+  simulated second against the maximum position error over the run), made from the CSV;
+* ``summary.json`` — the issue's targets and the cheapest setting per error level.
+
+``saddle-bench --replot DIR/bench.csv`` rebuilds the figures and the summary from a CSV.
+See docs/accuracy.md for what is measured and how to read it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import platform
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from .blas import limit_blas_threads
+from .core import COLUMNS, TIERS, Case, measure_jacobi, reference, tasks, warm_up
+from .peer import PeerModel
+from .report import plot, read_rows, summarize
+
+__all__ = ["Case", "PeerModel", "main", "run"]
+
+
+def _progress(items: list, quiet: bool):
+    try:
+        from tqdm import tqdm
+    except ImportError:  # tqdm is in the plot/test extras; fall back to plain lines
+        tqdm = None
+    if quiet:
+        return items, None
+    if tqdm is None:
+        return items, None
+    bar = tqdm(items, desc="saddle-bench", unit="run", file=sys.stderr, dynamic_ncols=True)
+    return bar, bar
+
+
+def run(out: str | Path, quick: bool = False, tiers: Sequence[str] = TIERS, peers: bool = True,
+        batch: bool = True, figures: bool = True, jacobi_periods: int | None = None,
+        quiet: bool = False, case: Case | None = None) -> dict[str, object]:
+    """Run the benchmark; return the summary (also written to ``out/summary.json``)."""
+    from ..simulate import DEFAULT_METHOD, DEFAULT_RTOL
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    if case is None:
+        case = (Case(t_end=1.0, batch_n=128, batch_t_end=0.2) if quick else Case())
+    csv_path = out / "bench.csv"
+    blas = limit_blas_threads(1)
+    warm_up(case)
+    refs = {t: reference(case, t) for t in ("rolling", "slipping", "point")}
+    todo = list(tasks(case, quick, tuple(tiers), peers, batch))
+    interrupted = False
+    started = time.time()
+    with open(csv_path, "w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=COLUMNS)
+        writer.writeheader()
+        fh.flush()
+        items, bar = _progress(todo, quiet)
+        try:
+            for desc, fn in items:
+                if bar is not None:
+                    bar.set_postfix_str(desc, refresh=False)
+                elif not quiet:
+                    print(f"saddle-bench: {desc}", file=sys.stderr)
+                writer.writerow(fn(refs))
+                fh.flush()
+        except KeyboardInterrupt:
+            interrupted = True
+            print("\nsaddle-bench: interrupted; keeping the finished rows", file=sys.stderr)
+        finally:
+            if bar is not None:
+                bar.close()
+    extra: dict[str, object] = {}
+    if jacobi_periods is None:
+        jacobi_periods = 1000 if quick else 10_000
+    if jacobi_periods and not interrupted:
+        extra["target_jacobi"] = {"target": "relative drift <= 1e-9 over 1e4 saddle periods",
+                                  **measure_jacobi(case, jacobi_periods)}
+        extra["target_jacobi"]["met"] = bool(
+            extra["target_jacobi"]["jacobi_drift_relative"] <= 1e-9 and jacobi_periods >= 10_000)
+    import numba
+
+    extra["machine"] = {"cpus": os.cpu_count(), "numba_threads": numba.get_num_threads(),
+                        "python": platform.python_version(), "numpy": _version("numpy"),
+                        "scipy": _version("scipy"), "numba": numba.__version__,
+                        "platform": platform.platform()}
+    extra["machine"]["blas_pinned_to_one_thread"] = blas
+    extra["run"] = {"quick": quick, "interrupted": interrupted,
+                    "wall_s": time.time() - started, "csv": str(csv_path)}
+    extra["default"] = {"method": DEFAULT_METHOD, "rtol": DEFAULT_RTOL}
+    return finish(csv_path, out, figures, extra)
+
+
+def finish(csv_path: Path, out: Path, figures: bool, extra: dict[str, object] | None = None
+           ) -> dict[str, object]:
+    """Summary and figures from the CSV."""
+    from ..simulate import DEFAULT_METHOD, DEFAULT_RTOL
+
+    rows = read_rows(csv_path)
+    summary = summarize(rows, extra)
+    if figures and rows:
+        default = {"method": DEFAULT_METHOD, "rtol": DEFAULT_RTOL}
+        summary["figures"] = [str(plot(rows, out, batch=False, default=default))]
+        if any(math.isfinite(r["batch_us_per_ball_sim_s"]) for r in rows):
+            summary["figures"].append(str(plot(rows, out, batch=True, default=default)))
+    with open(out / "summary.json", "w", encoding="utf-8") as fh:
+        json.dump(summary, fh, indent=2, default=_json_default)
+    return summary
+
+
+def _json_default(v: object) -> object:
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return str(v)
+
+
+def _version(name: str) -> str:
+    from importlib.metadata import version
+
+    return version(name)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="saddle-bench",
+        description="Work-precision benchmark: wall time per simulated second against the "
+                    "maximum position error over a run, for each contact model, integrator "
+                    "and tolerance/step, with scipy solve_ivp on a plain-numpy right-hand "
+                    "side as the peer.")
+    ap.add_argument("--out", default="bench_results", metavar="DIR",
+                    help="output directory (CSV, PNG, summary.json)")
+    ap.add_argument("--quick", action="store_true",
+                    help="a small sweep over a 1 s run (for CI; about a minute)")
+    ap.add_argument("--tiers", default=",".join(TIERS),
+                    help="comma-separated subset of " + ",".join(TIERS))
+    ap.add_argument("--no-peers", action="store_true", help="skip scipy solve_ivp")
+    ap.add_argument("--no-batch", action="store_true", help="skip the batch timings")
+    ap.add_argument("--no-figures", action="store_true", help="skip the PNG diagrams")
+    ap.add_argument("--jacobi-periods", type=int, default=None, metavar="N",
+                    help="saddle periods for the Jacobi-drift run (default 1e4; 1e3 with "
+                         "--quick; 0 skips it)")
+    ap.add_argument("--replot", default=None, metavar="CSV",
+                    help="rebuild figures and summary.json from an existing bench.csv")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    if args.replot:
+        csv_path = Path(args.replot)
+        if not csv_path.is_file():
+            ap.error(f"--replot: no such file {str(csv_path)!r}")
+        out = Path(args.out) if args.out != "bench_results" else csv_path.parent
+        out.mkdir(parents=True, exist_ok=True)
+        summary = finish(csv_path, out, not args.no_figures)
+    else:
+        tiers = tuple(t.strip() for t in args.tiers.split(",") if t.strip())
+        bad = [t for t in tiers if t not in TIERS]
+        if bad or not tiers:
+            ap.error(f"--tiers must be a comma-separated subset of {','.join(TIERS)}, got "
+                     f"{args.tiers!r}")
+        if args.jacobi_periods is not None and args.jacobi_periods < 0:
+            ap.error("--jacobi-periods must be >= 0")
+        summary = run(args.out, quick=args.quick, tiers=tiers, peers=not args.no_peers,
+                      batch=not args.no_batch, figures=not args.no_figures,
+                      jacobi_periods=args.jacobi_periods, quiet=args.quiet)
+    print(_headline(summary))
+    return 0
+
+
+def _headline(summary: dict[str, object]) -> str:
+    lines = []
+    t1 = summary.get("target_speedup", {})
+    if "speedup_cheapest_rows" in t1:
+        lines.append(f"one rolling ball at <= 1e-9 m: {t1['ours']['us_per_sim_s']:.0f} µs per "
+                     f"simulated second ({t1['ours']['label']} {t1['ours']['setting']:g}); scipy "
+                     f"DOP853 {t1['scipy_dop853']['us_per_sim_s']:.0f} µs: "
+                     f"{t1['speedup_cheapest_rows']:.0f}x (interpolated "
+                     f"{t1['speedup_interpolated']:.0f}x)")
+    t2 = summary.get("target_batch")
+    if t2:
+        lines.append(f"batch of {t2['batch_n']:.0f} rolling balls, rk4 dt = 1 ms: "
+                     f"{t2['ball_steps_per_s']:.3g} ball-steps/s on {t2['threads']:.0f} threads")
+    t3 = summary.get("target_jacobi")
+    if t3:
+        lines.append(f"Jacobi drift over {t3['periods']} saddle periods at rtol {t3['rtol']:g}: "
+                     f"{t3['jacobi_drift_relative']:.2e} relative; centre off its offset "
+                     f"surface by <= {t3['offset_surface_error_m']:.1e} m")
+    for f in summary.get("figures", []):
+        lines.append(f"wrote {f}")
+    return "\n".join(lines)

@@ -1,0 +1,7 @@
+"""python -m saddle_env.bench"""
+
+import sys
+
+from . import main
+
+sys.exit(main())

@@ -1,0 +1,371 @@
+"""Work-precision measurements: wall time per simulated second against position error.
+
+Every measurement is one row (a dict with the columns of `COLUMNS`); `saddle-bench`
+appends rows to a CSV as they complete, and the figures and the summary are made from the
+CSV alone (`saddle_env.bench.report`), so a finished run can be re-plotted and checked
+without re-running it.
+
+Error definitions (the issue's):
+
+* ``error_m`` — numerical error: the maximum over the output grid of the distance between
+  the ball centre's horizontal position (rotating frame) and that of a DOP853 solve of the
+  *same* model at rtol = atol = 1e-12 (`REFERENCE_RTOL`);
+* ``model_error_m`` — the same distance measured against the *rolling* reference: the
+  total error of a cheaper tier (slipping, mass point, linearised) used in place of the
+  rolling model.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from .. import _kernels as K
+from ..integrators import STATUS_DONE
+from ..linear import abcd, linear_trajectory
+from ..scene import Scene
+from ..simulate import initial_state, simulate, simulate_batch
+from .peer import PeerModel
+
+REFERENCE_RTOL = 1e-12
+TIERS = ("rolling", "slipping", "point", "linear")
+
+COLUMNS = (
+    # what was run
+    "tier", "solver", "method", "kind", "rtol", "dt", "max_step", "label",
+    # the case (enough to re-run the row)
+    "a", "R", "omega", "x0", "y0", "start", "t_end", "dt_out",
+    # single ball
+    "wall_s", "repeats", "us_per_sim_s", "steps", "rhs_evals", "status",
+    "error_m", "model_error_m",
+    # batch
+    "batch_n", "batch_t_end", "batch_wall_s", "batch_threads", "batch_us_per_ball_sim_s",
+    "batch_ball_steps_per_s",
+)
+
+
+@dataclass(frozen=True)
+class Case:
+    """The benchmark scene: the paper's saddle, a 2 cm solid ball, constant Ω, a release
+    that every contact model keeps on the saddle for the whole run."""
+
+    a: float = 0.159
+    R: float = 0.02
+    omega: float = 20.0          # [rad/s], Ω_crt = 12.8 (rolling/slipping), 11.1 (point)
+    x0: float = 0.005            # contact point at release [m]
+    y0: float = 0.0025
+    start: str = "lab-rest"
+    t_end: float = 10.0          # [s]
+    dt_out: float = 0.1          # error sampled (and outputs landed on) every dt_out [s]
+    batch_n: int = 1024
+    batch_t_end: float = 2.0     # batch runs are shorter; cost is per simulated second
+
+    def scene(self, tier: str) -> Scene:
+        contact = "rolling" if tier == "linear" else tier
+        return Scene(a=self.a, R=self.R, contact=contact, rim_radius=0.1)
+
+    def state(self, tier: str, x0: float | None = None, y0: float | None = None) -> np.ndarray:
+        return initial_state(self.scene(tier), self.x0 if x0 is None else x0,
+                             self.y0 if y0 is None else y0, start=self.start, omega=self.omega)
+
+    def grid(self) -> np.ndarray:
+        n = int(round(self.t_end / self.dt_out))
+        return np.arange(n + 1) * self.dt_out
+
+    def columns(self) -> dict[str, object]:
+        return {k: v for k, v in asdict(self).items()
+                if k in ("a", "R", "omega", "x0", "y0", "start", "t_end", "dt_out")}
+
+
+@dataclass(frozen=True)
+class Config:
+    """One solver setting: ours (`simulate`) or the scipy peer (`solve_ivp`)."""
+
+    solver: str            # "saddle_env" or "scipy"
+    method: str            # dop853 / dopri5 / rk4, or scipy's DOP853 / RK45; "expm" (linear)
+    rtol: float = math.nan
+    dt: float = math.nan   # fixed step [s]
+    max_step: float = math.nan  # nan: the simulator's default cap
+
+    @property
+    def kind(self) -> str:
+        if self.method == "expm":
+            return "exact"
+        return "fixed" if math.isfinite(self.dt) else "adaptive"
+
+    @property
+    def label(self) -> str:
+        if self.method == "expm":
+            return "linearised (expm)"
+        if self.solver == "scipy":
+            base = f"scipy {self.method}"
+            return base + (" default tol" if self.method == "RK45" and self.rtol == 1e-3 else "")
+        if self.kind == "fixed":
+            return f"{self.method} fixed dt"
+        return f"{self.method} rtol" + ("" if math.isnan(self.max_step) else " (uncapped)")
+
+
+def _decades(hi: int, lo: int, step: int = 1) -> list[float]:
+    return [10.0 ** -k for k in range(hi, lo + 1, step)]
+
+
+def our_configs(quick: bool) -> list[Config]:
+    """The sweep of the compiled integrators."""
+    if quick:
+        return ([Config("saddle_env", "dop853", rtol=r) for r in (1e-6, 1e-10)]
+                + [Config("saddle_env", "dop853", rtol=r, max_step=100.0) for r in (1e-6, 1e-10)]
+                + [Config("saddle_env", "rk4", dt=d) for d in (0.01, 0.001)])
+    out = [Config("saddle_env", "dop853", rtol=r) for r in _decades(4, 13)]
+    out += [Config("saddle_env", "dop853", rtol=r, max_step=100.0) for r in _decades(4, 13)]
+    out += [Config("saddle_env", "dopri5", rtol=r) for r in _decades(4, 12)]
+    out += [Config("saddle_env", "dopri5", rtol=r, max_step=100.0) for r in _decades(4, 12)]
+    out += [Config("saddle_env", "rk4", dt=d) for d in (0.02, 0.01, 0.005, 0.002, 0.001, 5e-4,
+                                                          2e-4, 1e-4)]
+    out += [Config("saddle_env", "dop853", dt=d) for d in (0.04, 0.02, 0.01, 0.005, 0.0025)]
+    return out
+
+
+def peer_configs(quick: bool) -> list[Config]:
+    """scipy ``solve_ivp`` on the plain-numpy peer: RK45 at its defaults, DOP853 matched."""
+    rk45 = Config("scipy", "RK45", rtol=1e-3)
+    if quick:
+        return [rk45, Config("scipy", "DOP853", rtol=1e-6), Config("scipy", "DOP853", rtol=1e-10)]
+    return [rk45] + [Config("scipy", "DOP853", rtol=r) for r in _decades(4, 12)]
+
+
+# ----------------------------------------------------------------------------------------
+# Measurements
+# ----------------------------------------------------------------------------------------
+def _timed(fn: Callable[[], object], budget: float = 0.3, max_repeats: int = 7
+           ) -> tuple[object, float, int]:
+    """Run ``fn`` (at least once, more while the total stays under ``budget`` seconds) and
+    return its result and the minimum wall time."""
+    best = math.inf
+    out = None
+    total = 0.0
+    n = 0
+    while n < max_repeats and (n == 0 or total + best < budget):
+        t0 = time.perf_counter()
+        out = fn()
+        dt = time.perf_counter() - t0
+        best = min(best, dt)
+        total += dt
+        n += 1
+    return out, best, n
+
+
+def centre_xy(scene: Scene, states: np.ndarray) -> np.ndarray:
+    """Horizontal ball-centre position (n, 2) [m] for states (n, state_size)."""
+    p = scene.params()
+    out = np.empty((len(states), 2))
+    for i, row in enumerate(states):
+        geo = K.geometry(p[0], p[1], p[2], row[0], row[1])
+        out[i] = geo[4], geo[5]
+    return out
+
+
+def max_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """Largest distance between matching rows; inf if a run stopped early."""
+    if a.shape != b.shape:
+        return math.inf
+    return float(np.max(np.hypot(*(a - b).T)))
+
+
+def _sim_kwargs(case: Case, cfg: Config) -> dict[str, object]:
+    kw: dict[str, object] = {"omega": case.omega, "dt_out": case.dt_out, "method": cfg.method}
+    if cfg.kind == "fixed":
+        kw["dt"] = cfg.dt
+    else:
+        kw["rtol"] = cfg.rtol
+    if math.isfinite(cfg.max_step):
+        kw["max_step"] = cfg.max_step
+    return kw
+
+
+def reference(case: Case, tier: str) -> np.ndarray:
+    """Centre positions (n, 2) of the model's DOP853 solve at rtol = atol = 1e-12."""
+    sc = case.scene(tier)
+    tr = simulate(sc, case.state(tier), case.t_end, omega=case.omega, dt_out=case.dt_out,
+                  method="dop853", rtol=REFERENCE_RTOL)
+    if tr.event is not None:
+        raise RuntimeError(f"benchmark case: the {tier} reference stops early ({tr.event})")
+    return centre_xy(sc, tr.state)
+
+
+def _row(case: Case, tier: str, cfg: Config, **values: object) -> dict[str, object]:
+    row: dict[str, object] = {c: "" for c in COLUMNS}
+    row.update(tier=tier, solver=cfg.solver, method=cfg.method, kind=cfg.kind, rtol=cfg.rtol,
+               dt=cfg.dt, max_step=cfg.max_step, label=cfg.label, **case.columns())
+    row.update(values)
+    return row
+
+
+def batch_states(case: Case, tier: str, n: int) -> np.ndarray:
+    """n releases spread ±20 % around the case's (deterministic)."""
+    rng = np.random.default_rng(12345)
+    f = 1.0 + 0.2 * (2.0 * rng.random((n, 2)) - 1.0)
+    return np.array([case.state(tier, case.x0 * fx, case.y0 * fy) for fx, fy in f])
+
+
+def measure_ours(case: Case, tier: str, cfg: Config, refs: dict[str, np.ndarray],
+                 batch: bool) -> dict[str, object]:
+    sc = case.scene(tier)
+    s0 = case.state(tier)
+    kw = _sim_kwargs(case, cfg)
+    tr, wall, reps = _timed(lambda: simulate(sc, s0, case.t_end, **kw))
+    xy = centre_xy(sc, tr.state)
+    status = "ok" if tr.event is None else tr.event.kind
+    if status == "ok" and max_distance(xy, refs[tier]) == 0.0:
+        status = "reference"  # the same steps as the reference solve: no error measured
+    row = _row(case, tier, cfg, wall_s=wall, repeats=reps, us_per_sim_s=wall / case.t_end * 1e6,
+               steps=tr.stats.steps, rhs_evals=tr.stats.rhs_evaluations, status=status,
+               error_m=max_distance(xy, refs[tier]), model_error_m=max_distance(xy, refs["rolling"]))
+    if batch:
+        row.update(measure_batch(case, tier, kw))
+    return row
+
+
+def measure_batch(case: Case, tier: str, kw: dict[str, object]) -> dict[str, object]:
+    import numba
+
+    sc = case.scene(tier)
+    states = batch_states(case, tier, case.batch_n)
+    res, wall, _ = _timed(lambda: simulate_batch(sc, states, case.batch_t_end, **kw),
+                          budget=1.0, max_repeats=3)
+    steps = int(res.stats[:, 0].sum())
+    ok = int(np.sum(res.status == STATUS_DONE))
+    return {"batch_n": case.batch_n, "batch_t_end": case.batch_t_end, "batch_wall_s": wall,
+            "batch_threads": numba.get_num_threads(),
+            "batch_us_per_ball_sim_s": wall / (case.batch_n * case.batch_t_end) * 1e6,
+            "batch_ball_steps_per_s": steps / wall if ok == case.batch_n else math.nan}
+
+
+def measure_peer(case: Case, tier: str, cfg: Config, refs: dict[str, np.ndarray]
+                 ) -> dict[str, object]:
+    """scipy ``solve_ivp`` on the plain-numpy peer. RK45 runs at scipy's own defaults
+    (rtol 1e-3, atol 1e-6 absolute); DOP853 at atol = rtol × the simulator's state scales,
+    i.e. the same error test as the compiled integrators."""
+    from scipy.integrate import solve_ivp
+
+    from ..integrators import state_scale
+
+    sc = case.scene(tier)
+    s0 = case.state(tier)
+    model = PeerModel.from_scene(sc, (case.omega,))
+    grid = case.grid()
+    if cfg.method == "RK45" and cfg.rtol == 1e-3:
+        atol: object = 1e-6
+    else:
+        atol = cfg.rtol * state_scale(sc.params(), sc.model_code)[: sc.state_size]
+    sol, wall, reps = _timed(lambda: solve_ivp(model.fun(), (0.0, case.t_end), s0,
+                                               method=cfg.method, rtol=cfg.rtol, atol=atol,
+                                               t_eval=grid), budget=1.0, max_repeats=3)
+    status = "ok" if sol.status == 0 else f"failed: {sol.message}"
+    xy = centre_xy(sc, sol.y.T) if sol.status == 0 else np.empty((0, 2))
+    return _row(case, tier, cfg, wall_s=wall, repeats=reps, us_per_sim_s=wall / case.t_end * 1e6,
+                steps="", rhs_evals=sol.nfev, status=status,
+                error_m=max_distance(xy, refs[tier]), model_error_m=max_distance(xy, refs["rolling"]))
+
+
+def linear_centre_state(case: Case) -> np.ndarray:
+    """(x_c, y_c, ẋ_c, ẏ_c) of the rolling ball's release, from the exact model."""
+    sc = case.scene("rolling")
+    y = np.zeros(K.STATE_WIDTH)
+    y[: sc.state_size] = case.state("rolling")
+    p = sc.params()
+    geo = K.geometry(p[0], p[1], p[2], y[0], y[1])
+    vx, vy = K.contact_velocity(sc.model_code, p, y)
+    return np.array([geo[4], geo[5], geo[7] * vx + geo[10] * vy, geo[8] * vx + geo[11] * vy])
+
+
+def measure_linear(case: Case, refs: dict[str, np.ndarray], batch: bool) -> dict[str, object]:
+    """The cheapest tier: the linearised rolling model, solved exactly (matrix exponential)."""
+    sc = case.scene("rolling")
+    z0 = linear_centre_state(case)
+    grid = case.grid()
+    out, wall, reps = _timed(lambda: linear_trajectory(sc, case.omega, z0, grid))
+    xy = out[:, :2]
+    cfg = Config("saddle_env", "expm")
+    row = _row(case, "linear", cfg, wall_s=wall, repeats=reps,
+               us_per_sim_s=wall / case.t_end * 1e6, steps=len(grid) - 1, rhs_evals=0,
+               status="ok", error_m=0.0, model_error_m=max_distance(xy, refs["rolling"]))
+    if batch:
+        from scipy.linalg import expm
+
+        n = case.batch_n
+        Z0 = np.tile(z0, (n, 1)).T * (1.0 + 0.2 * np.random.default_rng(1).random((4, n)))
+        steps = int(round(case.batch_t_end / case.dt_out))
+
+        def run() -> np.ndarray:
+            E = expm(abcd(sc, case.omega).matrix() * case.dt_out)
+            Z = Z0.copy()
+            out = np.empty((steps + 1, 4, n))
+            out[0] = Z
+            for i in range(steps):
+                Z = E @ Z
+                out[i + 1] = Z
+            return out
+
+        _, bwall, _ = _timed(run, budget=1.0, max_repeats=5)
+        row.update(batch_n=n, batch_t_end=case.batch_t_end, batch_wall_s=bwall, batch_threads=1,
+                   batch_us_per_ball_sim_s=bwall / (n * case.batch_t_end) * 1e6,
+                   batch_ball_steps_per_s=n * steps / bwall)
+    return row
+
+
+def warm_up(case: Case) -> None:
+    """Compile (or load from the cache) every kernel the benchmark times."""
+    for tier in ("rolling", "slipping"):
+        sc = case.scene(tier)
+        s0 = case.state(tier)
+        for m in ("dop853", "dopri5", "rk4"):
+            kw = {"dt": 0.01} if m == "rk4" else {}
+            simulate(sc, s0, 0.05, omega=case.omega, method=m, **kw)
+            simulate_batch(sc, s0[None, :], 0.05, omega=case.omega, method=m, **kw)
+
+
+def tasks(case: Case, quick: bool, tiers: tuple[str, ...] = TIERS, peers: bool = True,
+          batch: bool = True) -> Iterator[tuple[str, Callable[[dict[str, np.ndarray]], dict]]]:
+    """(description, measurement) pairs, cheapest first within each tier."""
+    for tier in tiers:
+        if tier == "linear":
+            yield "linear expm", lambda refs: measure_linear(case, refs, batch)
+            continue
+        for cfg in our_configs(quick):
+            yield (f"{tier} {cfg.label} {cfg.rtol if cfg.kind == 'adaptive' else cfg.dt:g}",
+                   lambda refs, tier=tier, cfg=cfg: measure_ours(case, tier, cfg, refs, batch))
+        if peers:
+            for cfg in peer_configs(quick):
+                yield (f"{tier} {cfg.label} {cfg.rtol:g}",
+                       lambda refs, tier=tier, cfg=cfg: measure_peer(case, tier, cfg, refs))
+
+
+def measure_jacobi(case: Case, periods: int, rtol: float = REFERENCE_RTOL) -> dict[str, object]:
+    """Jacobi-integral drift of the rolling ball over ``periods`` saddle turns (2π/Ω each)
+    at constant Ω, relative to |h(0)| as in tests/test_invariants.py, and the largest
+    departure of the centre from its offset surface (distance R along the normal)."""
+    sc = case.scene("rolling")
+    t_end = periods * 2.0 * math.pi / case.omega
+    t0 = time.perf_counter()
+    tr = simulate(sc, case.state("rolling"), t_end, omega=case.omega, dt_out=t_end / 2000,
+                  rtol=rtol)
+    wall = time.perf_counter() - t0
+    h = tr.h
+    return {"periods": periods, "t_end_s": t_end, "rtol": rtol, "wall_s": wall,
+            "steps": tr.stats.steps, "event": None if tr.event is None else tr.event.kind,
+            "jacobi_drift_relative": float(np.max(np.abs(h - h[0])) / abs(h[0])),
+            "offset_surface_error_m": offset_surface_error(sc, tr.state, tr.centre)}
+
+
+def offset_surface_error(scene: Scene, states: np.ndarray, centres: np.ndarray) -> float:
+    """Largest | |c − o| − R | and departure of c − o from the normal, over the rows [m]."""
+    o = np.column_stack([states[:, 0], states[:, 1],
+                         states[:, 0] ** 2 / scene.a - states[:, 1] ** 2 / scene.b])
+    m = np.column_stack([-2 * states[:, 0] / scene.a, 2 * states[:, 1] / scene.b,
+                         np.ones(len(states))])
+    n = m / np.linalg.norm(m, axis=1)[:, None]
+    return float(np.max(np.linalg.norm(centres - o - scene.radius * n, axis=1)))
