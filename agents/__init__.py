@@ -1,0 +1,2 @@
+"""Controllers for SaddleTrap-v0: baselines (`agents.baselines`), evaluation
+(`agents.evaluation`, the ``saddle-eval`` command) and training (`agents.training`)."""

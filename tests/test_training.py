@@ -1,0 +1,127 @@
+"""train.py end to end: train, save, load, interrupt, resume."""
+
+import json
+import signal
+import subprocess
+import sys
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from agents.training import parse_env_kwargs, parse_policy_kwargs  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+FAST = ["--eval-episodes", "2", "--eval-freq", "1000", "--save-freq", "1000",
+        "--no-progress-bar", "--max-episode-steps", "100"]
+
+
+def _train(tmp_path, *args, timeout=300):
+    return subprocess.run([sys.executable, str(ROOT / "train.py"), "--log-dir", str(tmp_path),
+                           *FAST, *args], capture_output=True, text=True, timeout=timeout)
+
+
+def test_ppo_trains_saves_loads_and_evaluates(tmp_path):
+    proc = _train(tmp_path, "--algo", "ppo", "--n-envs", "4", "--total-timesteps", "2048",
+                  "--run-name", "ppo", "--env-kwargs", "R=0.033", "omega0_range=[18,22]")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    run = tmp_path / "ppo"
+    for name in ("config.json", "final_model.zip", "final_model.json", "best_model.zip",
+                 "evaluations.npz", "progress.csv", "learning_curve.png", "learning_curve.csv"):
+        assert (run / name).is_file(), name
+    assert list(run.glob("events.out.tfevents*")), "no TensorBoard log"
+    sidecar = json.loads((run / "final_model.json").read_text())
+    assert sidecar["env_kwargs"] == {"R": 0.033, "omega0_range": [18, 22]}
+    from stable_baselines3 import PPO
+
+    import gymnasium as gym
+    import saddle_env  # noqa: F401
+    model = PPO.load(run / "final_model.zip", device="cpu")
+    assert model.num_timesteps >= 2048
+    env = gym.make("SaddleTrap-v0", R=0.033, omega0_range=(18.0, 22.0))
+    obs, _ = env.reset(seed=0)
+    total = 0.0
+    for _ in range(50):
+        action, _ = model.predict(obs, deterministic=True)
+        obs, r, te, tr, _ = env.step(action)
+        total += r
+        if te or tr:
+            break
+    assert np.isfinite(total)
+
+
+def test_sigterm_saves_a_checkpoint_and_resume_continues(tmp_path):
+    cmd = [sys.executable, str(ROOT / "train.py"), "--log-dir", str(tmp_path), *FAST,
+           "--algo", "sac", "--n-envs", "2", "--total-timesteps", "200000", "--run-name", "sac",
+           "--hyperparams", str(_small_sac(tmp_path))]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    run = tmp_path / "sac"
+    deadline = time.time() + 240
+    # wait until training has produced a regular checkpoint, then stop it
+    while time.time() < deadline and not list((run / "checkpoints").glob("checkpoint_*.zip")):
+        time.sleep(0.5)
+        assert proc.poll() is None, proc.communicate()[1][-2000:]
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err[-2000:]
+    ckpts = list((run / "checkpoints").glob("interrupted_*_steps.zip"))
+    assert len(ckpts) == 1 and "--resume" in out
+    ckpt = ckpts[0]
+    assert ckpt.with_suffix(".replay.pkl").is_file()  # off-policy: the replay buffer too
+    done_steps = int(ckpt.stem.split("_")[1])
+    assert 1000 <= done_steps < 200000
+    resumed = subprocess.run([sys.executable, str(ROOT / "train.py"), "--resume", str(ckpt),
+                              "--total-timesteps", str(done_steps + 600), "--no-progress-bar"],
+                             capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    from stable_baselines3 import SAC
+    model = SAC.load(run / "final_model.zip", device="cpu")
+    assert done_steps + 600 <= model.num_timesteps <= done_steps + 700
+
+
+def _small_sac(tmp_path):
+    path = tmp_path / "sac_small.yml"
+    path.write_text("SaddleTrap-v0:\n  n_envs: 2\n  policy: MlpPolicy\n  learning_starts: 200\n"
+                    "  batch_size: 64\n  buffer_size: 10000\n  train_freq: 4\n  gradient_steps: 1\n"
+                    "  policy_kwargs: \"dict(net_arch=[32, 32])\"\n")
+    return path
+
+
+def test_checkpoints_are_valid_sb3_archives(tmp_path):
+    proc = _train(tmp_path, "--algo", "td3", "--n-envs", "2", "--total-timesteps", "2200",
+                  "--run-name", "td3")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    for ckpt in (tmp_path / "td3" / "checkpoints").glob("checkpoint_*.zip"):
+        with zipfile.ZipFile(ckpt) as z:
+            assert "policy.pth" in z.namelist()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--algo", "dqn"], "invalid choice"),
+    (["--env-kwargs", "novalue"], "key=value"),
+    (["--env-kwargs", "wind=3"], "unknown SaddleTrap option"),
+    (["--total-timesteps", "0"], "must be a positive integer"),
+    (["--resume", "nowhere.zip"], "--resume"),
+    (["--hyperparams", "missing.yml"], "hyperparams file not found"),
+])
+def test_bad_arguments_exit_2(tmp_path, args, message):
+    proc = _train(tmp_path, *args, timeout=120)
+    assert proc.returncode == 2 and message in proc.stderr
+    assert "Traceback" not in proc.stderr
+
+
+def test_parsers():
+    assert parse_env_kwargs(["R=0.033", "contact:slipping", "ball_radii=[0.02,0.03]"]) == {
+        "R": 0.033, "contact": "slipping", "ball_radii": (0.02, 0.03)}
+    pk = parse_policy_kwargs("dict(net_arch=dict(pi=[64, 64], vf=[32]), log_std_init=-1.0)")
+    assert pk == {"net_arch": {"pi": [64, 64], "vf": [32]}, "log_std_init": -1.0}
+    with pytest.raises(ValueError, match="unsupported syntax"):
+        parse_policy_kwargs("__import__('os').system('true') or dict()")
+    with pytest.raises(ValueError, match="unsupported syntax"):
+        parse_policy_kwargs("[x for x in ()]")
+    with pytest.raises(ValueError, match="cannot evaluate"):
+        parse_policy_kwargs("open('x')")
