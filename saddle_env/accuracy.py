@@ -12,7 +12,7 @@ a tolerance or step for *this* scene, speed profile and horizon:
    shows which family wins where: rk4 at the cap for millimetres, dopri5 around 1e-5 m,
    dop853 below.
 2. **Pilot.** Every candidate is run over a pilot window (the first 10 % of the run, at
-   least one second and four saddle turns, at most the whole run) and compared with a
+   most 100 s, but at least one second and four saddle turns, and never beyond the run) and compared with a
    DOP853 solve at rtol = 1e-13, on the run's own output grid; the measured error is
    extrapolated to the full run as e ∝ t^p with p measured from the pilot's two halves
    (at least 1: the error of a trapped orbit is mostly phase error, which grows linearly;
@@ -29,6 +29,7 @@ training: pick once with `choose`, then pass the chosen method/rtol/dt explicitl
 
 from __future__ import annotations
 
+import contextvars
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -42,6 +43,7 @@ SAFETY = 2.0                     # predicted error must be below tol / SAFETY
 PILOT_FRACTION = 0.1
 PILOT_MIN_S = 1.0
 PILOT_MIN_TURNS = 4
+PILOT_MAX_S = 100.0              # longer runs extrapolate further (and need more margin)
 REFERENCE_RTOL = 1e-13
 TOL_FLOOR = 1e-11                # [m] below this the reference itself cannot vouch for it
 TOL_CEIL = 1.0                   # [m]
@@ -123,7 +125,7 @@ def _families(h0: float, t_end: float, detach: bool) -> list[list[dict[str, obje
 def _pilot_window(profile: OmegaProfile, t_end: float) -> float:
     turns = 2.0 * math.pi * PILOT_MIN_TURNS / profile.bound(t_end) if profile.bound(t_end) > 0 \
         else 0.0
-    return min(t_end, max(PILOT_FRACTION * t_end, PILOT_MIN_S, turns))
+    return min(t_end, max(min(PILOT_FRACTION * t_end, PILOT_MAX_S), PILOT_MIN_S, turns))
 
 
 def _extrapolate(e_half: float, e_full: float, ratio: float) -> float:
@@ -134,7 +136,10 @@ def _extrapolate(e_half: float, e_full: float, ratio: float) -> float:
     if e_full <= 0.0:
         return 0.0
     p = 3.0 if e_half <= 0.0 else min(3.0, max(1.0, math.log2(e_full / e_half)))
-    return e_full * ratio ** p
+    try:
+        return e_full * ratio ** p
+    except OverflowError:
+        return math.inf
 
 
 def _positions(tr) -> tuple[np.ndarray, object]:
@@ -156,10 +161,20 @@ def choose(scenes: Scene | Sequence[Scene], states: Sequence[np.ndarray], t_end:
     """
     from .simulate import simulate
 
+    token = _INTERNAL.set(True)  # candidates that are too coarse are expected here
+    try:
+        return _choose(simulate, scenes, states, t_end, tol, omegas, dt_out, events, force)
+    finally:
+        _INTERNAL.reset(token)
+
+
+def _choose(simulate, scenes, states, t_end, tol, omegas, dt_out, events, force) -> Choice:
     tol = check_tol(tol)
+    t_end = _finite_number("t_end", t_end)
+    if t_end <= 0:
+        raise ValueError(f"t_end must be > 0 seconds, got {t_end}")
     scene_list = [scenes] * len(states) if isinstance(scenes, Scene) else list(scenes)
     detach = "detach" in (events if not isinstance(events, str) else (events,))
-    t_end = float(t_end)
     t_p = min(_pilot_window(om, t_end) for om in omegas)
     # The pilot lands on the run's own output grid (landing changes the steps), or on t_p/2.
     out_dt = dt_out if dt_out is not None and t_p / 2000 <= dt_out <= t_p / 2 else t_p / 2
@@ -213,3 +228,138 @@ def choose(scenes: Scene | Sequence[Scene], states: Sequence[np.ndarray], t_end:
                   max_step=kw.get("max_step"), tol=tol, predicted_error=best[2],  # type: ignore[arg-type]
                   pilot_t=t_p, t_end=t_end, candidates_tried=tried,
                   pilot_rhs_evaluations=total_evals)
+
+
+# ----------------------------------------------------------------------------------------
+# Fixed steps that are too large: detect and report
+# ----------------------------------------------------------------------------------------
+class AccuracyWarning(UserWarning):
+    """A run's own checks say its result is inaccurate (a fixed step too large)."""
+
+
+# Set while this module runs the simulator itself (pilots, step doubling): no nested checks.
+_INTERNAL: contextvars.ContextVar[bool] = contextvars.ContextVar("saddle_accuracy_internal",
+                                                                 default=False)
+
+FIXED_STEP_DRIFT = 1e-5      # relative Jacobi drift above which a fixed-step run is flagged
+FIXED_STEP_PHASE = 1.0       # dt·max(|Ω|, ω₀) above which a fixed step is flagged outright
+FIXED_STEP_ERROR = 1e-4      # step-doubling error estimate, as a fraction of min(a, b)
+
+
+def _jacobi_rows(traj) -> np.ndarray:
+    """h at every output and, if the run ended in an event, at the event state."""
+    h = traj.h
+    if traj.event is None:
+        return h
+    from . import _kernels as K
+    from .simulate import drive_row
+
+    y = np.zeros(K.STATE_WIDTH)
+    y[: traj.scene.state_size] = traj.event.state
+    he = K.jacobi(traj.scene.model_code, traj.scene.params(), drive_row(traj.omega, traj.force),
+                  traj.event.t, y)
+    return np.append(h, he)
+
+
+def jacobi_drift(traj) -> float:
+    """Largest |h(t) − h(0)| over the outputs (and the event state), relative to
+    |h(0)| + g·a/100; NaN when the Jacobi integral is not conserved (Ω varies, a lab-frame
+    force acts, or drilling friction dissipates)."""
+    if (not traj.omega.constant or traj.force != (0.0, 0.0) or len(traj.t) < 1
+            or traj.scene.drilling_friction > 0):
+        return math.nan
+    h = _jacobi_rows(traj)
+    if len(h) < 2:
+        return math.nan
+    scale = abs(h[0]) + traj.scene.g * traj.scene.a / 100.0
+    if scale == 0.0:
+        return math.nan
+    return float(np.max(np.abs(h - h[0])) / scale)
+
+
+def _doubling_estimate(traj, dt: float, method: str) -> float:
+    """Error over the run estimated by step doubling on a window at its start (16 steps or
+    5 % of the run): |y(dt) − y(dt/2)| at the window's end, scaled to the run linearly."""
+    from .simulate import simulate
+
+    t_run = float(traj.event.t) if traj.event is not None else float(traj.t[-1])
+    window = min(t_run, max(16.0 * dt, 0.05 * t_run))
+    if window <= 0.0:
+        return 0.0
+    kw = {"omega": traj.omega, "dt_out": None, "method": method, "events": (),
+          "force": traj.force}
+    token = _INTERNAL.set(True)
+    try:
+        coarse = simulate(traj.scene, traj.state[0], window, dt=dt, **kw)
+        fine = simulate(traj.scene, traj.state[0], window, dt=dt / 2.0, **kw)
+    except Exception:  # noqa: BLE001 — a step that cannot even do the window is too large
+        return math.inf
+    finally:
+        _INTERNAL.reset(token)
+    diff = float(np.hypot(*(coarse.state[-1, :2] - fine.state[-1, :2])))
+    return diff * t_run / window
+
+
+def check_fixed_step(traj, dt: float, method: str = "rk4") -> str | None:
+    """Warn (`AccuracyWarning`) if a fixed-step run is evidently inaccurate. Checks, in
+    turn: the step is more than a radian of the fastest rotation (dt·max(|Ω|, ω₀) > 1);
+    at constant Ω, the Jacobi integral (outputs and event state) drifted by more than
+    `FIXED_STEP_DRIFT`; otherwise a step-doubling estimate on a short window at the start
+    exceeds `FIXED_STEP_ERROR`·min(a, b). Returns the message, or None."""
+    import warnings
+
+    if _INTERNAL.get():
+        return None
+    sc = traj.scene
+    omega0 = math.sqrt(2.0 * sc.g / sc.a) if sc.g > 0 else 0.0
+    t_end = float(traj.t[-1]) if len(traj.t) else 0.0
+    if len(traj.t) > 2:  # the loop lands on every output: the step taken is at most the spacing
+        dt = min(dt, float(traj.t[1] - traj.t[0]))
+    phase = dt * max(traj.omega.bound(max(t_end, dt)), omega0)
+    msg = None
+    if phase > FIXED_STEP_PHASE:
+        msg = (f"fixed step dt = {dt:g} s is far too large for this scene: dt·max(|Ω|, ω₀) = "
+               f"{phase:.3g} rad per step")
+    else:
+        drift = jacobi_drift(traj)
+        if math.isfinite(drift):
+            if drift > FIXED_STEP_DRIFT:
+                msg = (f"fixed step dt = {dt:g} s is too large for this scene: the Jacobi "
+                       f"integral (conserved by the exact dynamics) drifted by {drift:.2g} "
+                       "relative")
+        else:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", AccuracyWarning)
+                est = _doubling_estimate(traj, dt, method)
+            if not est <= FIXED_STEP_ERROR * min(sc.a, sc.b):
+                msg = (f"fixed step dt = {dt:g} s is too large for this scene: step doubling "
+                       f"estimates a position error of {est:.2g} m over the run")
+    if msg is not None:
+        msg += "; use a smaller dt, an adaptive method, or tol= (see saddle_env.accuracy)"
+        warnings.warn(msg, AccuracyWarning, stacklevel=3)
+    return msg
+
+
+def assess(traj, **settings: object) -> dict[str, float]:
+    """A posteriori error estimate of a finished run: re-run it with half the fixed step
+    (or rtol/100 for an adaptive run; pass the run's ``method``/``dt``/``rtol`` as
+    ``settings``) and report the largest contact-point distance between the two, plus the
+    Jacobi drift where it is conserved."""
+    from .simulate import simulate
+
+    kw = dict(settings)
+    dt_out = float(traj.t[1] - traj.t[0]) if len(traj.t) > 2 else None
+    if kw.get("dt") is not None:
+        # the loop lands on every output, so the step taken is at most the output spacing
+        kw["dt"] = min(float(kw["dt"]), dt_out or math.inf) / 2.0  # type: ignore[arg-type]
+    else:
+        kw["rtol"] = max(float(kw.get("rtol") or 1e-10) / 100.0, 1e-14)  # type: ignore[arg-type]
+    token = _INTERNAL.set(True)
+    try:
+        finer = simulate(traj.scene, traj.state[0], float(traj.t[-1]), omega=traj.omega,
+                         dt_out=dt_out, force=traj.force, **kw)
+    finally:
+        _INTERNAL.reset(token)
+    n = min(len(finer.t), len(traj.t))
+    err = float(np.max(np.hypot(finer.x[:n] - traj.x[:n], finer.y[:n] - traj.y[:n])))
+    return {"error_estimate_m": err, "jacobi_drift": jacobi_drift(traj)}

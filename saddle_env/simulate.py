@@ -390,9 +390,14 @@ def simulate(scene: Scene, state: np.ndarray, t_end: float, *,
     event = None
     if status in EVENT_KINDS:
         event = Event(EVENT_KINDS[status], float(t_final), y[: scene.state_size].copy())
-    return Trajectory(scene, profile, t_out[:n].copy(), Y_out[:n, : scene.state_size].copy(),
+    traj = Trajectory(scene, profile, t_out[:n].copy(), Y_out[:n, : scene.state_size].copy(),
                       event, settings.describe() if auto is None else auto.describe(),
                       Stats(int(stats[0]), int(stats[1]), int(stats[2])), force)
+    if settings.dt > 0 and auto is None:  # a fixed step too large is reported, not hidden
+        from .accuracy import check_fixed_step
+
+        check_fixed_step(traj, settings.dt, m.name)
+    return traj
 
 
 def _auto(scenes, states, profiles, t_out, dt_out, tol, explicit, events, force):
