@@ -1,0 +1,7 @@
+"""``python -m saddle_env.reproduce``."""
+
+import sys
+
+from .cli import main
+
+sys.exit(main())
