@@ -34,12 +34,11 @@ import numpy as np
 
 from saddle_env import _kernels as Kn
 from saddle_env.envs import EnvConfig
+from saddle_env.envs.engine import VELOCITY_SCALE  # [m/s] observation scale of velocities
 from saddle_env.envs.saddle_trap import action_space, observation_space
 from saddle_env.integrators import EVENT_DETACH, EVENT_ESCAPE, METHODS, integrate_h, state_scale
 from saddle_env.linear import abcd, critical_omega, is_stable
 from saddle_env.scene import P_A, P_B, P_G, P_R, ROLLING
-
-VELOCITY_SCALE = 1.0  # [m/s] observation scale of velocities (saddle_env.envs.engine)
 
 
 # --------------------------------------------------------------------------------------
@@ -116,9 +115,10 @@ def critical_speed(config: EnvConfig) -> float:
 
 def constant_multiple(k: float) -> Callable[[EnvConfig], ConstantSpeed]:
     """Factory of the ``const-K`` baseline: Ω = K·Ω_crt (capped at ``omega_max``)."""
+    name = f"const-{k:.1f}" if round(k, 1) == k else f"const-{k:g}"
+
     def make(config: EnvConfig) -> ConstantSpeed:
-        return ConstantSpeed(config, min(k * critical_speed(config), config.omega_max),
-                             f"const-{k:g}")
+        return ConstantSpeed(config, min(k * critical_speed(config), config.omega_max), name)
     return make
 
 
