@@ -190,7 +190,8 @@ def plot(rows: list[dict[str, object]], out_dir: str | Path, batch: bool = False
         ax.grid(True, which="major", alpha=0.3)
         ax.set_title(f"{tier}: numerical error" if tier else "model tiers: error vs rolling")
         ax.set_xlabel("max centre position error over the run [m]")
-        ax.legend(fontsize=6.5, loc="best", framealpha=0.6)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=6.5, loc="best", framealpha=0.6)
     ref = rows[0] if rows else {}
     who = ("per ball, batch of %d" % ref.get("batch_n", 0)) if batch else "one ball"
     axes[0].set_ylabel(f"wall time per simulated second [µs], {who}")
