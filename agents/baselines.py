@@ -67,16 +67,34 @@ class Controller:
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
         """Actions for one observation ``(obs_dim,)`` → ``(1,)`` or a batch ``(n, obs_dim)`` →
         ``(n, 1)`` (float32 in [-1, 1]); ``state`` is passed through (no recurrent state)."""
+        batch, single = self._batch(observation)
+        omega = batch[:, -1] * self.config.omega_max
+        return self._out(self._act(batch, omega), single), state
+
+    def _batch(self, observation: Any) -> tuple[np.ndarray, bool]:
         obs = np.asarray(observation, dtype=np.float64)
         single = obs.ndim == 1
         batch = obs.reshape(1, -1) if single else obs
         if batch.ndim != 2 or batch.shape[1] != self.obs_dim:
             raise ValueError(f"observation must have shape ({self.obs_dim},) or (n, {self.obs_dim}) "
                              f"for obs_frame={self.config.obs_frame!r}, got {obs.shape}")
-        omega = batch[:, -1] * self.config.omega_max
-        act = np.clip(np.asarray(self._act(batch, omega), dtype=np.float64), -1.0, 1.0)
-        out = act.astype(np.float32).reshape(-1, 1)
-        return (out[0] if single else out), state
+        return batch, single
+
+    @staticmethod
+    def _out(actions: np.ndarray, single: bool) -> np.ndarray:
+        out = np.clip(np.asarray(actions, dtype=np.float64), -1.0, 1.0).astype(np.float32)
+        out = out.reshape(-1, 1)
+        return out[0] if single else out
+
+    def motor_rate(self, omega: np.ndarray, action: np.ndarray) -> np.ndarray:
+        """Ω̇ the motor runs at for ``action`` from speed ``omega`` (the environment's rule)."""
+        c = self.config
+        dt = c.control_period
+        if c.action_mode == "target":
+            return np.clip((0.5 * (action + 1.0) * c.omega_max - omega) / dt, -c.max_accel,
+                           c.max_accel)
+        end = np.clip(omega + action * c.max_accel * dt, 0.0, c.omega_max)
+        return (end - omega) / dt
 
     def _act(self, obs: np.ndarray, omega: np.ndarray) -> np.ndarray:
         raise NotImplementedError
@@ -94,7 +112,14 @@ class Controller:
 
 
 class ConstantSpeed(Controller):
-    """Drive Ω to ``omega`` [rad/s] as fast as the motor allows, then hold it."""
+    """Drive Ω to ``omega`` [rad/s] as fast as the motor allows, then hold it.
+
+    In ``acceleration`` mode the observed speed includes the motor's ripple and the sensor
+    noise; acting on it would chase them. Given a ``state`` (SB3's recurrent-state slot;
+    None at the start, then the returned one, as saddle-eval passes it), the controller
+    tracks the commanded speed from its own actions instead (starting from the first
+    observation); without one it acts on the observed speed.
+    """
 
     def __init__(self, config: EnvConfig, omega: float, name: str | None = None):
         super().__init__(config)
@@ -106,6 +131,22 @@ class ConstantSpeed(Controller):
 
     def _act(self, obs: np.ndarray, omega: np.ndarray) -> np.ndarray:
         return self.speed_action(omega, self.omega)
+
+    def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, Any]:
+        if self.config.action_mode == "target":
+            return super().predict(observation, state, episode_start, deterministic)
+        batch, single = self._batch(observation)
+        n = len(batch)
+        command = np.full(n, np.nan) if state is None else \
+            np.array(state, dtype=np.float64).reshape(n)
+        if episode_start is not None:
+            command[np.asarray(episode_start, dtype=bool).reshape(n)] = np.nan
+        command = np.where(np.isnan(command), batch[:, -1] * self.config.omega_max, command)
+        out = self._out(self.speed_action(command, self.omega), single)
+        sent = out.astype(np.float64).reshape(n)  # what the environment receives
+        command = command + self.motor_rate(command, sent) * self.config.control_period
+        return out, command.reshape(n, 1)
 
 
 def critical_speed(config: EnvConfig) -> float:
@@ -554,16 +595,6 @@ class ModelPredictiveController(Controller):
         _states_from_obs(self._model, self._P[j], c.obs_frame == "lab", c.rim_radius,
                          VELOCITY_SCALE, c.omega_max, np.ascontiguousarray(obs), spin, Y, omega)
         return Y, omega
-
-    def motor_rate(self, omega: np.ndarray, action: np.ndarray) -> np.ndarray:
-        """Ω̇ the motor runs at for ``action`` from speed ``omega`` (the environment's rule)."""
-        c = self.config
-        dt = c.control_period
-        if c.action_mode == "target":
-            return np.clip((0.5 * (action + 1.0) * c.omega_max - omega) / dt, -c.max_accel,
-                           c.max_accel)
-        end = np.clip(omega + action * c.max_accel * dt, 0.0, c.omega_max)
-        return (end - omega) / dt
 
     def _block(self, j: int) -> int:
         return 2 + self.obs_dim + 4 * j

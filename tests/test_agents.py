@@ -65,6 +65,28 @@ def test_constant_speed_reaches_its_target_at_full_motor_rate_and_holds_it(kwarg
     assert np.allclose(speeds[n_ramp:], target, rtol=1e-5)
 
 
+def test_constant_speed_holds_the_commanded_speed_despite_ripple_and_noise():
+    """The observed speed carries the motor's ripple and sensor noise; with its state the
+    controller holds the commanded speed (info["omega"]) instead of chasing them."""
+    kwargs = dict(ripple_amp=0.5, ripple_freq=20.0, omega_noise=0.2)
+    config = EnvConfig(**kwargs)
+    policy = B.load_policy("const-1.2", config)
+    env = gym.make("SaddleTrap-v0", **kwargs)
+    for use_state in (True, False):
+        obs, _ = env.reset(seed=3, options={"omega": 16.0})
+        state, speeds = None, []
+        for _ in range(60):
+            action, new_state = policy.predict(obs, state)
+            state = new_state if use_state else None
+            obs, _, _, _, info = env.step(action)
+            speeds.append(info["omega"])
+        spread = np.ptp(speeds[10:])
+        if use_state:
+            assert spread < 1e-9 and abs(speeds[-1] - policy.omega) < 0.5 + 4 * 0.2
+        else:
+            assert spread > 0.5
+
+
 def test_thresholds_are_the_papers():
     config = EnvConfig()
     wc = math.sqrt(2 * config.g / (config.a - 2 * config.R))
