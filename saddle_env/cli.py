@@ -113,8 +113,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             parser.error(f"--output: cannot write {args.output!r}: {exc.strerror}")
         ending = (f"{traj.event.kind} at t = {traj.event.t:.9f} s" if traj.event
                   else f"no event up to t = {args.t_end:g} s")
-        print(f"saddle-sim: wrote {len(traj.t)} rows to {args.output}; {ending}; "
-              f"min N/mg = {traj.N_over_mg.min():.4f}", file=sys.stderr)
+        low = f"; min N/mg = {traj.N_over_mg.min():.4f}" if len(traj.t) else ""
+        print(f"saddle-sim: wrote {len(traj.t)} rows to {args.output}; {ending}{low}",
+              file=sys.stderr)
     return 0
 
 

@@ -22,6 +22,15 @@ import numpy as np
 from .scene import Scene, _finite_number
 
 
+# Beyond this the coefficients (∝ Ω²) leave floating point range in the quartic.
+MAX_RATE = 1e12
+
+
+def _check_scene(scene: object) -> None:
+    if not isinstance(scene, Scene):
+        raise ValueError(f"scene must be a saddle_env.Scene, got {type(scene).__name__}")
+
+
 @dataclass(frozen=True)
 class ABCD:
     A: float
@@ -44,8 +53,11 @@ def abcd(scene: Scene, omega: float, spin_z: float = 0.0) -> ABCD:
     paper's ω_z); it enters only for a rolling ball. Slipping and point use Table I's
     right column with R = scene.radius (0 for the point).
     """
+    _check_scene(scene)
     W = _finite_number("omega", omega)
     wz = _finite_number("spin_z", spin_z)
+    if abs(W) > MAX_RATE or abs(wz) > MAX_RATE:
+        raise ValueError(f"omega and spin_z must lie within ±{MAX_RATE:g} rad/s, got {W:g}, {wz:g}")
     a, b, R, g, al = scene.a, scene.b, scene.radius, scene.g, scene.alpha
     am, bp = a - 2.0 * R, b + 2.0 * R
     if scene.rolling:
@@ -89,6 +101,7 @@ def critical_omega(scene: Scene) -> float:
     for the mass point (paper Eqs. RigidBodyThreshold, MassPointThreshold). Asymmetric
     saddle: the lower edge of `stable_band` (``nan`` if no speed stabilises the ball).
     """
+    _check_scene(scene)
     if scene.a == scene.b:
         return math.sqrt(2 * scene.g / (scene.a - 2 * scene.radius))
     band = stable_band(scene)
@@ -103,6 +116,9 @@ def mass_point_band(a: float, b: float, g: float = 9.8) -> tuple[float, float] |
     condition holds across the band iff a < 3b; for a ≥ 3b both roots ϖ² are negative there
     and no speed stabilises the point. Ω_high = inf when b ≥ a.
     """
+    a, b, g = (_finite_number(k, v) for k, v in (("a", a), ("b", b), ("g", g)))
+    if a <= 0 or b <= 0 or g < 0:
+        raise ValueError(f"mass_point_band needs a > 0, b > 0, g >= 0; got a={a}, b={b}, g={g}")
     low = math.sqrt(2 * g / a)
     if b >= a:
         return low, math.inf
@@ -120,6 +136,9 @@ def stable_band(scene: Scene, spin_z: float = 0.0, omega_max: float | None = Non
     upper end of ``inf`` (no upper bound was found below omega_max; for the symmetric
     saddle there is none).
     """
+    _check_scene(scene)
+    if isinstance(n_grid, bool) or not isinstance(n_grid, (int, np.integer)) or not 10 <= n_grid <= 10**7:
+        raise ValueError(f"n_grid must be an integer in [10, 1e7], got {n_grid!r}")
     ref = math.sqrt(2 * max(scene.g, 1e-12) / min(scene.a, scene.b))
     top = 100.0 * ref if omega_max is None else _finite_number("omega_max", omega_max)
     if top <= 0:
@@ -170,8 +189,13 @@ def linear_trajectory(scene: Scene, omega: float, centre_state: np.ndarray, t: n
     """
     from scipy.linalg import expm
 
-    t = np.asarray(t, dtype=float)
-    z0 = np.asarray(centre_state, dtype=float)
+    try:
+        t = np.asarray(t, dtype=float)
+        z0 = np.asarray(centre_state, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError("centre_state and t must be real arrays") from None
+    if not np.all(np.isfinite(t)):
+        raise ValueError("t must be finite")
     if z0.shape != (4,) or not np.all(np.isfinite(z0)):
         raise ValueError(f"centre_state must be 4 finite numbers (x_c, y_c, vx_c, vy_c), got {z0}")
     if t.ndim != 1 or len(t) < 1 or t[0] != 0:

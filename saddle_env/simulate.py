@@ -63,21 +63,26 @@ def initial_state(scene: Scene, x: float, y: float, vx: float = 0.0, vy: float =
         rolling ``(x, y, wx, wy, wz)``: the spin w relative to the saddle is n × ċ / R +
         spin_normal · n; slipping/point ``(x, y, vx, vy)``.
     """
+    if not isinstance(scene, Scene):
+        raise ValueError(f"scene must be a saddle_env.Scene, got {type(scene).__name__}")
     x = _finite_number("x", x)
     y = _finite_number("y", y)
     vx = _finite_number("vx", vx)
     vy = _finite_number("vy", vy)
     spin_normal = _finite_number("spin_normal", spin_normal)
+    profile = OmegaProfile.coerce(omega)
     if start is not None:
         if start not in ("rotating-rest", "lab-rest"):
             raise ValueError(f"start must be 'rotating-rest' or 'lab-rest', got {start!r}")
         if start == "rotating-rest":
             vx = vy = 0.0
         else:
-            om = OmegaProfile.coerce(omega)(0.0)
-            vx, vy = K.lab_rest_velocity(scene.params(), om, x, y)
+            vx, vy = K.lab_rest_velocity(scene.params(), profile(0.0), x, y)
     out = np.empty(K.STATE_WIDTH)
     K.state_from_velocity(scene.model_code, scene.params(), x, y, vx, vy, spin_normal, out)
+    if not np.all(np.isfinite(out)):
+        raise ValueError(f"initial state is not finite for x = {x:g}, y = {y:g}, vx = {vx:g}, "
+                         f"vy = {vy:g} m: the position or velocity is too large for the saddle")
     return out[: scene.state_size].copy()
 
 
@@ -151,6 +156,9 @@ class Settings:
                              f"got {atol_v}")
         if isinstance(events, str):
             events = (events,)
+        if not isinstance(events, (tuple, list, set, frozenset)):
+            raise ValueError(f"events must be a sequence drawn from {sorted(EVENT_NAMES)}, "
+                             f"got {events!r}")
         mask = 0
         for e in events:
             if e not in EVENT_NAMES:
@@ -197,10 +205,11 @@ def _output_times(t_end: float, dt_out: float | None) -> np.ndarray:
     dt_out = _finite_number("dt_out", dt_out)
     if dt_out <= 0:
         raise ValueError(f"dt_out must be > 0 seconds, got {dt_out}")
-    n = int(math.floor(t_end / dt_out * (1 + 1e-12))) + 1
-    if n > MAX_OUTPUTS:
-        raise ValueError(f"dt_out = {dt_out:g} s gives {n} outputs over t_end = {t_end:g} s; "
-                         f"at most {MAX_OUTPUTS} are allowed")
+    ratio = t_end / dt_out * (1 + 1e-12)
+    if not ratio < MAX_OUTPUTS:  # also catches inf from a huge t_end or a denormal dt_out
+        raise ValueError(f"dt_out = {dt_out:g} s gives {ratio:.3g} outputs over t_end = "
+                         f"{t_end:g} s; at most {MAX_OUTPUTS} are allowed")
+    n = int(math.floor(ratio)) + 1
     # Multiples of dt_out (not a cumulative sum) so the grid carries no rounding drift.
     return np.arange(n) * dt_out
 
@@ -471,11 +480,20 @@ def simulate_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: f
     `simulate`, from pilot runs of up to four balls spread over the batch (first, last and
     two between); the pick is in ``settings``.
     """
-    states = np.asarray(states, dtype=float)
+    try:
+        states = np.asarray(states, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError("states must be a real array of shape (n, state_size)") from None
     if states.ndim != 2 or states.shape[0] < 1:
         raise ValueError(f"states must have shape (n, state_size), got {states.shape}")
     n = states.shape[0]
-    scene_list = [scenes] * n if isinstance(scenes, Scene) else list(scenes)
+    if isinstance(scenes, Scene):
+        scene_list = [scenes] * n
+    elif isinstance(scenes, (list, tuple)):
+        scene_list = list(scenes)
+    else:
+        raise ValueError(f"scenes must be a Scene or a sequence of {n} Scenes, "
+                         f"got {type(scenes).__name__}")
     if len(scene_list) != n or not all(isinstance(s, Scene) for s in scene_list):
         raise ValueError(f"scenes must be a Scene or a sequence of {n} Scenes (one per ball)")
     Y = np.zeros((n, K.STATE_WIDTH))

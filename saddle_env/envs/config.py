@@ -130,6 +130,9 @@ class EnvConfig:
                              f"got ({low}, {high})")
         set_("omega0_range", (low, high))
         if self.ball_radii is not None:
+            if not isinstance(self.ball_radii, (tuple, list)):
+                raise ValueError(f"ball_radii must be None or a tuple of radii [m], "
+                                 f"got {self.ball_radii!r}")
             radii = tuple(_positive(f"ball_radii[{i}]", r) for i, r in enumerate(self.ball_radii))
             if not radii:
                 raise ValueError("ball_radii must be None or a non-empty tuple of radii")
@@ -137,6 +140,9 @@ class EnvConfig:
         if self.a_range is not None:
             set_("a_range", _range("a_range", self.a_range, lo=1e-12))
         if self.contact_models is not None:
+            if not isinstance(self.contact_models, (tuple, list)):
+                raise ValueError(f"contact_models must be None or a tuple from {CONTACT_MODELS}, "
+                                 f"got {self.contact_models!r}")
             models = tuple(self.contact_models)
             if not models or any(m not in CONTACT_MODELS for m in models):
                 raise ValueError(f"contact_models must be a non-empty tuple from {CONTACT_MODELS}, "
