@@ -63,6 +63,7 @@ def _atomic(path: Path, mode: str = "w") -> Iterator[Any]:
     try:
         with os.fdopen(fd, mode, **({"newline": ""} if "b" not in mode else {})) as fh:
             yield fh
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600; outputs are ordinary readable files
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -172,10 +173,11 @@ class Context:
         return result
 
     # -- progress and batched simulation ------------------------------------------------------
-    def bar(self, total: int, desc: str) -> Any:
+    def bar(self, total: int, desc: str, unit: str = "ball") -> Any:
+        """A tqdm progress bar (on stderr; hidden with ``progress=False``)."""
         from tqdm.auto import tqdm
 
-        return tqdm(total=total, desc=desc, unit="ball", leave=False,
+        return tqdm(total=total, desc=desc, unit=unit, leave=False,
                     disable=not self.progress, dynamic_ncols=True)
 
     def run_batch(self, scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,

@@ -252,21 +252,23 @@ def fig_support(ctx: Context) -> None:
             ev = simulate(sc, s0, T, omega=W, dt_out=None).event
             col = np.full(len(t_grid), np.nan)
             col[: len(tr.t)] = tr.N_over_mg
-            cols[f"N_exact_{conv}_{W:g}"] = col
+            cols[f"N_exact_{conv.replace('-', '_')}_{W:g}"] = col
             info[f"exact_{conv}_{W:g}"] = {
                 "t_detach": ev.t if ev is not None and ev.kind == "detach" else None,
                 "min_N": float(np.nanmin(col))}
-        s0 = initial_state(sc, 0.005, 0.005, start="rotating-rest")
-        pr = paper_eom.simulate_paper(sc, s0, T, W, dt_out=dt)
-        col = np.full(len(t_grid), np.nan)
-        col[: len(pr.t)] = pr.N_over_mg
-        cols[f"N_paper_eom_rotating-rest_{W:g}"] = col
-        info[f"paper_rotating-rest_{W:g}"] = {"t_detach": pr.t_detach,
-                                              "min_N": float(np.nanmin(col)),
-                                              "jacobi_drift": float(np.ptp(pr.h))}
+            pr = paper_eom.simulate_paper(sc, s0, T, W, dt_out=dt)
+            pcol = np.full(len(t_grid), np.nan)
+            pcol[: len(pr.t)] = pr.N_over_mg
+            cols[f"N_paper_eom_{conv.replace('-', '_')}_{W:g}"] = pcol
+            both = np.isfinite(col) & np.isfinite(pcol)
+            info[f"paper_{conv}_{W:g}"] = {"t_detach": pr.t_detach,
+                                           "min_N": float(np.nanmin(pcol)),
+                                           "jacobi_drift": float(np.ptp(pr.h)),
+                                           "max_dN": float(np.max(np.abs(col - pcol)[both]))}
     ctx.write_csv("support", cols, [
         "Normal force / weight, rolling ball R = 0.033 m, a = 0.159 m, contact point starting at "
-        "x = y = 5 mm; columns N_<model>_<convention>_<Omega>",
+        "x = y = 5 mm; columns N_<model>_<convention>_<Omega> (rotating_rest: at rest on the "
+        "saddle; lab_rest: placed at rest in the laboratory)",
         "exact = this project's Newton-Euler model; paper_eom = the paper's Eq. (EOM) (drops "
         "r_o' x r_c'); runs continue through N < 0 as the paper's figure does; NaN after the "
         "ball leaves the 10 cm rim"])
@@ -275,15 +277,15 @@ def fig_support(ctx: Context) -> None:
     for k, W in enumerate((20.0, 30.0)):
         a_ = ax[k]
         t = cols["t"]
-        a_.plot(t, cols[f"N_exact_rotating-rest_{W:g}"], color="C0" if W == 20 else "C3",
+        a_.plot(t, cols[f"N_exact_rotating_rest_{W:g}"], color="C0" if W == 20 else "C3",
                 lw=1.2, label="exact model, rotating-rest")
-        a_.plot(t, cols[f"N_paper_eom_rotating-rest_{W:g}"], color="k", lw=0.8, ls="--",
+        a_.plot(t, cols[f"N_paper_eom_rotating_rest_{W:g}"], color="k", lw=0.8, ls="--",
                 label="paper's Eq. (EOM), rotating-rest")
-        a_.plot(t, cols[f"N_exact_lab-rest_{W:g}"], color="0.6", lw=0.8,
+        a_.plot(t, cols[f"N_exact_lab_rest_{W:g}"], color="0.6", lw=0.8,
                 label="exact model, lab-rest")
         a_.axhline(0, color="k", lw=0.6)
-        neg = cols[f"N_exact_rotating-rest_{W:g}"] < 0
-        a_.fill_between(t, 0, cols[f"N_exact_rotating-rest_{W:g}"], where=neg, color="C3",
+        neg = cols[f"N_exact_rotating_rest_{W:g}"] < 0
+        a_.fill_between(t, 0, cols[f"N_exact_rotating_rest_{W:g}"], where=neg, color="C3",
                         alpha=0.25, label="N < 0: forbidden (detached)")
         td = info[f"exact_rotating-rest_{W:g}"]["t_detach"]
         if td is not None:
@@ -295,7 +297,7 @@ def fig_support(ctx: Context) -> None:
                title=f"({'ab'[k]}) Ω = {W:g} s⁻¹"
                      + (": N stays positive" if td is None else ": the ball detaches"))
         a_.legend(fontsize=7, loc="lower right" if W == 20 else "upper right")
-    ax[1].set_ylim(max(-6, np.nanmin(cols["N_exact_rotating-rest_30"]) - 0.5), None)
+    ax[1].set_ylim(max(-6, np.nanmin(cols["N_exact_rotating_rest_30"]) - 0.5), None)
     fig.suptitle("Support force, R = 3.3 cm, a = 0.159 m, starting at x = y = 0.5 cm "
                  "(paper Fig. support)", fontsize=10)
     fig.tight_layout()
@@ -303,10 +305,6 @@ def fig_support(ctx: Context) -> None:
 
     e30, p30 = info["exact_rotating-rest_30"], info["paper_rotating-rest_30"]
     e20, p20 = info["exact_rotating-rest_20"], info["paper_rotating-rest_20"]
-    n20 = min(np.sum(np.isfinite(cols["N_exact_rotating-rest_20"])),
-              np.sum(np.isfinite(cols["N_paper_eom_rotating-rest_20"])))
-    dN20 = float(np.max(np.abs(cols["N_exact_rotating-rest_20"][:n20]
-                               - cols["N_paper_eom_rotating-rest_20"][:n20])))
     ctx.update_summary({
         "t_first_N_negative_omega30": {
             "value": e30["t_detach"], "unit": "s", "convention": "rotating-rest",
@@ -321,13 +319,22 @@ def fig_support(ctx: Context) -> None:
             "lab_rest_value": info["exact_lab-rest_20"]["min_N"], "convention": "rotating-rest",
             "note": f"over {T:g} s: the support force stays positive at Omega = 20"},
         "paper_eom_support_force_difference": {
-            "max_abs_dN_over_mg_omega20": dN20,
+            "max_abs_dN_over_mg_omega20": p20["max_dN"],
             "detach_time_shift_omega30_s": (p30["t_detach"] - e30["t_detach"])
             if p30["t_detach"] is not None and e30["t_detach"] is not None else None,
             "jacobi_drift_paper_eom_omega20_J_per_kg": p20["jacobi_drift"],
             "convention": "rotating-rest",
-            "note": f"paper's Eq. (EOM) minus exact model over {T:g} s; the exact model conserves "
-                    "the Jacobi integral, the paper's equation does not"}})
+            "note": f"paper's Eq. (EOM) minus exact model over {T:g} s (max |dN| at Omega = 30 "
+                    "would compare the runs after detachment, so only the shift of the first "
+                    "N = 0 crossing is given); the exact model conserves the Jacobi integral, "
+                    "the paper's equation does not"},
+        "paper_eom_support_force_difference_lab_rest": {
+            "max_abs_dN_over_mg_omega20": info["paper_lab-rest_20"]["max_dN"],
+            "max_abs_dN_over_mg_omega30": info["paper_lab-rest_30"]["max_dN"],
+            "jacobi_drift_paper_eom_omega30_J_per_kg": info["paper_lab-rest_30"]["jacobi_drift"],
+            "convention": "lab-rest",
+            "note": f"as paper_eom_support_force_difference for the ball placed at rest in the "
+                    f"laboratory (a smaller orbit; neither model detaches) over {T:g} s"}})
 
 
 # ------------------------------------------------------------------------------------------
@@ -367,18 +374,19 @@ def fig_feasible(ctx: Context) -> None:
     half_p = 0.012
     xp = np.arange(-half_p, half_p + 1e-12, step_p)
     XP, YP = np.meshgrid(xp, xp)
-    T_p = 1.0 if ctx.quick else 3.0
+    T_p = T  # the same horizon as the exact model's map
 
     def compute_paper() -> dict[str, np.ndarray]:
         out = {}
         for W in omegas:
             S = np.array([initial_state(sc, x, y, start="rotating-rest")
                           for x, y in zip(XP.ravel(), YP.ravel())])
-            with ctx.bar(len(S), f"paper's eq. Ω={W:g}") as bar:
+            # All balls advance together, so the bar shows the fraction of simulated time.
+            with ctx.bar(100, f"paper's eq. Ω={W:g}", unit="%") as bar:
                 done = [0]
 
-                def tick(frac: float, bar=bar, done=done, n=len(S)) -> None:
-                    now = int(frac * n)
+                def tick(frac: float, bar=bar, done=done) -> None:
+                    now = int(round(100 * frac))
                     bar.update(now - done[0])
                     done[0] = now
 
@@ -431,7 +439,7 @@ def fig_feasible(ctx: Context) -> None:
                       interpolation="nearest")
             lim = 1.2 if conv == "rotating-rest" else 3.0
             a_.set(xlim=(-lim, lim), ylim=(-lim, lim), xlabel="x₀ [cm]", ylabel="y₀ [cm]",
-                   title=f"Ω = {W:g} s⁻¹, {conv}: feasible {area[(conv, W)]:.2f} cm²")
+                   title=f"Ω = {W:g} s⁻¹, {conv}:\nfeasible {area[(conv, W)]:.2f} cm²")
             a_.plot(0.5, 0.5, "r+", ms=8)
     for j, W in enumerate(omegas):
         a_ = ax[j, 2]
@@ -442,9 +450,11 @@ def fig_feasible(ctx: Context) -> None:
                   vmin=0, vmax=3, extent=100 * np.array([xp[0] - step_p / 2, xp[-1] + step_p / 2,
                                                          xp[0] - step_p / 2, xp[-1] + step_p / 2]),
                   interpolation="nearest")
+        cell = (step_p * 100) ** 2
         a_.set(xlabel="x₀ [cm]", ylabel="y₀ [cm]",
-               title=f"Ω = {W:g}, rotating-rest: exact {ok_e.sum()} vs paper's eq. {ok_p.sum()} "
-                     "cells", )
+               title=f"Ω = {W:g} s⁻¹, rotating-rest: exact vs paper's eq.\n"
+                     f"{ok_e.sum() * cell:.2f} cm² vs {ok_p.sum() * cell:.2f} cm²")
+        a_.plot([], [], "s", color="w", mec="k", label=f"feasible by both ({step_p * 1e3:g} mm grid)")
         a_.plot([], [], "s", color="C1", label="feasible by the paper's eq. only")
         a_.plot([], [], "s", color="C0", label="feasible by the exact model only")
         a_.legend(fontsize=7, loc="lower left")

@@ -198,21 +198,29 @@ def fig_critical(ctx: Context) -> None:
 
     balls = np.isin(radii, PAPER_BALLS)
     x_all = 1 / (A_PAPER - 2 * radii)
-    xs = np.linspace(0, x_all.max() * 1.05, 50)
-    slope_r = float(np.sum(x_all * nl_roll**2) / np.sum(x_all**2))
-    slope_s = float(np.sum(x_all * nl_slip**2) / np.sum(x_all**2))
+
+    def slope(x: np.ndarray, y: np.ndarray) -> float:
+        """Least-squares slope of a line through the origin."""
+        return float(np.sum(x * y) / np.sum(x * x))
+
+    slope_r, slope_s = slope(x_all, nl_roll**2), slope(x_all, nl_slip**2)
+    slope_r3, slope_s3 = slope(x_all[balls], nl_roll[balls]**2), slope(x_all[balls],
+                                                                        nl_slip[balls]**2)
+    # Zoom on the paper's range (its Fig. result(e)); the fits use every R of the sweep.
+    xs = np.linspace(0, 13, 50)
     ax[1].plot(xs, 2 * g * xs, "k--", lw=1, label="theory: slope 2g = 19.6 m/s²")
     ax[1].axhline(2 * g / A_PAPER, color="C3", ls="-.", lw=1,
                   label="mass point 2g/a (independent of R)")
-    ax[1].plot(x_all, nl_roll**2, "C0+", ms=7, label=f"nonlinear rolling (fit slope {slope_r:.2f})")
-    ax[1].plot(x_all, nl_slip**2, "C1x", ms=5, label=f"nonlinear slipping (fit slope {slope_s:.2f})")
-    ax[1].plot(x_all[balls], theory[balls]**2, "ks", mfc="none", ms=9,
+    ax[1].plot(x_all, nl_roll**2, "C0+", ms=8,
+               label=f"nonlinear rolling (slope {slope_r3:.2f}; all R: {slope_r:.2f})")
+    ax[1].plot(x_all, nl_slip**2, "C1x", ms=6,
+               label=f"nonlinear slipping (slope {slope_s3:.2f}; all R: {slope_s:.2f})")
+    ax[1].plot(x_all[balls], theory[balls]**2, "ks", mfc="none", ms=10,
                label="paper's balls R = 2.23, 2.65, 3.30 cm")
     for R, xv, yv in zip(radii[balls], x_all[balls], theory[balls]**2):
-        ax[1].annotate(f"{100 * R:.2f} cm", (xv, yv), xytext=(-40, 8), textcoords="offset points",
+        ax[1].annotate(f"{100 * R:.2f} cm", (xv, yv), xytext=(8, -12), textcoords="offset points",
                        fontsize=7)
-    ax[1].set(xlabel="1/(a − 2R) [m⁻¹]", ylabel="Ω_crt² [s⁻²]", xlim=(5, x_all.max() * 1.05),
-              ylim=(100, (2 * g * x_all.max()) * 1.08),
+    ax[1].set(xlabel="1/(a − 2R) [m⁻¹]", ylabel="Ω_crt² [s⁻²]", xlim=(6, 12), ylim=(100, 240),
               title="(b) Ω_crt² vs 1/(a − 2R), a = 0.159 m")
     ax[1].legend(fontsize=6.5, loc="upper left")
 
@@ -244,10 +252,13 @@ def fig_critical(ctx: Context) -> None:
     ctx.update_summary({
         "omega_crt": per_ball,
         "omega_crt_squared_slope": {
-            "theory": 2 * g, "nonlinear_rolling_fit": slope_r, "nonlinear_slipping_fit": slope_s,
-            "unit": "m/s^2", "convention": "lab-rest",
-            "note": "least-squares slope through the origin of Omega_crt^2 vs 1/(a-2R) over "
-                    f"R = {radii.min() * 100:g}..{radii.max() * 100:g} cm"}})
+            "theory": 2 * g, "nonlinear_rolling_three_balls": slope_r3,
+            "nonlinear_slipping_three_balls": slope_s3, "nonlinear_rolling_all_R": slope_r,
+            "nonlinear_slipping_all_R": slope_s, "unit": "m/s^2", "convention": "lab-rest",
+            "note": "least-squares slope through the origin of Omega_crt^2 vs 1/(a-2R), over the "
+                    f"paper's three balls and over R = {radii.min() * 100:g}..{radii.max() * 100:g}"
+                    " cm; the finite-time criterion puts the nonlinear threshold below theory by "
+                    "a relative amount growing with R, which lowers the all-R slope"}})
 
 
 # ------------------------------------------------------------------------------------------
