@@ -125,3 +125,25 @@ def test_parsers():
         parse_policy_kwargs("[x for x in ()]")
     with pytest.raises(ValueError, match="cannot evaluate"):
         parse_policy_kwargs("open('x')")
+
+
+def test_shipped_models_load_and_act_in_the_task_they_were_trained_on():
+    import gymnasium as gym
+
+    import saddle_env  # noqa: F401
+    from agents.baselines import load_policy
+    from saddle_env.envs import EnvConfig
+    models = sorted((ROOT / "agents" / "models").glob("*.zip"))
+    assert {m.stem for m in models} >= {"ppo_default", "sac_default", "ppo_hard", "sac_hard"}
+    for path in models:
+        side = json.loads(path.with_suffix(".json").read_text())
+        kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in side["env_kwargs"].items()}
+        policy = load_policy(str(path), EnvConfig.from_kwargs(**kwargs))
+        env = gym.make("SaddleTrap-v0", **kwargs)
+        obs, _ = env.reset(seed=0)
+        for _ in range(20):
+            action, _ = policy.predict(obs, deterministic=True)
+            obs, _, term, trunc, _ = env.step(np.asarray(action, dtype=np.float32).reshape(1))
+            assert env.observation_space.contains(obs)
+            if term or trunc:
+                break
