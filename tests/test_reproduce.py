@@ -12,7 +12,8 @@ import sys
 import numpy as np
 import pytest
 
-from saddle_env import Scene, _kernels as K, initial_state, simulate
+from saddle_env import Scene, initial_state, simulate
+from saddle_env import _kernels as K
 from saddle_env.analysis import precession_angle
 from saddle_env.reproduce import FIGURE_NAMES, main, paper_eom
 from saddle_env.reproduce import cli as reproduce_cli
@@ -142,7 +143,8 @@ def test_interruption_keeps_finished_figures(tmp_path, monkeypatch):
     assert not list(tmp_path.glob(".*tmp"))
 
 
-@pytest.mark.parametrize("argv", [["--only", "nonsense"], ["--only", ""], ["--frobnicate"]])
+@pytest.mark.parametrize("argv", [["--only", "nonsense"], ["--only", ""], ["--frobnicate"],
+                                  ["--out", __file__]])
 def test_bad_flags_exit_2(argv, capsys):
     with pytest.raises(SystemExit) as exc:
         main(argv)

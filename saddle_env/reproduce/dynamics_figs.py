@@ -63,7 +63,7 @@ def orientation_series(tr: Trajectory) -> tuple[np.ndarray, np.ndarray]:
     pos = np.sort(w.real[w.real > 0])
     secular = 0.5 * (pos[1] - pos[0])
     dt = tr.t[1] - tr.t[0]
-    window = int(round(2 * math.pi / secular / dt))
+    window = int(np.rint(2 * math.pi / secular / dt))
     xy = tr.lab_xy()
     hop = max(1, window // 8)
     centres, angles = [], []
@@ -124,27 +124,27 @@ def fig_trajectories(ctx: Context) -> None:
         "t": tr_roll.t, "x_lab": xy_roll[:, 0], "y_lab": xy_roll[:, 1], "x": tr_roll.x,
         "y": tr_roll.y, "r_nonlinear": tr_roll.r, "r_linear": r_lin,
         "r_nonlinear_rotating_rest": tr_roll_rr.r, "r_linear_rotating_rest": r_lin_rr},
-        ["Rolling ball R = 0.02 m, a = 0.159 m, Omega = 30 1/s, contact point released at "
-         "x = y = 1 mm; columns without suffix: lab-rest; *_rotating_rest: at rest on the saddle",
-         "x, y: rotating frame; x_lab, y_lab: laboratory; r_linear: the linearised equations "
-         "(Table I) from the same initial state [m]"])
+        [("Rolling ball R = 0.02 m, a = 0.159 m, Omega = 30 1/s, contact point released at "
+         "x = y = 1 mm; columns without suffix: lab-rest; *_rotating_rest: at rest on the saddle"),
+         ("x, y: rotating frame; x_lab, y_lab: laboratory; r_linear: the linearised equations "
+         "(Table I) from the same initial state [m]")])
     xy_pt = tr_pt.lab_xy()
     tc, ang = orientation_series(tr_pt)
     ctx.write_csv("trajectories_point", {"t": tr_pt.t, "x_lab": xy_pt[:, 0],
                                          "y_lab": xy_pt[:, 1]},
-                  ["Mass point (slipping, R -> 0), a = 0.159 m, Omega = 30 1/s, released at "
-                   "x = y = 1 mm, placed at rest in the laboratory (lab-rest); lab frame [m]"])
+                  [("Mass point (slipping, R -> 0), a = 0.159 m, Omega = 30 1/s, released at "
+                   "x = y = 1 mm, placed at rest in the laboratory (lab-rest); lab frame [m]")])
     ctx.write_csv("precession_series", {
         "t": tc, "angle_deg": np.degrees(ang - ang[0]),
         "formula_deg": np.degrees(rate_formula * (tc - tc[0])),
         "linear_deg": np.degrees(linear_precession_rate(tr_pt) * (tc - tc[0]))},
-        ["Orientation of the mass point's secular ellipse (lab frame), relative to the first "
-         "window; formula: g^2/(2 a^2 Omega^3) t; linear: Omega - (w+ + w-)/2 (linear theory)"])
+        [("Orientation of the mass point's secular ellipse (lab frame), relative to the first "
+         "window; formula: g^2/(2 a^2 Omega^3) t; linear: Omega - (w+ + w-)/2 (linear theory)")])
     ctx.write_csv("precession_convergence", {
         "release_m": rel, "angle_deg": angles, "excess_over_linear_deg": excess,
         "linear_limit_deg": np.full(len(rel), limit), "formula_deg": np.full(len(rel), formula)},
-        [f"Precession angle in {T_prec} s of the mass point at Omega = {W}, released at "
-         "x = y = release_m, lab-rest; measured by saddle_env.analysis.precession_angle",
+        [(f"Precession angle in {T_prec} s of the mass point at Omega = {W}, released at "
+         "x = y = release_m, lab-rest; measured by saddle_env.analysis.precession_angle"),
          f"excess ~ release^{power:.2f}"])
 
     fig, ax = plt.subplots(2, 3, figsize=(14, 8.4))
@@ -240,7 +240,7 @@ def fig_support(ctx: Context) -> None:
     T = 1.0 if ctx.quick else 2.0
     dt = 0.001 if ctx.quick else 0.0005
     cols: dict[str, np.ndarray] = {}
-    t_grid = np.arange(int(round(T / dt)) + 1) * dt
+    t_grid = np.arange(int(np.rint(T / dt)) + 1) * dt
     cols["t"] = t_grid
     info: dict[str, dict] = {}
     for W in (20.0, 30.0):
@@ -266,12 +266,12 @@ def fig_support(ctx: Context) -> None:
                                            "jacobi_drift": float(np.ptp(pr.h)),
                                            "max_dN": float(np.max(np.abs(col - pcol)[both]))}
     ctx.write_csv("support", cols, [
-        "Normal force / weight, rolling ball R = 0.033 m, a = 0.159 m, contact point starting at "
+        ("Normal force / weight, rolling ball R = 0.033 m, a = 0.159 m, contact point starting at "
         "x = y = 5 mm; columns N_<model>_<convention>_<Omega> (rotating_rest: at rest on the "
-        "saddle; lab_rest: placed at rest in the laboratory)",
-        "exact = this project's Newton-Euler model; paper_eom = the paper's Eq. (EOM) (drops "
+        "saddle; lab_rest: placed at rest in the laboratory)"),
+        ("exact = this project's Newton-Euler model; paper_eom = the paper's Eq. (EOM) (drops "
         "r_o' x r_c'); runs continue through N < 0 as the paper's figure does; NaN after the "
-        "ball leaves the 10 cm rim"])
+        "ball leaves the 10 cm rim")])
 
     fig, ax = plt.subplots(1, 2, figsize=(13, 4.5))
     for k, W in enumerate((20.0, 30.0)):
@@ -386,7 +386,7 @@ def fig_feasible(ctx: Context) -> None:
                 done = [0]
 
                 def tick(frac: float, bar=bar, done=done) -> None:
-                    now = int(round(100 * frac))
+                    now = round(100 * frac)
                     bar.update(now - done[0])
                     done[0] = now
 
@@ -415,17 +415,17 @@ def fig_feasible(ctx: Context) -> None:
             frac[(conv, W)] = float(np.mean(st == 0))
             area[(conv, W)] = frac[(conv, W)] * (2 * FEASIBLE_HALF * 100) ** 2
     ctx.write_csv("feasible", long, [
-        f"Rolling ball R = 0.033 m, a = 0.159 m: contact point starting at (x, y) [m], run for "
-        f"{T:g} s; event: none (feasible), detach (N fell to 0) or escape (left the 10 cm rim)",
-        "convention: rotating-rest = at rest on the saddle; lab-rest = placed at rest in the "
-        "laboratory"])
+        (f"Rolling ball R = 0.033 m, a = 0.159 m: contact point starting at (x, y) [m], run for "
+        f"{T:g} s; event: none (feasible), detach (N fell to 0) or escape (left the 10 cm rim)"),
+        ("convention: rotating-rest = at rest on the saddle; lab-rest = placed at rest in the "
+        "laboratory")])
     ctx.write_csv("feasible_paper", {
         "x": np.tile(XP.ravel(), 2), "y": np.tile(YP.ravel(), 2),
         "omega": np.repeat(omegas, XP.size),
         "feasible_exact": np.concatenate([rp[f"exact_{W:g}"] for W in omegas]).astype(int),
         "feasible_paper_eom": np.concatenate([rp[f"paper_{W:g}"] for W in omegas]).astype(int)},
-        [f"Rotating-rest starts on a {step_p * 1e3:g} mm grid, run for {T_p:g} s: the exact model "
-         "vs the paper's approximate Eq. (EOM) (which drops r_o' x r_c')"])
+        [(f"Rotating-rest starts on a {step_p * 1e3:g} mm grid, run for {T_p:g} s: the exact model "
+         "vs the paper's approximate Eq. (EOM) (which drops r_o' x r_c')")])
 
     fig, ax = plt.subplots(2, 3, figsize=(14, 8.6))
     ext = 100 * np.array([-FEASIBLE_HALF, FEASIBLE_HALF, -FEASIBLE_HALF, FEASIBLE_HALF])
@@ -572,9 +572,9 @@ def fig_trapping(ctx: Context) -> None:
     fig.tight_layout()
     ctx.save_png(fig, "trapping")
     ctx.write_csv("trapping", long, [
-        f"Trapping time [s] of rolling balls (a = 0.159 m) until detachment or leaving the 10 cm "
+        (f"Trapping time [s] of rolling balls (a = 0.159 m) until detachment or leaving the 10 cm "
         f"rim, capped at {T_max:g} s; {n_rel} releases on a sunflower spiral over a disc of "
-        f"radius {PLACEMENT_RADIUS * 1e3:g} mm; statistics over the releases"])
+        f"radius {PLACEMENT_RADIUS * 1e3:g} mm; statistics over the releases")])
     ctx.update_summary({"trapping_threshold": thresholds})
 
 

@@ -12,8 +12,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ..linear import (critical_omega, eigenfrequencies, is_stable, mass_point_band,
-                      stable_band)
+from ..linear import critical_omega, eigenfrequencies, is_stable, mass_point_band, stable_band
 from ..scene import Scene
 from ..simulate import initial_state
 from .context import Context
@@ -94,8 +93,8 @@ def fig_eigen(ctx: Context) -> None:
         cols[f"re{j + 1}"] = roots[:, j].real
         cols[f"im{j + 1}"] = roots[:, j].imag
     ctx.write_csv("eigen", cols, [
-        "Eigen-frequencies varpi [rad/s] of the linearised rolling ball (x ~ exp(i varpi t)), "
-        "R = 0.03 m, a = b = 0.159 m, alpha = 0.4, spin omega_z = 0; roots sorted by real part",
+        ("Eigen-frequencies varpi [rad/s] of the linearised rolling ball (x ~ exp(i varpi t)), "
+        "R = 0.03 m, a = b = 0.159 m, alpha = 0.4, spin omega_z = 0; roots sorted by real part"),
         f"Omega_crt = sqrt(2g/(a-2R)) = {wc:.6f} rad/s; Im < 0 means growth"])
 
     fig, ax = plt.subplots(1, 3, figsize=(13, 4.2))
@@ -166,8 +165,8 @@ def fig_critical(ctx: Context) -> None:
         "R": radii, "a": np.full(n, A_PAPER), "inv_a_minus_2R": 1 / (A_PAPER - 2 * radii),
         "omega_crt_theory": theory, "omega_crt_rolling": nl_roll,
         "omega_crt_slipping": nl_slip, "paper_ball": np.isin(radii, PAPER_BALLS).astype(int)},
-        ["Critical speed [1/s]: theory sqrt(2g/(a-2R)) and the nonlinear model's threshold "
-         f"by bisection ({iters} halvings of a +-10% bracket)",
+        [("Critical speed [1/s]: theory sqrt(2g/(a-2R)) and the nonlinear model's threshold "
+         f"by bisection ({iters} halvings of a +-10% bracket)"),
          f"nonlinear criterion: {CRITERION}",
          f"mass point: theory {point_theory:.6f}, nonlinear {nl_point:.6f}"])
     a_list = (0.12, 0.159, 0.20, 0.25)
@@ -178,8 +177,8 @@ def fig_critical(ctx: Context) -> None:
                                         np.nan)
     curve["omega_crt_point"] = np.sqrt(2 * g / curve["a"])
     ctx.write_csv("critical_curves", curve,
-                  ["Linear theory: Omega_crt = sqrt(2g/(a-2R)) (rigid ball, rolling or slipping) "
-                   "and sqrt(2g/a) (mass point), g = 9.8"])
+                  [("Linear theory: Omega_crt = sqrt(2g/(a-2R)) (rigid ball, rolling or slipping) "
+                   "and sqrt(2g/a) (mass point), g = 9.8")])
 
     fig, ax = plt.subplots(1, 3, figsize=(14, 4.3))
     for a_, col in zip(a_list, ("C0", "C1", "C2", "C3")):
@@ -293,9 +292,9 @@ def fig_asymmetric(ctx: Context) -> None:
                 rows["omega_low"].append(lo_)
                 rows["omega_high"].append(hi_)
     ctx.write_csv("asymmetric", rows, [
-        "Stable bands (omega_low, omega_high) [1/s] of the linearised motion on z = x^2/a - y^2/b, "
+        ("Stable bands (omega_low, omega_high) [1/s] of the linearised motion on z = x^2/a - y^2/b, "
         f"a = {A_PAPER} m, spin omega_z = 0, searched up to {omega_max} 1/s (inf: no upper edge "
-        "below it)", "one row per band; b/a values with no row have no stable speed"])
+        "below it)"), "one row per band; b/a values with no row have no stable speed"])
 
     grid = np.linspace(6.0, 60.0, 28 if ctx.quick else 109)
     horizon = 10.0 if ctx.quick else HORIZON
@@ -318,8 +317,8 @@ def fig_asymmetric(ctx: Context) -> None:
         "case": np.repeat([c[0] for c in ASYM_CASES], len(grid)),
         "omega": np.tile(grid, len(ASYM_CASES)), "stable_nonlinear": (~gone).ravel().astype(int)},
         [f"Nonlinear check: {criterion}",
-         "(a smaller release than for Omega_crt: near the edges of a band the bounded linear orbit "
-         "from a 1 mm release can itself exceed 1 cm)"])
+         ("(a smaller release than for Omega_crt: near the edges of a band the bounded linear orbit "
+         "from a 1 mm release can itself exceed 1 cm)")])
 
     # Stability map on a (b/a, Ω) grid for the figure; the band edges in the CSV are exact.
     map_r = np.linspace(0.2, 1.2, 51 if ctx.quick else 201)
