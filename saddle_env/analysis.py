@@ -25,19 +25,18 @@ def _positive_frequencies(traj: Trajectory) -> np.ndarray:
     return np.sort(w.real[w.real > 0])
 
 
-def precession_angle(traj: Trajectory, duration: float | None = None) -> float:
-    """Measured precession of the orbit in the laboratory frame over ``duration`` [rad].
+def orientation_series(traj: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """Orientation [rad] of the secular ellipse in the laboratory against time.
 
     At constant Ω the lab-frame motion is a slow (secular) ellipse plus a fast
-    micro-motion at ~2Ω. The ellipse's orientation is taken as the principal axis of the
-    second moment of the lab-frame position over a sliding window one secular period long
-    (which averages the micro-motion out); the angle is the slope of a straight-line fit
-    of the unwrapped orientation against time, times ``duration`` (default: the run's
-    length). The secular period comes from linear theory: 2π / ((ϖ₊ − ϖ₋)/2).
+    micro-motion at ~2Ω. The ellipse's orientation is the principal axis of the second
+    moment of the lab-frame position over a sliding window one secular period long (which
+    averages the micro-motion out), unwrapped modulo π. The secular period comes from linear
+    theory: 2π / ((ϖ₊ − ϖ₋)/2). Returns (window-centre times, angles).
     """
     t = traj.t
     if not traj.omega.constant:
-        raise ValueError("precession_angle needs a constant saddle speed")
+        raise ValueError("the orientation of the orbit needs a constant saddle speed")
     w = _positive_frequencies(traj)
     secular = 0.5 * (w[1] - w[0])
     if not secular > 0:
@@ -57,6 +56,14 @@ def precession_angle(traj: Trajectory, duration: float | None = None) -> float:
         angles.append(0.5 * math.atan2(2 * sxy, sxx - syy))
         centres.append(np.mean(t[i0:i0 + window]))
     # Orientation is defined modulo π: unwrap on the doubled angle.
-    unwrapped = np.unwrap(2 * np.asarray(angles)) / 2
-    slope = np.polyfit(centres, unwrapped, 1)[0]
+    return np.asarray(centres), np.unwrap(2 * np.asarray(angles)) / 2
+
+
+def precession_angle(traj: Trajectory, duration: float | None = None) -> float:
+    """Measured precession of the orbit in the laboratory frame over ``duration`` [rad]:
+    the slope of a straight-line fit of `orientation_series` against time, times
+    ``duration`` (default: the run's length)."""
+    centres, angles = orientation_series(traj)
+    slope = np.polyfit(centres, angles, 1)[0]
+    t = traj.t
     return float(slope * (t[-1] - t[0] if duration is None else duration))

@@ -19,7 +19,7 @@ import math
 import numpy as np
 
 from .. import _kernels as K
-from ..analysis import linear_precession_rate, precession_angle
+from ..analysis import linear_precession_rate, orientation_series, precession_angle
 from ..linear import critical_omega, eigenfrequencies, linear_trajectory
 from ..scene import Scene
 from ..simulate import Trajectory, initial_state, simulate
@@ -49,31 +49,6 @@ def _linear_contact_r(scene: Scene, omega: float, tr: Trajectory) -> np.ndarray:
     lin = linear_trajectory(scene, omega, _centre_state(scene, tr.state[0]), tr.t)
     R = scene.radius
     return np.hypot(lin[:, 0] / (1 - 2 * R / scene.a), lin[:, 1] / (1 + 2 * R / scene.b))
-
-
-def orientation_series(tr: Trajectory) -> tuple[np.ndarray, np.ndarray]:
-    """Orientation [rad] of the secular ellipse in the laboratory vs time.
-
-    The same measurement as `saddle_env.analysis.precession_angle` (principal axis of the
-    lab-frame second moment over a sliding window one secular period long, unwrapped modulo
-    π), returned as a time series instead of its fitted slope so that the figure can show
-    the angle growing against the formula. Returns (window centre times, angles).
-    """
-    w = eigenfrequencies(tr.scene, tr.omega.w0)
-    pos = np.sort(w.real[w.real > 0])
-    secular = 0.5 * (pos[1] - pos[0])
-    dt = tr.t[1] - tr.t[0]
-    window = int(np.rint(2 * math.pi / secular / dt))
-    xy = tr.lab_xy()
-    hop = max(1, window // 8)
-    centres, angles = [], []
-    for i0 in range(0, len(tr.t) - window, hop):
-        seg = xy[i0:i0 + window]
-        sxx, syy = np.mean(seg[:, 0] ** 2), np.mean(seg[:, 1] ** 2)
-        sxy = np.mean(seg[:, 0] * seg[:, 1])
-        angles.append(0.5 * math.atan2(2 * sxy, sxx - syy))
-        centres.append(np.mean(tr.t[i0:i0 + window]))
-    return np.array(centres), np.unwrap(2 * np.asarray(angles)) / 2
 
 
 # ------------------------------------------------------------------------------------------
