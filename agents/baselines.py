@@ -691,12 +691,7 @@ class ModelPredictiveController(Controller):
         """As `Controller.predict`; ``state`` ((n, state_size), or None at the start) carries
         the estimators from step to step: pass back the returned one, with
         ``episode_start`` (n,) True where a new episode began."""
-        obs = np.asarray(observation, dtype=np.float64)
-        single = obs.ndim == 1
-        batch = obs.reshape(1, -1) if single else obs
-        if batch.ndim != 2 or batch.shape[1] != self.obs_dim:
-            raise ValueError(f"observation must have shape ({self.obs_dim},) or (n, {self.obs_dim}) "
-                             f"for obs_frame={self.config.obs_frame!r}, got {obs.shape}")
+        batch, single = self._batch(observation)
         n, d = batch.shape
         if state is None:
             state = np.zeros((n, self.state_size))
