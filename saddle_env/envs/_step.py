@@ -133,43 +133,46 @@ def step_one(model, p, scale, y, ball, cfg, action, C, A, B, E, E3, err_kind, er
 
 
 @jit
-def _work(stages):
-    return (np.empty(1), np.empty((1, STATE_WIDTH)), np.zeros(4, dtype=np.int64),
+def _workspace(dt):
+    """Scratch arrays for one ball's control step (output time dt)."""
+    t_out = np.empty(1)
+    t_out[0] = dt
+    return (t_out, np.empty((1, STATE_WIDTH)), np.zeros(4, dtype=np.int64),
             np.empty(DRIVE_WIDTH), np.empty(STATE_WIDTH))
+
+
+@jit
+def _step_ball(i, models, P, scales, Y, balls, cfg, actions, C, A, B, E, E3, err_kind,
+               err_order, noise, obs, out, work):
+    """Step ball i with the given scratch arrays; 1 if its integration failed, else 0."""
+    t_out, Y_out, stats, drive, dy = work
+    step_one(models[i], P[i], scales[i], Y[i], balls[i], cfg, actions[i], C, A, B, E, E3,
+             err_kind, err_order, noise[i], obs[i], out[i], t_out, Y_out, stats, drive, dy)
+    return 1 if out[i, O_STATUS] < 0 else 0
 
 
 @jit
 def step_serial(models, P, scales, Y, balls, cfg, actions, active, C, A, B, E, E3, err_kind,
                 err_order, noise, obs, out):
     """Step the active balls one after another; return how many failed (status < 0)."""
-    t_out, Y_out, stats, drive, dy = _work(0)
-    t_out[0] = cfg[C_DT]
+    work = _workspace(cfg[C_DT])
     failed = 0
     for i in range(Y.shape[0]):
         if active[i]:
-            step_one(models[i], P[i], scales[i], Y[i], balls[i], cfg, actions[i], C, A, B, E,
-                     E3, err_kind, err_order, noise[i], obs[i], out[i], t_out, Y_out, stats,
-                     drive, dy)
-            if out[i, O_STATUS] < 0:
-                failed += 1
+            failed += _step_ball(i, models, P, scales, Y, balls, cfg, actions, C, A, B, E, E3,
+                                 err_kind, err_order, noise, obs, out, work)
     return failed
 
 
 @nb.njit(cache=True, parallel=True)
 def step_parallel(models, P, scales, Y, balls, cfg, actions, active, C, A, B, E, E3, err_kind,
                   err_order, noise, obs, out):
-    """Step the active balls on all threads; return how many failed (status < 0)."""
-    n = Y.shape[0]
+    """Step the active balls on all threads (scratch arrays per ball); return how many failed."""
     failed = 0
-    for i in nb.prange(n):
+    for i in nb.prange(Y.shape[0]):
         if active[i]:
-            t_out, Y_out, stats, drive, dy = _work(0)
-            t_out[0] = cfg[C_DT]
-            step_one(models[i], P[i], scales[i], Y[i], balls[i], cfg, actions[i], C, A, B, E,
-                     E3, err_kind, err_order, noise[i], obs[i], out[i], t_out, Y_out, stats,
-                     drive, dy)
-            if out[i, O_STATUS] < 0:
-                failed += 1
+            failed += _step_ball(i, models, P, scales, Y, balls, cfg, actions, C, A, B, E, E3,
+                                 err_kind, err_order, noise, obs, out, _workspace(cfg[C_DT]))
     return failed
 
 
@@ -192,5 +195,3 @@ def normal_over_mg(model, p, y, ball, cfg):
     g = p[P_G]
     return n / g if g > 0 else n
 
-
-__all__ = ["STATUS_DETACH"]

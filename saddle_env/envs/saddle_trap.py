@@ -26,23 +26,22 @@ def observation_space(config: EnvConfig) -> spaces.Box:
     return spaces.Box(low_arr, high_arr, dtype=np.float32)
 
 
-_ONE = np.zeros(1)
-
-
 def action_space() -> spaces.Box:
     return spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
 
 
-def check_actions(actions: Any, n: int) -> np.ndarray:
-    """Actions as a float64 (n,) array clipped to [-1, 1]; a clear error for bad input."""
-    if n == 1 and type(actions) is np.ndarray and actions.shape == (1,) and \
-            actions.dtype.kind == "f":
-        # Fast path for the common single-env call (this runs every step).
+def check_actions(actions: Any, n: int, out: np.ndarray | None = None) -> np.ndarray:
+    """Actions as a float64 (n,) array clipped to [-1, 1]; a clear error for bad input.
+
+    ``out`` (shape (1,), owned by the caller) enables a fast path for the common
+    single-env call, which runs every step."""
+    if out is not None and n == 1 and type(actions) is np.ndarray and actions.shape == (1,) \
+            and actions.dtype.kind == "f":
         v = float(actions[0])
         if not math.isfinite(v):
             raise ValueError(f"action must be finite (in [-1, 1]), got {actions!r}")
-        _ONE[0] = -1.0 if v < -1.0 else (1.0 if v > 1.0 else v)
-        return _ONE
+        out[0] = -1.0 if v < -1.0 else (1.0 if v > 1.0 else v)
+        return out
     try:
         arr = np.asarray(actions, dtype=np.float64)
     except (TypeError, ValueError):
@@ -127,6 +126,7 @@ class SaddleTrapEnv(gym.Env):
         self.observation_space = observation_space(self.config)
         self.action_space = action_space()
         self._active = np.ones(1, dtype=bool)
+        self._action = np.zeros(1)
         self._renderer = None
         self._needs_reset = True
 
@@ -157,7 +157,7 @@ class SaddleTrapEnv(gym.Env):
     def step(self, action):
         if self._needs_reset:
             raise RuntimeError("call reset() before step() (the episode has ended or not begun)")
-        a = check_actions(action, 1)
+        a = check_actions(action, 1, self._action)
         self.engine.step(a, self._active, [self.np_random])
         out = self.engine.out[0]
         terminated = out[S.O_STATUS] > 0
