@@ -49,11 +49,15 @@ OBS_VX, OBS_VY, OBS_N, OBS_H, OBS_CX, OBS_CY, OBS_CZ, OBS_OMEGA = range(8)
 OBS_WIDTH = 8
 
 jit = nb.njit(cache=True, fastmath=False, error_model="numpy")
+# For the per-ball rates: inlined into every caller so a loop over balls can be vectorised.
+inline = nb.njit(cache=True, fastmath=False, error_model="numpy", forceinline=True)
 
 
 @jit
 def omega_at(prof, t):
     """Saddle speed Ω(t) [rad/s] and its rate Ω̇(t) [rad/s²] from a profile row."""
+    if prof[2] == 0.0:  # no ripple: skip the trigonometry (most calls)
+        return prof[0] + prof[1] * t, prof[1]
     phase = prof[3] * t + prof[4]
     return (prof[0] + prof[1] * t + prof[2] * math.sin(phase),
             prof[1] + prof[2] * prof[3] * math.cos(phase))
@@ -74,16 +78,19 @@ def geometry(a, b, R, x, y):
 
     Returns ``(s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z)``.
     """
-    fx = 2.0 * x / a
-    fy = -2.0 * y / b
+    # Reciprocals once: divisions dominate the cost of the right-hand side.
+    ia, ib = 1.0 / a, 1.0 / b
+    fx = 2.0 * x * ia
+    fy = -2.0 * y * ib
     s = math.sqrt(1.0 + fx * fx + fy * fy)
-    nx, ny, nz = -fx / s, -fy / s, 1.0 / s
+    nz = 1.0 / s
+    nx, ny = -fx * nz, -fy * nz
     cx = x + R * nx
     cy = y + R * ny
-    cz = x * x / a - y * y / b + R * nz
+    cz = (x * x * ia - y * y * ib) + R * nz
     # dn/dq_i = P (dm/dq_i) / s with dm/dx = (-2/a, 0, 0), dm/dy = (0, 2/b, 0).
-    k1 = -2.0 * R / (a * s)
-    k2 = 2.0 * R / (b * s)
+    k1 = -2.0 * R * ia * nz
+    k2 = 2.0 * R * ib * nz
     J1x = 1.0 + k1 * (1.0 - nx * nx)
     J1y = -k1 * ny * nx
     J1z = fx - k1 * nz * nx
@@ -101,33 +108,101 @@ def _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, rx, ry, rz):
     g22 = J2x * J2x + J2y * J2y + J2z * J2z
     b1 = J1x * rx + J1y * ry + J1z * rz
     b2 = J2x * rx + J2y * ry + J2z * rz
-    det = g11 * g22 - g12 * g12
-    return (g22 * b1 - g12 * b2) / det, (g11 * b2 - g12 * b1) / det
+    inv_det = 1.0 / (g11 * g22 - g12 * g12)
+    return (g22 * b1 - g12 * b2) * inv_det, (g11 * b2 - g12 * b1) * inv_det
 
 
 @jit
 def _normal_rate(a, b, s, nx, ny, nz, vx, vy):
     """ṁ (its z part is 0), n·ṁ and ṅ for contact-point velocity (vx, vy)."""
-    mdx = -2.0 * vx / a
-    mdy = 2.0 * vy / b
+    mdx = -2.0 * vx * (1.0 / a)
+    mdy = 2.0 * vy * (1.0 / b)
     nm = nx * mdx + ny * mdy
-    return mdx, mdy, nm, (mdx - nx * nm) / s, (mdy - ny * nm) / s, -nz * nm / s
+    inv_s = nz  # n_z = 1/s
+    return mdx, mdy, nm, (mdx - nx * nm) * inv_s, (mdy - ny * nm) * inv_s, -nz * nm * inv_s
 
 
 @jit
-def _effective_gravity(g, prof, t, Om, Omd, cx, cy, cdx, cdy):
-    """g_eff = -g k - Ω̇ k×c - 2Ω k×ċ - Ω² k×(k×c) (gravity, Euler, Coriolis, centrifugal),
-    plus the external horizontal force, turned from the lab into the saddle's axes."""
+def frame_terms(prof, t):
+    """Ω(t) [rad/s], Ω̇(t) [rad/s²] and the lab-fixed force per unit mass turned into the
+    saddle's axes at t [m/s²]: everything the rates need from the drive row."""
+    Om, Omd = omega_at(prof, t)
+    fx, fy = prof[DRIVE_FX], prof[DRIVE_FY]
+    if fx == 0.0 and fy == 0.0:
+        return Om, Omd, 0.0, 0.0
+    th = angle_at(prof, t)
+    ct, st = math.cos(th), math.sin(th)
+    return Om, Omd, ct * fx + st * fy, -st * fx + ct * fy
+
+
+@jit
+def _effective_gravity(g, Om, Omd, fx, fy, cx, cy, cdx, cdy):
+    """g_eff = -g k - Ω̇ k×c - 2Ω k×ċ - Ω² k×(k×c) (gravity, Euler, Coriolis, centrifugal)
+    plus the external horizontal force (fx, fy), already in the saddle's axes."""
     Om2 = Om * Om
-    gx = Omd * cy + 2.0 * Om * cdy + Om2 * cx
-    gy = -Omd * cx - 2.0 * Om * cdx + Om2 * cy
-    fx, fy = prof[6], prof[7]
-    if fx != 0.0 or fy != 0.0:
-        th = angle_at(prof, t)
-        ct, st = math.cos(th), math.sin(th)
-        gx += ct * fx + st * fy
-        gy += -st * fx + ct * fy
+    gx = Omd * cy + 2.0 * Om * cdy + Om2 * cx + fx
+    gy = -Omd * cx - 2.0 * Om * cdx + Om2 * cy + fy
     return gx, gy, -g
+
+
+@inline
+def rolling_rates(a, b, R, alpha, g, drill, Om, Omd, fx, fy, x, y, wx, wy, wz):
+    """Time derivatives of a rolling ball's state (x, y, wx, wy, wz) and N/m [m/s²].
+
+    Scalars in, scalars out, always inlined: the same code serves `rhs` and the SIMD lanes
+    of `saddle_env.lockstep` (a call would stop the compiler from vectorising the loop).
+    (Om, Omd, fx, fy) come from `frame_terms`.
+    """
+    s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, x, y)
+    # Rolling constraint ċ = R w × n fixes the contact-point velocity.
+    cdx = R * (wy * nz - wz * ny)
+    cdy = R * (wz * nx - wx * nz)
+    cdz = R * (wx * ny - wy * nx)
+    vx, vy = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, cdx, cdy, cdz)
+    mdx, mdy, nm, ndx, ndy, ndz = _normal_rate(a, b, s, nx, ny, nz, vx, vy)
+    gx, gy, gz = _effective_gravity(g, Om, Omd, fx, fy, cx, cy, cdx, cdy)
+    # Euler's equation with the contact force eliminated:
+    # [(1+α) 1 - n nᵀ] ẇ = -α(Ω̇ k + Ω k×w) - n×(w×ṅ) + n×g_eff/R, and n×(w×ṅ) = -(n·w) ṅ
+    # because n·ṅ = 0. The matrix is inverted in closed form (Sherman–Morrison):
+    # its inverse is (1 + n nᵀ/α)/(1+α).
+    iR = 1.0 / R
+    nw = nx * wx + ny * wy + nz * wz
+    rx = alpha * Om * wy + nw * ndx + (ny * gz - nz * gy) * iR
+    ry = -alpha * Om * wx + nw * ndy + (nz * gx - nx * gz) * iR
+    rz = -alpha * Omd + nw * ndz + (nx * gy - ny * gx) * iR
+    # n·r / α: only the frame terms survive (n·ṅ = 0, n·(n×·) = 0).
+    nr_over_alpha = -(Omd * nz + Om * (ny * wx - nx * wy))
+    inv = 1.0 / (1.0 + alpha)
+    drl = drill * nw
+    # N/m = n·(c̈ - g_eff) with n·c̈ = R n·(w×ṅ) (the ẇ×n part is tangential).
+    wnx = wy * ndz - wz * ndy
+    wny = wz * ndx - wx * ndz
+    wnz = wx * ndy - wy * ndx
+    normal = R * (nx * wnx + ny * wny + nz * wnz) - (nx * gx + ny * gy + nz * gz)
+    return (vx, vy, (rx + nr_over_alpha * nx) * inv - drl * nx,
+            (ry + nr_over_alpha * ny) * inv - drl * ny,
+            (rz + nr_over_alpha * nz) * inv - drl * nz, normal)
+
+
+@inline
+def slipping_rates(a, b, R, g, Om, Omd, fx, fy, x, y, vx, vy):
+    """Time derivatives of a slipping ball's state (x, y, vx, vy) and N/m [m/s²]; the point
+    model is R = 0. Inlined like `rolling_rates`."""
+    s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, x, y)
+    cdx = J1x * vx + J2x * vy
+    cdy = J1y * vx + J2y * vy
+    mdx, mdy, nm, ndx, ndy, ndz = _normal_rate(a, b, s, nx, ny, nz, vx, vy)
+    ndm = ndx * mdx + ndy * mdy
+    kR = R * nz  # R/s
+    kapx = -kR * (2.0 * nm * ndx + ndm * nx)
+    kapy = -kR * (2.0 * nm * ndy + ndm * ny)
+    kapz = 2.0 * (vx * vx / a - vy * vy / b) - kR * (2.0 * nm * ndz + ndm * nz)
+    gx, gy, gz = _effective_gravity(g, Om, Omd, fx, fy, cx, cy, cdx, cdy)
+    # The centre is a particle on the offset surface: q̈ = (JᵀJ)⁻¹ Jᵀ (g_eff - J̇ q̇).
+    rx, ry, rz = gx - kapx, gy - kapy, gz - kapz
+    ax, ay = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, rx, ry, rz)
+    # N/m = n·(c̈ - g_eff) and n·J q̈ = 0.
+    return vx, vy, ax, ay, -(nx * rx + ny * ry + nz * rz)
 
 
 @jit
@@ -144,65 +219,16 @@ def rhs(model, p, prof, t, y, dy, want_normal):
     y, dy : (5,) float64 — state and its derivative.
     want_normal : bool — whether to return the normal force per unit mass.
     """
-    a, b, R, g = p[P_A], p[P_B], p[P_R], p[P_G]
-    Om, Omd = omega_at(prof, t)
-    s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, y[0], y[1])
+    Om, Omd, fx, fy = frame_terms(prof, t)
     if model == ROLLING:
-        wx, wy, wz = y[2], y[3], y[4]
-        # Rolling constraint ċ = R w × n fixes the contact-point velocity.
-        cdx = R * (wy * nz - wz * ny)
-        cdy = R * (wz * nx - wx * nz)
-        cdz = R * (wx * ny - wy * nx)
-        vx, vy = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, cdx, cdy, cdz)
-        mdx, mdy, nm, ndx, ndy, ndz = _normal_rate(a, b, s, nx, ny, nz, vx, vy)
-        gx, gy, gz = _effective_gravity(g, prof, t, Om, Omd, cx, cy, cdx, cdy)
-        # Euler's equation with the contact force eliminated:
-        # [(1+α) 1 - n nᵀ] ẇ = -α(Ω̇ k + Ω k×w) - n×(w×ṅ) + n×g_eff/R, and n×(w×ṅ) = -(n·w) ṅ
-        # because n·ṅ = 0. The matrix is inverted in closed form (Sherman–Morrison):
-        # its inverse is (1 + n nᵀ/α)/(1+α).
-        alpha = p[P_ALPHA]
-        nw = nx * wx + ny * wy + nz * wz
-        rx = alpha * Om * wy + nw * ndx + (ny * gz - nz * gy) / R
-        ry = -alpha * Om * wx + nw * ndy + (nz * gx - nx * gz) / R
-        rz = -alpha * Omd + nw * ndz + (nx * gy - ny * gx) / R
-        # n·r / α: only the frame terms survive (n·ṅ = 0, n·(n×·) = 0).
-        nr_over_alpha = -(Omd * nz + Om * (ny * wx - nx * wy))
-        inv = 1.0 / (1.0 + alpha)
-        drill = p[P_DRILL] * nw
-        dy[0] = vx
-        dy[1] = vy
-        dy[2] = (rx + nr_over_alpha * nx) * inv - drill * nx
-        dy[3] = (ry + nr_over_alpha * ny) * inv - drill * ny
-        dy[4] = (rz + nr_over_alpha * nz) * inv - drill * nz
-        if want_normal:
-            # n·c̈ = R n·(w×ṅ) (the ẇ×n part is tangential); N/m = n·(c̈ - g_eff).
-            wnx = wy * ndz - wz * ndy
-            wny = wz * ndx - wx * ndz
-            wnz = wx * ndy - wy * ndx
-            return R * (nx * wnx + ny * wny + nz * wnz) - (nx * gx + ny * gy + nz * gz)
-        return 0.0
-    vx, vy = y[2], y[3]
-    cdx = J1x * vx + J2x * vy
-    cdy = J1y * vx + J2y * vy
-    mdx, mdy, nm, ndx, ndy, ndz = _normal_rate(a, b, s, nx, ny, nz, vx, vy)
-    ndm = ndx * mdx + ndy * mdy
-    kR = R / s
-    kapx = -kR * (2.0 * nm * ndx + ndm * nx)
-    kapy = -kR * (2.0 * nm * ndy + ndm * ny)
-    kapz = 2.0 * (vx * vx / a - vy * vy / b) - kR * (2.0 * nm * ndz + ndm * nz)
-    gx, gy, gz = _effective_gravity(g, prof, t, Om, Omd, cx, cy, cdx, cdy)
-    # The centre is a particle on the offset surface: q̈ = (JᵀJ)⁻¹ Jᵀ (g_eff - J̇ q̇).
-    rx, ry, rz = gx - kapx, gy - kapy, gz - kapz
-    ax, ay = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, rx, ry, rz)
-    dy[0] = vx
-    dy[1] = vy
-    dy[2] = ax
-    dy[3] = ay
-    dy[4] = 0.0
-    if want_normal:
-        # N/m = n·(c̈ - g_eff) and n·J q̈ = 0.
-        return -(nx * rx + ny * ry + nz * rz)
-    return 0.0
+        dy[0], dy[1], dy[2], dy[3], dy[4], normal = rolling_rates(
+            p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], Om, Omd, fx, fy,
+            y[0], y[1], y[2], y[3], y[4])
+    else:
+        dy[0], dy[1], dy[2], dy[3], normal = slipping_rates(
+            p[P_A], p[P_B], p[P_R], p[P_G], Om, Omd, fx, fy, y[0], y[1], y[2], y[3])
+        dy[4] = 0.0
+    return normal if want_normal else 0.0
 
 
 @jit
