@@ -36,7 +36,14 @@ from saddle_env import _kernels as Kn
 from saddle_env.envs import EnvConfig
 from saddle_env.envs.engine import VELOCITY_SCALE  # [m/s] observation scale of velocities
 from saddle_env.envs.saddle_trap import action_space, observation_space
-from saddle_env.integrators import EVENT_DETACH, EVENT_ESCAPE, METHODS, integrate_h, state_scale
+from saddle_env.integrators import (
+    EVENT_DETACH,
+    EVENT_ESCAPE,
+    METHODS,
+    integrate_h,
+    state_scale,
+    workspace,
+)
 from saddle_env.linear import abcd, critical_omega, is_stable
 from saddle_env.scene import P_A, P_B, P_G, P_R, ROLLING
 
@@ -383,6 +390,7 @@ def _advance(model, P, scales, Y, omega0, rate, force, T, C, A, B, E, E3, err_ki
              rtol, max_step, Y_end):
     """Each ball i over ``T`` seconds from ``Y[i]`` with Ω ramping from ``omega0[i]`` at
     ``rate[i]`` and the lab-fixed force ``force[i]`` (saddle axes at t = 0), no events."""
+    work = workspace(B)
     for i in range(Y.shape[0]):
         prof = np.zeros(Kn.DRIVE_WIDTH)
         prof[0], prof[1] = omega0[i], rate[i]
@@ -393,7 +401,7 @@ def _advance(model, P, scales, Y, omega0, rate, force, T, C, A, B, E, E3, err_ki
         stats = np.zeros(4, dtype=np.int64)
         hio = np.zeros(2)
         integrate_h(model, P[i], prof, y, 0.0, t_out, C, A, B, E, E3, err_kind, err_order, 0.0,
-                    rtol, rtol, scales[i], max_step, 0, 100000, Y_out, stats, hio)
+                    rtol, rtol, scales[i], max_step, 0, 100000, Y_out, stats, hio, work)
         Y_end[i] = y
 
 
@@ -423,6 +431,7 @@ def _predict(model, P, scales, table, Y0, omega0, force, omega_ref, low, high, r
         t_back = abs(w_ref - w1) / amax
         stats = np.zeros(4, dtype=np.int64)
         hio = np.zeros(2)
+        work = workspace(B)
         dy = np.empty(Kn.STATE_WIDTH)
         lowest = np.inf
         acc = 0.0
@@ -445,7 +454,7 @@ def _predict(model, P, scales, table, Y0, omega0, force, omega_ref, low, high, r
             Y_out = np.full((m, Kn.STATE_WIDTH), np.nan)
             st, _ = integrate_h(model, p, prof, y, 0.0, t_out, C, A, B, E, E3, err_kind,
                                  err_order, 0.0, rtol, rtol, scales[i], max_step,
-                                 EVENT_DETACH | EVENT_ESCAPE, 100000, Y_out, stats, hio)
+                                 EVENT_DETACH | EVENT_ESCAPE, 100000, Y_out, stats, hio, work)
             for r in range(m):
                 if not math.isfinite(Y_out[r, 0]):
                     break

@@ -3,7 +3,8 @@
 Methods are named, declare their order and live in one registry, ``METHODS`` (the shape of
 scipy's ``ivp.METHODS``). Every method runs on one compiled stepping loop, `integrate`,
 which the single-ball path calls directly and the batch path calls once per ball, in
-parallel. The loop:
+parallel (`saddle_env.lockstep` reproduces its first step for many balls at once, in SIMD
+lanes, for the environment). The loop:
 
 * takes fixed steps (``dt > 0``) or adaptive steps (``dt == 0``: embedded error estimate,
   the usual step-size controller of Hairer, Nørsett & Wanner, Vol. I §II.4);
@@ -263,19 +264,26 @@ def _initial_step(model, p, prof, t, y, f0, d, sc, order, ytmp, f1, hmax):
 
 
 @jit
+def workspace(B):
+    """Scratch memory for `integrate_h` with a method of ``B.shape[0]`` stages."""
+    return np.empty((B.shape[0] + 5, STATE_WIDTH))
+
+
+@jit
 def integrate(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order, dt,
               rtol, atol, scale, max_step, events, max_steps, Y_out, stats):
     """Advance ``y`` (in place) from ``t0`` through the output times ``t_out``.
 
-    See `integrate_h`, which this calls with no step-size hint."""
+    See `integrate_h`, which this calls with no step-size hint and fresh scratch memory."""
     hio = np.zeros(2)
     return integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order, dt,
-                       rtol, atol, scale, max_step, events, max_steps, Y_out, stats, hio)
+                       rtol, atol, scale, max_step, events, max_steps, Y_out, stats, hio,
+                       workspace(B))
 
 
 @jit
 def integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order, dt,
-                rtol, atol, scale, max_step, events, max_steps, Y_out, stats, hio):
+                rtol, atol, scale, max_step, events, max_steps, Y_out, stats, hio, work):
     """Advance ``y`` (in place) from ``t0`` through the output times ``t_out``.
 
     Parameters
@@ -296,6 +304,8 @@ def integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_orde
         a run, e.g. the environment's next control step, passes the last one back); on
         return, the step the controller would take next. hio[1] on return: the normal force
         per unit mass at the final state when detachment events are on (else NaN).
+    work : scratch memory from `workspace(B)`; a caller stepping many short intervals (the
+        environment) passes the same one every time instead of allocating per call.
 
     Returns
     -------
@@ -304,11 +314,11 @@ def integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_orde
     """
     d = 5 if model == ROLLING else 4
     s = B.shape[0]
-    K = np.empty((s + 1, STATE_WIDTH))
-    ytmp = np.empty(STATE_WIDTH)
-    ynew = np.empty(STATE_WIDTH)
-    dy = np.empty(STATE_WIDTH)
-    sc = np.empty(STATE_WIDTH)
+    K = work[:s + 1]
+    ytmp = work[s + 1]
+    ynew = work[s + 2]
+    dy = work[s + 3]
+    sc = work[s + 4]
     adaptive = dt <= 0.0
     want_normal = (events & EVENT_DETACH) != 0
     m = t_out.shape[0]

@@ -1,0 +1,206 @@
+"""One Runge–Kutta step for a block of balls at once, vectorised across the balls.
+
+The environment advances every ball by the same control period, and a ball's adaptive
+integrator usually takes that period as one step (its step-size hint is longer). That step
+is then the same arithmetic for every ball, so here it is done on a block of balls laid
+out as structure-of-arrays, ``X[component, lane]``, in loops over the lanes that the
+compiler turns into SIMD instructions (4–8 balls per instruction with AVX2/AVX-512). The
+rates are `_kernels.rolling_rates` / `slipping_rates`, inlined — the same code `rhs` runs.
+
+A lane's result is *accepted* only if `integrators.integrate_h` would have accepted exactly
+this step: the state is finite, the error estimate is ≤ 1, no event holds at the start or
+the end, and no stage point saw N < 0 (a dip inside the step). Every other ball is left for
+`integrate_h` to redo, so an accepted lane is bit-for-bit the scalar integrator's result —
+the operations and their order are the same, and no fused multiply-adds are allowed
+(``fastmath=False``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._kernels import DRIVE_WIDTH, STATE_WIDTH, frame_terms, jit, rolling_rates, slipping_rates
+from .integrators import ERR_EMBEDDED, EVENT_DETACH, EVENT_ESCAPE, MAX_FACTOR, MIN_FACTOR, SAFETY
+from .scene import P_A, P_ALPHA, P_B, P_DRILL, P_G, P_R, P_RIM, ROLLING
+
+LANES = 64  # balls per block: the stage arrays of a block stay in the L1 cache
+PARAM_WIDTH = 7
+FRAME_WIDTH = 4  # Ω, Ω̇, fx, fy (saddle axes) at one stage time
+
+
+@jit
+def block_size(stages):
+    """Floats of scratch memory for one block with a method of ``stages`` stages."""
+    return LANES * (PARAM_WIDTH + DRIVE_WIDTH + 4 * STATE_WIDTH
+                    + (stages + 1) * (STATE_WIDTH + FRAME_WIDTH) + 8)
+
+
+@jit
+def carve_block(buf, stages):
+    """Views into ``buf`` (at least `block_size` floats) for one block of `LANES` lanes:
+    ``(P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3)`` —
+    parameters (7, L), drive rows (L, 8), start / end / stage states and state scales
+    (5, L), stages (s + 1, 5, L), frame terms (s + 1, 4, L), N/m at the start, at the current
+    stage, the smallest over the stages and at the end, error norms, and three accumulators
+    (L,). Carving a caller-owned buffer keeps allocation off the per-step path."""
+    L = LANES
+    o = 0
+    P = buf[o:o + PARAM_WIDTH * L].reshape((PARAM_WIDTH, L))
+    o += PARAM_WIDTH * L
+    D = buf[o:o + DRIVE_WIDTH * L].reshape((L, DRIVE_WIDTH))
+    o += DRIVE_WIDTH * L
+    Y0 = buf[o:o + STATE_WIDTH * L].reshape((STATE_WIDTH, L))
+    o += STATE_WIDTH * L
+    Ynew = buf[o:o + STATE_WIDTH * L].reshape((STATE_WIDTH, L))
+    o += STATE_WIDTH * L
+    Ytmp = buf[o:o + STATE_WIDTH * L].reshape((STATE_WIDTH, L))
+    o += STATE_WIDTH * L
+    Sc = buf[o:o + STATE_WIDTH * L].reshape((STATE_WIDTH, L))
+    o += STATE_WIDTH * L
+    K = buf[o:o + (stages + 1) * STATE_WIDTH * L].reshape((stages + 1, STATE_WIDTH, L))
+    o += (stages + 1) * STATE_WIDTH * L
+    Fr = buf[o:o + (stages + 1) * FRAME_WIDTH * L].reshape((stages + 1, FRAME_WIDTH, L))
+    o += (stages + 1) * FRAME_WIDTH * L
+    vec = buf[o:o + 8 * L].reshape((8, L))
+    return (P, D, Y0, Ynew, Ytmp, Sc, K, Fr, vec[0], vec[1], vec[2], vec[3], vec[4], vec[5],
+            vec[6], vec[7])
+
+
+@jit
+def _rates(model, m, P, fr, Y, Kout, Nout):
+    """Rates and N/m of lanes 0..m-1 (the loops the compiler vectorises)."""
+    if model == ROLLING:
+        for q in range(m):
+            (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Kout[4, q], Nout[q]) = rolling_rates(
+                P[P_A, q], P[P_B, q], P[P_R, q], P[P_ALPHA, q], P[P_G, q], P[P_DRILL, q],
+                fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q], Y[2, q], Y[3, q],
+                Y[4, q])
+    else:
+        for q in range(m):
+            (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Nout[q]) = slipping_rates(
+                P[P_A, q], P[P_B, q], P[P_R, q], P[P_G, q], fr[0, q], fr[1, q], fr[2, q],
+                fr[3, q], Y[0, q], Y[1, q], Y[2, q], Y[3, q])
+            Kout[4, q] = 0.0
+
+
+@jit
+def rk_step_block(model, m, h, C, A, B, E, E3, err_kind, adaptive, rtol, atol, ws):
+    """Take one step of size ``h`` from t = 0 for lanes 0..m-1 of the block ``ws``.
+
+    The caller has filled P, D (drive rows), Y0 and Sc. Fills the stages, Ynew, the normal
+    forces and (adaptive) the error norms, exactly as `integrators.integrate_h` computes
+    them for its first step."""
+    P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3 = ws
+    s = B.shape[0]
+    d = 5 if model == ROLLING else 4
+    # Drive terms at the stage times (trigonometry only with ripple or an external force).
+    for q in range(m):
+        prof = D[q]
+        for i in range(s):
+            Fr[i, 0, q], Fr[i, 1, q], Fr[i, 2, q], Fr[i, 3, q] = frame_terms(prof, 0.0 + C[i] * h)
+        Fr[s, 0, q], Fr[s, 1, q], Fr[s, 2, q], Fr[s, 3, q] = frame_terms(prof, 0.0 + h)
+    _rates(model, m, P, Fr[0], Y0, K[0], Nstart)
+    for q in range(m):
+        Nmin[q] = np.inf
+    for i in range(1, s):
+        for j in range(d):
+            for q in range(m):
+                acc[q] = 0.0
+            for l in range(i):
+                c = A[i, l]
+                for q in range(m):
+                    acc[q] += c * K[l, j, q]
+            for q in range(m):
+                Ytmp[j, q] = Y0[j, q] + h * acc[q]
+        for j in range(d, STATE_WIDTH):
+            for q in range(m):
+                Ytmp[j, q] = Y0[j, q]
+        _rates(model, m, P, Fr[i], Ytmp, K[i], Nstage)
+        for q in range(m):
+            if Nstage[q] < Nmin[q]:
+                Nmin[q] = Nstage[q]
+    for j in range(d):
+        for q in range(m):
+            acc[q] = 0.0
+        for l in range(s):
+            c = B[l]
+            for q in range(m):
+                acc[q] += c * K[l, j, q]
+        for q in range(m):
+            Ynew[j, q] = Y0[j, q] + h * acc[q]
+    for j in range(d, STATE_WIDTH):
+        for q in range(m):
+            Ynew[j, q] = Y0[j, q]
+    _rates(model, m, P, Fr[s], Ynew, K[s], Nend)
+    if adaptive:
+        _error_norms(m, d, h, err_kind, E, E3, rtol, atol, ws)
+
+
+@jit
+def _error_norms(m, d, h, err_kind, E, E3, rtol, atol, ws):
+    """`integrators._error_norm` for every lane (same operations, same order)."""
+    P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3 = ws
+    s1 = K.shape[0]
+    # Sc holds the state scales; the error scale of component j is built per lane.
+    for q in range(m):
+        Nstage[q] = 0.0  # e5 (or the embedded sum of squares)
+        acc[q] = 0.0     # e3
+    for j in range(d):
+        for q in range(m):
+            a5[q] = 0.0
+            a3[q] = 0.0
+        for l in range(s1):
+            c5 = E[l]
+            c3 = E3[l]
+            for q in range(m):
+                a5[q] += c5 * K[l, j, q]
+                a3[q] += c3 * K[l, j, q]
+        for q in range(m):
+            sc = atol * Sc[j, q] + rtol * max(abs(Y0[j, q]), abs(Ynew[j, q]))
+            if err_kind == ERR_EMBEDDED:
+                e = a5[q] * (h / sc)
+                Nstage[q] += e * e
+            else:
+                Nstage[q] += (a5[q] / sc) ** 2
+                acc[q] += (a3[q] / sc) ** 2
+    for q in range(m):
+        if err_kind == ERR_EMBEDDED:
+            Err[q] = math.sqrt(Nstage[q] / d)
+        elif Nstage[q] == 0.0 and acc[q] == 0.0:
+            Err[q] = 0.0
+        else:
+            Err[q] = abs(h) * Nstage[q] / math.sqrt((Nstage[q] + 0.01 * acc[q]) * d)
+
+
+@jit
+def accepted(q, model, adaptive, events, ws):
+    """Whether `integrate_h` would accept lane q's step as it stands and stop there."""
+    P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3 = ws
+    s = K.shape[0] - 1
+    d = 5 if model == ROLLING else 4
+    for j in range(d):
+        if not math.isfinite(Ynew[j, q]) or not math.isfinite(K[s, j, q]):
+            return False
+    if adaptive and not Err[q] <= 1.0:
+        return False
+    rim2 = P[P_RIM, q] * P[P_RIM, q]
+    if events & EVENT_DETACH:
+        if Nstart[q] < 0.0 or Nend[q] < 0.0 or Nmin[q] < 0.0:
+            return False
+    if events & EVENT_ESCAPE:
+        if (rim2 - (Y0[0, q] * Y0[0, q] + Y0[1, q] * Y0[1, q]) < 0.0
+                or rim2 - (Ynew[0, q] * Ynew[0, q] + Ynew[1, q] * Ynew[1, q]) < 0.0):
+            return False
+    return True
+
+
+@jit
+def next_step(q, h, h_hint, err_order, max_step, ws):
+    """The step-size hint `integrate_h` leaves after accepting lane q's (clipped) step."""
+    P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3 = ws
+    err = Err[q]
+    exponent = -1.0 / (err_order + 1.0)
+    factor = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR, max(MIN_FACTOR, SAFETY * err ** exponent))
+    return min(max(h * factor, h_hint), max_step)
