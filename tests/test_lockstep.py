@@ -104,12 +104,13 @@ def test_a_dip_of_N_inside_a_block_step_goes_to_the_scalar_path():
     config = EnvConfig.from_kwargs(method="dop853", substep=0.08, control_period=0.08)
     place = {"x": 0.005, "y": 0.005, "omega": 30.0, "start": "rotating-rest", "R": 0.033}
     events = []
+    n = S.MIN_BLOCK  # the smallest block
     for flag in (True, False):
-        e = TrapEngine(config, 1, parallel=False, lockstep=flag)
-        rngs = [np.random.default_rng(0)]
-        e.reset(np.arange(1), rngs, place)
+        e = TrapEngine(config, n, parallel=False, lockstep=flag)
+        rngs = [np.random.default_rng(i) for i in range(n)]
+        e.reset(np.arange(n), rngs, place)
         for _ in range(5):
-            e.step(np.zeros(1), np.ones(1, dtype=bool), rngs)
+            e.step(np.zeros(n), np.ones(n, dtype=bool), rngs)
             if e.out[0, S.O_STATUS] != 0:
                 break
         events.append((e.cause(0), e.balls[0, S.B_TIME]))

@@ -20,7 +20,17 @@ import math
 import numba as nb
 import numpy as np
 
-from .._kernels import DRIVE_WIDTH, STATE_WIDTH, angle_at, contact_velocity, geometry, jit, rhs
+from .._kernels import (
+    DRIVE_WIDTH,
+    STATE_WIDTH,
+    angle_at,
+    contact_velocity,
+    geometry,
+    jit,
+    lab_rest_velocity,
+    rhs,
+    state_from_velocity,
+)
 from ..integrators import EVENT_DETACH, STATUS_DETACH, integrate_h
 from ..lockstep import (
     LANES,
@@ -48,6 +58,7 @@ OUT_WIDTH = 5
 CFG_WIDTH = 18
 
 OBS_MAX = 7  # widest observation (lab frame)
+MIN_BLOCK = 4  # fewest balls worth a SIMD block (measured crossover: 4-8 balls)
 
 # Observation bounds (scaled units), shared with the declared observation space.
 POS_BOUND, VEL_BOUND, OMEGA_LOW, OMEGA_HIGH = 2.0, 10.0, -0.5, 1.5
@@ -262,14 +273,19 @@ def _step_block(model, m, lanes, rates, ws, sc, record, P, scales, Y, balls, cfg
     dt = cfg[C_DT]
     adaptive = cfg[C_SUBSTEP] <= 0.0
     events = int(cfg[C_EVENTS])
-    rk_step_block(model, m, dt, C, A, B, E, E3, err_kind, adaptive, cfg[C_RTOL], cfg[C_ATOL], ws)
+    # A block of a few balls costs more than it saves (loop overhead of ~2 µs): step them
+    # one by one.
+    use_block = m >= MIN_BLOCK
+    if use_block:
+        rk_step_block(model, m, dt, C, A, B, E, E3, err_kind, adaptive, cfg[C_RTOL],
+                      cfg[C_ATOL], ws)
     D, Ynew, Nend = ws[1], ws[3], ws[11]
     p, scale, y, ball, nz, ob, o = record
     failed = 0
     for q in range(m):
         i = lanes[q]
         _load(i, P, scales, Y, balls, noise, record)
-        if accepted(q, model, adaptive, events, ws):
+        if use_block and accepted(q, model, adaptive, events, ws):
             for j in range(STATE_WIDTH):
                 y[j] = Ynew[j, q]
             h_first = _first_step(ball, cfg)
@@ -371,6 +387,27 @@ def observe_all(models, P, Y, balls, cfg, active, noise, obs):
     for i in range(Y.shape[0]):
         if active[i]:
             observe_one(models[i], P[i], Y[i], balls[i], cfg, noise[i], obs[i])
+
+
+@jit
+def place(idx, models, P, Y, balls, cfg, x, y, vx, vy, lab_rest, spin_normal, noise, obs, out):
+    """Start balls ``idx[j]`` at contact point (x[j], y[j]) with rotating-frame velocity
+    (vx[j], vy[j]), plus the velocity of rest in the laboratory where ``lab_rest[j]``; Ω,
+    phase and force are already in ``balls``. Writes the state, observation and outputs
+    (N/mg at rest in time)."""
+    for j in range(idx.shape[0]):
+        i = idx[j]
+        p = P[i]
+        u, v = vx[j], vy[j]
+        if lab_rest[j]:
+            lu, lv = lab_rest_velocity(p, balls[i, B_OMEGA], x[j], y[j])
+            u, v = lu + u, lv + v
+        Y[i, :] = 0.0
+        state_from_velocity(models[i], p, x[j], y[j], u, v, spin_normal, Y[i])
+        out[i, :] = 0.0
+        out[i, O_TRAPPED] = 1.0
+        out[i, O_NORMAL] = normal_over_mg(models[i], p, Y[i], balls[i], cfg)
+        observe_one(models[i], p, Y[i], balls[i], cfg, noise[i], obs[i])
 
 
 @jit

@@ -39,8 +39,11 @@ def _single_rate(env_id: str, action, seconds: float) -> float:
     return n / (time.perf_counter() - start)
 
 
-def _vector_rate(env_id: str, num_envs: int, actions, seconds: float) -> float:
+def _vector_rate(env_id: str, num_envs: int, actions, seconds: float,
+                 lockstep: bool = True) -> float:
     env = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point")
+    if not lockstep:
+        env.unwrapped.engine.lockstep = False  # every ball through integrate_h
     env.reset(seed=0)
     env.step(actions)
     n = 0
@@ -99,8 +102,11 @@ def main(argv: list[str] | None = None) -> int:
                                                       args.seconds)
     res["saddle_vector_steps_per_s"] = _vector_rate("SaddleTrap-v0", n, np.zeros((n, 1), np.float32),
                                                     args.seconds)
+    res["saddle_vector_scalar_steps_per_s"] = _vector_rate(
+        "SaddleTrap-v0", n, np.zeros((n, 1), np.float32), args.seconds, lockstep=False)
     print(f"  CartPoleVectorEnv {res['cartpole_vector_steps_per_s']:,.0f}/s, SaddleTrap "
-          f"{res['saddle_vector_steps_per_s']:,.0f}/s", flush=True)
+          f"{res['saddle_vector_steps_per_s']:,.0f}/s (without SIMD blocks "
+          f"{res['saddle_vector_scalar_steps_per_s']:,.0f}/s)", flush=True)
     warm = first_step_times(cold=False)
     res["first_step_warm_s"], res["import_make_reset_warm_s"] = warm[1], warm[0]
     print(f"first step, warm cache: {warm[1]:.3f} s (import+make+reset {warm[0]:.2f} s)", flush=True)

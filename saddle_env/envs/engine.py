@@ -24,7 +24,7 @@ from ..integrators import (
     state_scale,
 )
 from ..scene import Scene
-from ..simulate import SimulationError, default_max_step, initial_state
+from ..simulate import SimulationError, default_max_step
 from . import _step as S
 from .config import EnvConfig
 
@@ -52,7 +52,7 @@ class TrapEngine:
         self.config = config
         self.n = int(n)
         self.parallel = self.n >= 32 if parallel is None else parallel
-        self.lockstep = bool(lockstep)
+        self._lockstep = bool(lockstep)
         self.obs_dim = 7 if config.obs_frame == "lab" else 5
         m = METHODS[config.method]
         self.method = m
@@ -67,12 +67,23 @@ class TrapEngine:
         self.obs = np.zeros((self.n, self.obs_dim), dtype=np.float32)
         self.noise = np.zeros((self.n, self.obs_dim))
         self.scenes: list[Scene] = [config.scene()] * self.n
+        self._scene_cache: dict[tuple, tuple[Scene, np.ndarray, np.ndarray]] = {}
         self._noise_scale = self._build_noise_scale(config)
         self._air_decay = math.exp(-config.control_period / config.air_force_tau)
         # Scratch memory for the compiled step, allocated once (allocating inside the step
         # cost a sizeable share of it): one row for the serial step, one per chunk in parallel.
         self._scratch, self._iscratch = (a[0] for a in self._new_scratch(1))
         self._chunk_scratch = self._new_scratch(min(self.n, 4 * numba.get_num_threads()))
+
+    @property
+    def lockstep(self) -> bool:
+        """Whether balls are stepped in SIMD blocks where they can be (see the class doc)."""
+        return self._lockstep
+
+    @lockstep.setter
+    def lockstep(self, on: bool) -> None:
+        self._lockstep = bool(on)
+        self.cfg[S.C_LOCKSTEP] = 1.0 if on else 0.0
 
     def _new_scratch(self, rows: int) -> tuple[np.ndarray, np.ndarray]:
         return (np.zeros((rows, S.scratch_size(self.method.stages))),
@@ -100,7 +111,7 @@ class TrapEngine:
         cfg[S.C_DIST_COST] = c.distance_cost
         cfg[S.C_EFFORT_COST] = c.effort_cost
         cfg[S.C_EVENTS] = EVENT_DETACH | EVENT_ESCAPE
-        cfg[S.C_LOCKSTEP] = 1.0 if self.lockstep else 0.0
+        cfg[S.C_LOCKSTEP] = 1.0 if self._lockstep else 0.0
         return cfg
 
     def _build_noise_scale(self, c: EnvConfig) -> np.ndarray | None:
@@ -121,55 +132,61 @@ class TrapEngine:
         c = self.config
         check_reset_omega(opts, c.omega_max)
         idx = np.atleast_1d(idx)
-        for i in idx:
+        k = idx.size
+        # Draws per ball, from its own generator and in a fixed order; the states follow
+        # in one compiled call (`_step.place`).
+        x, y, vx, vy = np.zeros(k), np.zeros(k), np.zeros(k), np.zeros(k)
+        lab_rest = np.zeros(k, dtype=np.bool_)
+        placed = "x" in opts or "y" in opts
+        given_velocity = "vx" in opts or "vy" in opts
+        start = opts.get("start", c.init_start)
+        spin = float(opts.get("spin_normal", 0.0))  # type: ignore[arg-type]
+        for j, i in enumerate(idx):
             rng = rngs[i]
-            scene = self._draw_scene(rng, opts)
+            scene, params, scale = self._draw_scene(rng, opts)
             omega0 = opts["omega"] if "omega" in opts else rng.uniform(*c.omega0_range)
-            if "x" in opts or "y" in opts:
-                x, y = float(opts.get("x", 0.0)), float(opts.get("y", 0.0))
+            if placed:
+                x[j], y[j] = opts.get("x", 0.0), opts.get("y", 0.0)
             else:
                 r = c.init_offset * math.sqrt(rng.uniform())
                 phi = rng.uniform(0.0, 2.0 * math.pi)
-                x, y = r * math.cos(phi), r * math.sin(phi)
-            start = opts.get("start", c.init_start)
-            if "vx" in opts or "vy" in opts:
-                state = initial_state(scene, x, y, float(opts.get("vx", 0.0)),
-                                      float(opts.get("vy", 0.0)),
-                                      spin_normal=float(opts.get("spin_normal", 0.0)))
+                x[j], y[j] = r * math.cos(phi), r * math.sin(phi)
+            if given_velocity:
+                vx[j], vy[j] = opts.get("vx", 0.0), opts.get("vy", 0.0)
             else:
-                vx, vy = 0.0, 0.0
-                if start == "lab-rest":
-                    vx, vy = K.lab_rest_velocity(scene.params(), omega0, x, y)
-                if c.init_speed > 0 and "x" not in opts and "y" not in opts:
+                lab_rest[j] = start == "lab-rest"
+                if c.init_speed > 0 and not placed:
                     sp = c.init_speed * math.sqrt(rng.uniform())
                     ang = rng.uniform(0.0, 2.0 * math.pi)
-                    vx, vy = vx + sp * math.cos(ang), vy + sp * math.sin(ang)
-                state = initial_state(scene, x, y, vx, vy,
-                                      spin_normal=float(opts.get("spin_normal", 0.0)))
+                    vx[j], vy[j] = sp * math.cos(ang), sp * math.sin(ang)
             self.scenes[i] = scene
             self.models[i] = scene.model_code
-            self.P[i] = scene.params()
-            self.scales[i] = state_scale(self.P[i], scene.model_code)
-            self.Y[i] = 0.0
-            self.Y[i, : scene.state_size] = state
+            self.P[i] = params
+            self.scales[i] = scale
             b = self.balls[i]
             b[:] = 0.0
             b[S.B_OMEGA] = omega0
             b[S.B_PHASE] = rng.uniform(0.0, 2.0 * math.pi) if c.ripple_amp > 0 else 0.0
             if c.air_force > 0:
                 b[S.B_FX], b[S.B_FY] = rng.normal(0.0, c.air_force, size=2)
-            self.out[i] = 0.0
-            self.out[i, S.O_TRAPPED] = 1.0
         mask = np.zeros(self.n, dtype=bool)
         mask[idx] = True
         self._draw_noise(rngs, mask)
-        S.observe_all(self.models, self.P, self.Y, self.balls, self.cfg, mask, self.noise,
-                      self.obs)
-        for i in np.atleast_1d(idx):
-            self.out[i, S.O_NORMAL] = S.normal_over_mg(self.models[i], self.P[i], self.Y[i],
-                                                       self.balls[i], self.cfg)
+        S.place(idx, self.models, self.P, self.Y, self.balls, self.cfg, x, y, vx, vy, lab_rest,
+                spin, self.noise, self.obs, self.out)
+        bad = ~np.isfinite(self.Y[idx]).all(axis=1)
+        if bad.any():
+            j = int(np.flatnonzero(bad)[0])
+            raise ValueError(
+                f"initial state is not finite for x = {x[j]:g}, y = {y[j]:g}, vx = {vx[j]:g}, "
+                f"vy = {vy[j]:g} m: the position or velocity is too large for the saddle")
 
-    def _draw_scene(self, rng: np.random.Generator, opts: Mapping[str, object]) -> Scene:
+    def _draw_scene(self, rng: np.random.Generator,
+                    opts: Mapping[str, object]) -> tuple[Scene, np.ndarray, np.ndarray]:
+        """The ball's scene (drawn when randomised), its packed parameters and state scales.
+
+        Scenes are cached by their changes: building and validating a Scene for every ball
+        of every reset was most of the cost of a reset."""
         c = self.config
         changes: dict[str, object] = {}
         if "R" in opts:
@@ -184,7 +201,16 @@ class TrapEngine:
             changes["contact"] = opts["contact"]
         elif c.contact_models is not None:
             changes["contact"] = c.contact_models[rng.integers(len(c.contact_models))]
-        return c.scene(**changes)
+        key = tuple(sorted(changes.items()))
+        hit = self._scene_cache.get(key)
+        if hit is None:
+            scene = c.scene(**changes)
+            params = scene.params()
+            hit = (scene, params, state_scale(params, scene.model_code))
+            if len(self._scene_cache) >= 256:  # continuous randomisation: keep it bounded
+                self._scene_cache.clear()
+            self._scene_cache[key] = hit
+        return hit
 
     def _draw_noise(self, rngs: Sequence[np.random.Generator], mask: np.ndarray) -> None:
         if self._noise_scale is not None:
