@@ -471,6 +471,10 @@ def _predict(model, P, scales, table, Y0, omega0, force, omega_ref, low, high, r
         cost[i, k] = acc / count if count > 0 and st == 0 else np.inf
 
 
+# The same prediction on one thread (a forked child cannot reuse the parent's OpenMP threads).
+_predict_serial = Kn.serial_twin(_predict)
+
+
 def _mode_table(scene, lo: float, hi: float, step: float) -> np.ndarray:
     """Per speed on a grid: for the two modes, 2·||v_pos||·(row of V⁻¹) as (re[4], im[4]).
 
@@ -672,11 +676,12 @@ class ModelPredictiveController(Controller):
         force = np.zeros((n, 2)) if force is None else np.ascontiguousarray(force, float)
         cost, normal = np.zeros((n, K)), np.zeros((n, K))
         status = np.zeros((n, K), dtype=np.int64)
-        _predict(self._model, self._P[radius], self._scales[radius], radius, Y, omega, force,
-                 self._ref[radius], self._low[radius], self._high[radius],
-                 self.levels * c.max_accel, self.ramps, c.max_accel, self.hold, self.sample,
-                 *self._method, self.rtol, self._max_step, self._grid_lo, self._grid_step,
-                 self._modes, cost, normal, status)
+        predict = _predict if Kn.threads_usable() else _predict_serial
+        predict(self._model, self._P[radius], self._scales[radius], radius, Y, omega, force,
+                self._ref[radius], self._low[radius], self._high[radius],
+                self.levels * c.max_accel, self.ramps, c.max_accel, self.hold, self.sample,
+                *self._method, self.rtol, self._max_step, self._grid_lo, self._grid_step,
+                self._modes, cost, normal, status)
         return {"cost": cost, "min_normal": normal, "status": status, "omega": omega,
                 "radius": radius}
 

@@ -28,7 +28,7 @@ import numpy as np
 from scipy.integrate._ivp import dop853_coefficients as _dop853_tableau
 from scipy.integrate._ivp import rk as _scipy_rk
 
-from ._kernels import STATE_WIDTH, jit, rhs
+from ._kernels import STATE_WIDTH, jit, rhs, serial_twin
 from .scene import P_A, P_B, P_G, P_R, P_RIM, ROLLING
 
 # Event flags (a bit mask) and the status codes `integrate` returns.
@@ -451,6 +451,11 @@ def integrate_batch(models, P, profiles, Y, t0, t_out, C, A, B, E, E3, err_kind,
                 models[i], P[i], profiles[i], Y[i], t0, t_out, C, A, B, E, E3, err_kind,
                 err_order, dt, rtol, atol, scales[i], max_step[i], events, max_steps,
                 Y_out[i], stats[i])
+
+
+# The same loop on one thread, for processes where numba's threads cannot run
+# (`_kernels.threads_usable`).
+integrate_batch_serial = serial_twin(integrate_batch)
 
 
 def state_scale(p: np.ndarray, model: int) -> np.ndarray:

@@ -15,7 +15,8 @@ import numpy as np
 
 from . import _kernels as K
 from .integrators import (EVENT_DETACH, EVENT_ESCAPE, EVENT_KINDS, METHODS, STATUS_FAILED,
-                          STATUS_MAX_STEPS, Method, integrate, integrate_batch, state_scale)
+                          STATUS_MAX_STEPS, Method, integrate, integrate_batch,
+                          integrate_batch_serial, state_scale)
 from .omega import OmegaProfile
 from .scene import Scene, _finite_number
 
@@ -524,10 +525,11 @@ def simulate_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: f
     status = np.zeros(n, dtype=np.int64)
     t_final = np.zeros(n)
     stats = np.zeros((n, 4), dtype=np.int64)
-    integrate_batch(models, P, drives, Y, 0.0, t_out, m.C, m.A, m.B, m.E, m.E3, m.err_kind,
-                    m.error_order, settings.dt, settings.rtol, settings.atol, scales,
-                    max_step_arr, settings.events, settings.max_steps, np.ones(n, dtype=bool),
-                    Y_out, status, t_final, stats)
+    batch = integrate_batch if K.threads_usable() else integrate_batch_serial
+    batch(models, P, drives, Y, 0.0, t_out, m.C, m.A, m.B, m.E, m.E3, m.err_kind,
+          m.error_order, settings.dt, settings.rtol, settings.atol, scales, max_step_arr,
+          settings.events, settings.max_steps, np.ones(n, dtype=bool), Y_out, status, t_final,
+          stats)
     return BatchResult(t_out, Y_out, stats[:, 3].copy(), status, t_final, Y, stats,
                        settings.describe() if auto is None else auto.describe())
 

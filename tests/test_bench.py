@@ -1,6 +1,5 @@
 """saddle-bench, its scipy peer, and automatic accuracy (simulate(tol=...))."""
 
-import csv
 import json
 import math
 import warnings

@@ -7,7 +7,6 @@ import math
 from collections import defaultdict
 from pathlib import Path
 
-import numpy as np
 
 TARGET_ERROR = 1e-9          # [m] target 1: one rolling ball at <= 1e-9 m over the run
 TARGET_SPEEDUP = 100.0

@@ -20,27 +20,11 @@ import math
 import numba as nb
 import numpy as np
 
-from .._kernels import (
-    DRIVE_WIDTH,
-    STATE_WIDTH,
-    angle_at,
-    contact_velocity,
-    geometry,
-    jit,
-    lab_rest_velocity,
-    rhs,
-    state_from_velocity,
-)
+from .._kernels import (DRIVE_WIDTH, STATE_WIDTH, angle_at, contact_velocity, geometry, jit,
+                        lab_rest_velocity, rhs, state_from_velocity)
 from ..integrators import EVENT_DETACH, STATUS_DETACH, integrate_h
-from ..lockstep import (
-    LANES,
-    PARAM_WIDTH,
-    accepted,
-    block_size,
-    carve_block,
-    next_step,
-    rk_step_block,
-)
+from ..lockstep import (LANES, PARAM_WIDTH, accepted, block_size, carve_block, next_step,
+                        rk_step_block)
 from ..scene import P_A, P_B, P_G, P_R, P_RIM, ROLLING, SLIPPING
 
 # Per-ball float state besides the physics state Y.

@@ -235,7 +235,7 @@ class TrapEngine:
             self._draw_noise(rngs, active)
         args = (self.models, self.P, self.scales, self.Y, self.balls, self.cfg, actions, active,
                 *self._method_args, self.noise, self.obs, self.out)
-        if self.parallel:
+        if self.parallel and K.threads_usable():
             chunks = min(self.n, 4 * numba.get_num_threads())
             if self._chunk_scratch[0].shape[0] != chunks:  # the thread count was changed
                 self._chunk_scratch = self._new_scratch(chunks)
