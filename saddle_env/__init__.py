@@ -1,10 +1,14 @@
 """saddle-env: a rigid ball on a rotating saddle — physics, simulator and Gymnasium environment."""
 
-from .integrators import METHODS, Method
-from .omega import OmegaProfile
-from .scene import CONTACT_MODELS, Scene
-from .simulate import (DEFAULT_METHOD, DEFAULT_RTOL, BatchResult, Event, SimulationError,
-                       Trajectory, initial_state, simulate, simulate_batch)
+from . import _cache
+
+_cache.refresh()  # before any compiled function is loaded (see saddle_env/_cache.py)
+
+from .integrators import METHODS, Method  # noqa: E402
+from .omega import OmegaProfile  # noqa: E402
+from .scene import CONTACT_MODELS, Scene  # noqa: E402
+from .simulate import (DEFAULT_METHOD, DEFAULT_RTOL, BatchResult, Event,  # noqa: E402
+                       SimulationError, Trajectory, initial_state, simulate, simulate_batch)
 
 __all__ = ["CONTACT_MODELS", "DEFAULT_METHOD", "DEFAULT_RTOL", "METHODS", "BatchResult", "Event",
            "Method", "OmegaProfile", "Scene", "SimulationError", "Trajectory", "initial_state",
