@@ -370,9 +370,9 @@ def test_sb3_adapter_matches_single_envs_and_reports_terminal_observation():
 def _forked_child(queue):
     from saddle_env import simulate_batch
     from saddle_env.scene import Scene
-    env = gym.make_vec("SaddleTrap-v0", num_envs=64)
+    env = gym.make_vec("SaddleTrap-v0", num_envs=128)
     env.reset(seed=1)
-    obs, *_ = env.step(np.zeros((64, 1), np.float32))
+    obs, *_ = env.step(np.zeros((128, 1), np.float32))
     batch = simulate_batch(Scene(a=0.2), np.full((40, 5), 0.001), 0.1, omega=20.0)
     queue.put((float(obs.sum()), float(np.nansum(batch.state))))
 
@@ -384,9 +384,10 @@ def test_vector_env_and_batch_run_in_a_child_forked_after_threads_were_used():
 
     from saddle_env import simulate_batch
     from saddle_env.scene import Scene
-    env = gym.make_vec("SaddleTrap-v0", num_envs=64)
+    env = gym.make_vec("SaddleTrap-v0", num_envs=128)
     env.reset(seed=1)
-    obs, *_ = env.step(np.zeros((64, 1), np.float32))  # parallel kernels have run here
+    assert env.unwrapped.engine.parallel
+    obs, *_ = env.step(np.zeros((128, 1), np.float32))  # parallel kernels have run here
     batch = simulate_batch(Scene(a=0.2), np.full((40, 5), 0.001), 0.1, omega=20.0)
     queue = mp.get_context("fork").Queue()
     child = mp.get_context("fork").Process(target=_forked_child, args=(queue,))

@@ -51,7 +51,9 @@ class TrapEngine:
             raise ValueError(f"num_envs must be a positive integer, got {n!r}")
         self.config = config
         self.n = int(n)
-        self.parallel = self.n >= 32 if parallel is None else parallel
+        # Threads pay from two full SIMD blocks on (measured: 64 balls ran no faster on two
+        # threads than on one).
+        self.parallel = self.n >= 2 * S.LANES if parallel is None else parallel
         self._lockstep = bool(lockstep)
         self.obs_dim = 7 if config.obs_frame == "lab" else 5
         m = METHODS[config.method]
@@ -73,7 +75,7 @@ class TrapEngine:
         # Scratch memory for the compiled step, allocated once (allocating inside the step
         # cost a sizeable share of it): one row for the serial step, one per chunk in parallel.
         self._scratch, self._iscratch = (a[0] for a in self._new_scratch(1))
-        self._chunk_scratch = self._new_scratch(min(self.n, 4 * numba.get_num_threads()))
+        self._chunk_scratch = self._new_scratch(self._chunks())
 
     @property
     def lockstep(self) -> bool:
@@ -84,6 +86,10 @@ class TrapEngine:
     def lockstep(self, on: bool) -> None:
         self._lockstep = bool(on)
         self.cfg[S.C_LOCKSTEP] = 1.0 if on else 0.0
+
+    def _chunks(self) -> int:
+        """Up to four chunks per thread for load balance, each at least one full SIMD block."""
+        return max(1, min(4 * numba.get_num_threads(), self.n // S.LANES))
 
     def _new_scratch(self, rows: int) -> tuple[np.ndarray, np.ndarray]:
         return (np.zeros((rows, S.scratch_size(self.method.stages))),
@@ -236,7 +242,7 @@ class TrapEngine:
         args = (self.models, self.P, self.scales, self.Y, self.balls, self.cfg, actions, active,
                 *self._method_args, self.noise, self.obs, self.out)
         if self.parallel and K.threads_usable():
-            chunks = min(self.n, 4 * numba.get_num_threads())
+            chunks = self._chunks()
             if self._chunk_scratch[0].shape[0] != chunks:  # the thread count was changed
                 self._chunk_scratch = self._new_scratch(chunks)
             failed = S.step_parallel(*args, *self._chunk_scratch)

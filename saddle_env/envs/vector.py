@@ -25,7 +25,7 @@ class SaddleTrapVectorEnv(VectorEnv):
     ball and returns its first observation with reward 0. Finished balls are not integrated
     until they are reset. Seeding follows ``SyncVectorEnv``: ``reset(seed=s)`` seeds ball i
     with ``s + i``, so ball i reproduces ``gym.make("SaddleTrap-v0").reset(seed=s + i)``
-    step by step. Balls are stepped on all cores (numba threads) from 32 balls up.
+    step by step. Balls are stepped on all cores (numba threads) from 128 balls up.
 
     ``reset(options={"reset_mask": mask, ...})`` resets only the masked balls; other keys
     place them exactly, as in `SaddleTrapEnv`.
