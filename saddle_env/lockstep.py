@@ -38,6 +38,12 @@ def block_size(stages):
 
 
 @jit
+def take(buf, o, n):
+    """The view ``buf[o:o + n]`` and the offset after it (for carving scratch buffers)."""
+    return buf[o:o + n], o + n
+
+
+@jit
 def carve_block(buf, stages):
     """Views into ``buf`` (at least `block_size` floats) for one block of `LANES` lanes:
     ``(P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3)`` —
@@ -46,24 +52,20 @@ def carve_block(buf, stages):
     stage, the smallest over the stages and at the end, error norms, and three accumulators
     (L,). Carving a caller-owned buffer keeps allocation off the per-step path."""
     L = LANES
-    o = 0
-    P = buf[o:o + PARAM_WIDTH * L].reshape((PARAM_WIDTH, L))
-    o += PARAM_WIDTH * L
-    D = buf[o:o + DRIVE_WIDTH * L].reshape((L, DRIVE_WIDTH))
-    o += DRIVE_WIDTH * L
-    Y0 = buf[o:o + STATE_WIDTH * L].reshape((STATE_WIDTH, L))
-    o += STATE_WIDTH * L
-    Ynew = buf[o:o + STATE_WIDTH * L].reshape((STATE_WIDTH, L))
-    o += STATE_WIDTH * L
-    Ytmp = buf[o:o + STATE_WIDTH * L].reshape((STATE_WIDTH, L))
-    o += STATE_WIDTH * L
-    Sc = buf[o:o + STATE_WIDTH * L].reshape((STATE_WIDTH, L))
-    o += STATE_WIDTH * L
-    K = buf[o:o + (stages + 1) * STATE_WIDTH * L].reshape((stages + 1, STATE_WIDTH, L))
-    o += (stages + 1) * STATE_WIDTH * L
-    Fr = buf[o:o + (stages + 1) * FRAME_WIDTH * L].reshape((stages + 1, FRAME_WIDTH, L))
-    o += (stages + 1) * FRAME_WIDTH * L
-    vec = buf[o:o + 8 * L].reshape((8, L))
+    P, o = take(buf, 0, PARAM_WIDTH * L)
+    D, o = take(buf, o, DRIVE_WIDTH * L)
+    Y0, o = take(buf, o, STATE_WIDTH * L)
+    Ynew, o = take(buf, o, STATE_WIDTH * L)
+    Ytmp, o = take(buf, o, STATE_WIDTH * L)
+    Sc, o = take(buf, o, STATE_WIDTH * L)
+    K, o = take(buf, o, (stages + 1) * STATE_WIDTH * L)
+    Fr, o = take(buf, o, (stages + 1) * FRAME_WIDTH * L)
+    vec, o = take(buf, o, 8 * L)
+    P, D, vec = P.reshape((PARAM_WIDTH, L)), D.reshape((L, DRIVE_WIDTH)), vec.reshape((8, L))
+    Y0, Ynew = Y0.reshape((STATE_WIDTH, L)), Ynew.reshape((STATE_WIDTH, L))
+    Ytmp, Sc = Ytmp.reshape((STATE_WIDTH, L)), Sc.reshape((STATE_WIDTH, L))
+    K = K.reshape((stages + 1, STATE_WIDTH, L))
+    Fr = Fr.reshape((stages + 1, FRAME_WIDTH, L))
     return (P, D, Y0, Ynew, Ytmp, Sc, K, Fr, vec[0], vec[1], vec[2], vec[3], vec[4], vec[5],
             vec[6], vec[7])
 
@@ -86,6 +88,24 @@ def _rates(model, m, P, fr, Y, Kout, Nout):
 
 
 @jit
+def _combine(m, d, h, w, count, K, Y0, acc, Yout):
+    """Yout = Y0 + h·Σ_{l < count} w[l]·K[l] for lanes 0..m-1, summed in the order `_stages`
+    uses; components from d on (a slipping ball's unused slot) are copied."""
+    for j in range(d):
+        for q in range(m):
+            acc[q] = 0.0
+        for l in range(count):
+            c = w[l]
+            for q in range(m):
+                acc[q] += c * K[l, j, q]
+        for q in range(m):
+            Yout[j, q] = Y0[j, q] + h * acc[q]
+    for j in range(d, STATE_WIDTH):
+        for q in range(m):
+            Yout[j, q] = Y0[j, q]
+
+
+@jit
 def rk_step_block(model, m, h, C, A, B, E, E3, err_kind, adaptive, rtol, atol, ws):
     """Take one step of size ``h`` from t = 0 for lanes 0..m-1 of the block ``ws``.
 
@@ -105,34 +125,12 @@ def rk_step_block(model, m, h, C, A, B, E, E3, err_kind, adaptive, rtol, atol, w
     for q in range(m):
         Nmin[q] = np.inf
     for i in range(1, s):
-        for j in range(d):
-            for q in range(m):
-                acc[q] = 0.0
-            for l in range(i):
-                c = A[i, l]
-                for q in range(m):
-                    acc[q] += c * K[l, j, q]
-            for q in range(m):
-                Ytmp[j, q] = Y0[j, q] + h * acc[q]
-        for j in range(d, STATE_WIDTH):
-            for q in range(m):
-                Ytmp[j, q] = Y0[j, q]
+        _combine(m, d, h, A[i], i, K, Y0, acc, Ytmp)
         _rates(model, m, P, Fr[i], Ytmp, K[i], Nstage)
         for q in range(m):
             if Nstage[q] < Nmin[q]:
                 Nmin[q] = Nstage[q]
-    for j in range(d):
-        for q in range(m):
-            acc[q] = 0.0
-        for l in range(s):
-            c = B[l]
-            for q in range(m):
-                acc[q] += c * K[l, j, q]
-        for q in range(m):
-            Ynew[j, q] = Y0[j, q] + h * acc[q]
-    for j in range(d, STATE_WIDTH):
-        for q in range(m):
-            Ynew[j, q] = Y0[j, q]
+    _combine(m, d, h, B, s, K, Y0, acc, Ynew)
     _rates(model, m, P, Fr[s], Ynew, K[s], Nend)
     if adaptive:
         _error_norms(m, d, h, err_kind, E, E3, rtol, atol, ws)

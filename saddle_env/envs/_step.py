@@ -24,7 +24,7 @@ from .._kernels import (DRIVE_WIDTH, STATE_WIDTH, angle_at, contact_velocity, ge
                         lab_rest_velocity, rhs, state_from_velocity)
 from ..integrators import EVENT_DETACH, STATUS_DETACH, integrate_h
 from ..lockstep import (LANES, PARAM_WIDTH, accepted, block_size, carve_block, next_step,
-                        rk_step_block)
+                        rk_step_block, take)
 from ..scene import P_A, P_B, P_G, P_R, P_RIM, ROLLING, SLIPPING
 
 # Per-ball float state besides the physics state Y.
@@ -183,34 +183,22 @@ def _carve(buf, ibuf, stages, dt):
     """Views into the caller's scratch buffers (floats: `scratch_size`; ints: 4 + LANES):
     the scalar path's ``(t_out, Y_out, stats, dy, work, drive)``, the ball record (see
     `_load`), the lane block, the lanes' Ω̇ and their ball indices."""
-    o = 0
-    t_out = buf[o:o + 1]
+    t_out, o = take(buf, 0, 1)
     t_out[0] = dt
-    o += 1
-    Y_out = buf[o:o + STATE_WIDTH].reshape((1, STATE_WIDTH))
-    o += STATE_WIDTH
-    dy = buf[o:o + STATE_WIDTH]
-    o += STATE_WIDTH
-    drive = buf[o:o + DRIVE_WIDTH]
-    o += DRIVE_WIDTH
-    work = buf[o:o + (stages + 5) * STATE_WIDTH].reshape((stages + 5, STATE_WIDTH))
-    o += (stages + 5) * STATE_WIDTH
-    rates = buf[o:o + LANES]
-    o += LANES
-    p = buf[o:o + PARAM_WIDTH]
-    o += PARAM_WIDTH
-    scale = buf[o:o + STATE_WIDTH]
-    o += STATE_WIDTH
-    y = buf[o:o + STATE_WIDTH]
-    o += STATE_WIDTH
-    ball = buf[o:o + BALL_WIDTH]
-    o += BALL_WIDTH
-    noise = buf[o:o + OBS_MAX]
-    o += OBS_MAX
-    obs = buf[o:o + OBS_MAX]
-    o += OBS_MAX
-    out = buf[o:o + OUT_WIDTH]
-    o += OUT_WIDTH
+    Y_out, o = take(buf, o, STATE_WIDTH)
+    dy, o = take(buf, o, STATE_WIDTH)
+    drive, o = take(buf, o, DRIVE_WIDTH)
+    work, o = take(buf, o, (stages + 5) * STATE_WIDTH)
+    rates, o = take(buf, o, LANES)
+    p, o = take(buf, o, PARAM_WIDTH)
+    scale, o = take(buf, o, STATE_WIDTH)
+    y, o = take(buf, o, STATE_WIDTH)
+    ball, o = take(buf, o, BALL_WIDTH)
+    noise, o = take(buf, o, OBS_MAX)
+    obs, o = take(buf, o, OBS_MAX)
+    out, o = take(buf, o, OUT_WIDTH)
+    Y_out = Y_out.reshape((1, STATE_WIDTH))
+    work = work.reshape((stages + 5, STATE_WIDTH))
     ws = carve_block(buf[o:], stages)
     record = (p, scale, y, ball, noise, obs, out)
     return (t_out, Y_out, ibuf[:4], dy, work, drive), record, ws, rates, ibuf[4:4 + LANES]
@@ -218,9 +206,8 @@ def _carve(buf, ibuf, stages, dt):
 
 @jit
 def _load(i, P, scales, Y, balls, noise, record):
-    """Copy ball i's rows into the thread's private record. Working on views of the shared
-    arrays instead made two threads fight over the arrays' reference counts: the parallel
-    step ran only 1.3x faster than the serial one."""
+    """Copy ball i's rows into the thread's private record, so the per-ball work touches
+    only the thread's own memory (the shared arrays are read and written once per ball)."""
     p, scale, y, ball, nz, ob, o = record
     for k in range(PARAM_WIDTH):
         p[k] = P[i, k]

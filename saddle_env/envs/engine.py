@@ -72,8 +72,8 @@ class TrapEngine:
         self._scene_cache: dict[tuple, tuple[Scene, np.ndarray, np.ndarray]] = {}
         self._noise_scale = self._build_noise_scale(config)
         self._air_decay = math.exp(-config.control_period / config.air_force_tau)
-        # Scratch memory for the compiled step, allocated once (allocating inside the step
-        # cost a sizeable share of it): one row for the serial step, one per chunk in parallel.
+        # Scratch memory for the compiled step, allocated once rather than on every step: one
+        # row for the serial step, one per chunk in parallel.
         self._scratch, self._iscratch = (a[0] for a in self._new_scratch(1))
         self._chunk_scratch = self._new_scratch(self._chunks())
 
