@@ -116,3 +116,39 @@ def test_a_dip_of_N_inside_a_block_step_goes_to_the_scalar_path():
         events.append((e.cause(0), e.balls[0, S.B_TIME]))
     assert events[0] == events[1]
     assert events[0][0] == "detach" and abs(events[0][1] - 0.2410) < 1e-3
+
+
+def _random_config(rng):
+    """A valid configuration drawn across the options the block path depends on."""
+    a = rng.uniform(0.12, 0.3)
+    omega_max = rng.uniform(25.0, 60.0)
+    lo = rng.uniform(0.0, 0.8 * omega_max)
+    kw = dict(a=a, b=a * rng.uniform(0.6, 1.5), R=rng.uniform(0.005, 0.4 * a),
+              alpha=rng.choice([0.4, 2 / 3]), contact=str(rng.choice(["rolling", "slipping",
+                                                                      "point"])),
+              control_period=rng.uniform(0.005, 0.025), max_accel=rng.uniform(5.0, 60.0),
+              omega_max=omega_max, omega0_range=(lo, rng.uniform(lo, omega_max)),
+              action_mode=str(rng.choice(["acceleration", "target"])),
+              obs_frame=str(rng.choice(["rotating", "lab"])),
+              init_offset=rng.uniform(0.001, 0.03), init_speed=rng.choice([0.0, 0.03]),
+              init_start=str(rng.choice(["lab-rest", "rotating-rest"])),
+              drilling_friction=rng.choice([0.0, 0.5]),
+              air_force=rng.choice([0.0, 0.1]), ripple_amp=rng.choice([0.0, 1.5]),
+              ripple_freq=rng.uniform(5.0, 80.0))
+    # Mostly settings under which a step covers the control period (the block path's case).
+    method = rng.choice(["dop853", "dop853", "dopri5", "rk4"])
+    if method == "rk4":
+        kw.update(method="rk4", substep=kw["control_period"] * rng.choice([1.0, 2.0]))
+    elif method == "dopri5":
+        kw.update(method="dopri5", rtol=10.0 ** rng.uniform(-6, -4))
+    else:
+        kw.update(method="dop853", rtol=10.0 ** rng.uniform(-9, -5))
+    return kw
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_block_path_is_bit_identical_on_random_configurations(seed):
+    kwargs = _random_config(np.random.default_rng(seed))
+    engines, _ = _run_pair(kwargs, n=24, steps=60, seed=seed)
+    with_blocks, scalar_only = (int(e._iscratch[0]) for e in engines)
+    assert with_blocks < scalar_only  # the block path took some of the steps
