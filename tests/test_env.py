@@ -262,6 +262,25 @@ def test_bad_actions(action, message):
         env.step(action)
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("shape", [(6,), (6, 1)])
+def test_vector_actions_fast_path_checks_and_clips_like_the_general_one(dtype, shape):
+    """Float arrays of shape (n,) or (n, 1) take a compiled check; the result must equal
+    the general path's (here fed a list) and a NaN anywhere must be refused."""
+    values = np.array([0.3, -7.0, 2.5, -0.0, 1.0, -1.0])
+    envs = [SaddleTrapVectorEnv(num_envs=6) for _ in range(2)]
+    for e in envs:
+        e.reset(seed=5)
+    fast = envs[0].step(values.astype(dtype).reshape(shape))
+    general = envs[1].step(values.astype(dtype).reshape(shape).tolist())
+    assert np.array_equal(fast[0], general[0]) and np.array_equal(fast[4]["omega"],
+                                                                  general[4]["omega"])
+    bad = values.astype(dtype).reshape(shape).copy()
+    bad.flat[4] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        envs[0].step(bad)
+
+
 def test_out_of_range_actions_are_clipped():
     a, b = gym.make("SaddleTrap-v0"), gym.make("SaddleTrap-v0")
     a.reset(seed=0)

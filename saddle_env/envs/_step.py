@@ -382,6 +382,33 @@ def place(idx, models, P, Y, balls, cfg, x, y, vx, vy, lab_rest, spin_normal, no
 
 
 @jit
+def clip_actions(actions, out):
+    """out = actions clipped to [-1, 1]; False (out unusable) if any action is not finite."""
+    for i in range(actions.shape[0]):
+        v = float(actions[i])
+        if not math.isfinite(v):
+            return False
+        out[i] = min(1.0, max(-1.0, v))
+    return True
+
+
+@jit
+def episode_flags(active, out, steps, max_steps, terminated, truncated, rewards):
+    """After a step: count the active balls' steps; fill terminated (an event), truncated
+    (the time limit, ``max_steps`` <= 0 for none) and rewards (0 for balls not stepped)."""
+    for i in range(active.shape[0]):
+        if active[i]:
+            steps[i] += 1
+            terminated[i] = out[i, O_STATUS] > 0
+            truncated[i] = not terminated[i] and 0 < max_steps <= steps[i]
+            rewards[i] = out[i, O_REWARD]
+        else:
+            terminated[i] = False
+            truncated[i] = False
+            rewards[i] = 0.0
+
+
+@jit
 def normal_over_mg(model, p, y, ball, cfg):
     """N/(mg) of a ball at rest in time (reset observation info)."""
     drive = np.zeros(DRIVE_WIDTH)

@@ -33,14 +33,18 @@ def action_space() -> spaces.Box:
 def check_actions(actions: Any, n: int, out: np.ndarray | None = None) -> np.ndarray:
     """Actions as a float64 (n,) array clipped to [-1, 1]; a clear error for bad input.
 
-    ``out`` (shape (1,), owned by the caller) enables a fast path for the common
-    single-env call, which runs every step."""
-    if out is not None and n == 1 and type(actions) is np.ndarray and actions.shape == (1,) \
-            and actions.dtype.kind == "f":
-        v = float(actions[0])
-        if not math.isfinite(v):
+    ``out`` (shape (n,), owned by the caller) enables a fast path for the common call (a
+    float array of shape (n,) or (n, 1)), which runs every step; the result is then ``out``."""
+    if out is not None and type(actions) is np.ndarray and actions.dtype.kind == "f" and \
+            (actions.shape == (n,) or actions.shape == (n, 1)):
+        if n == 1:  # a plain float is cheaper than a compiled call for one ball
+            v = float(actions.flat[0])
+            if not math.isfinite(v):
+                raise ValueError(f"action must be finite (in [-1, 1]), got {actions!r}")
+            out[0] = -1.0 if v < -1.0 else (1.0 if v > 1.0 else v)
+            return out
+        if not S.clip_actions(actions.reshape(n), out):
             raise ValueError(f"action must be finite (in [-1, 1]), got {actions!r}")
-        out[0] = -1.0 if v < -1.0 else (1.0 if v > 1.0 else v)
         return out
     try:
         arr = np.asarray(actions, dtype=np.float64)

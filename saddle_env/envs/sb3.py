@@ -39,6 +39,7 @@ class SaddleTrapSB3VecEnv(VecEnv):
         self._steps = np.zeros(self.num_envs, dtype=np.int64)
         self._active = np.ones(self.num_envs, dtype=bool)
         self._actions = np.zeros(self.num_envs)
+        self._action_buf = np.zeros(self.num_envs)
 
     def reset(self):
         for i, s in enumerate(self._seeds):
@@ -52,7 +53,7 @@ class SaddleTrapSB3VecEnv(VecEnv):
         return self.engine.obs.copy()
 
     def step_async(self, actions: np.ndarray) -> None:
-        self._actions = check_actions(actions, self.num_envs).copy()
+        self._actions = check_actions(actions, self.num_envs, self._action_buf).copy()
 
     def step_wait(self):
         e = self.engine

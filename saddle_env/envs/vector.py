@@ -56,7 +56,7 @@ class SaddleTrapVectorEnv(VectorEnv):
         self._steps = np.zeros(self.num_envs, dtype=np.int64)
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._active = np.ones(self.num_envs, dtype=bool)
-        self._rewards = np.zeros(self.num_envs)
+        self._action_buf = np.zeros(self.num_envs)
         self._renderer = None
         self._started = False
 
@@ -87,21 +87,18 @@ class SaddleTrapVectorEnv(VectorEnv):
     def step(self, actions):
         if not self._started:
             raise RuntimeError("call reset() before step()")
-        a = check_actions(actions, self.num_envs)
+        a = check_actions(actions, self.num_envs, self._action_buf)
         restart = self._autoreset
         if restart.any():
             self.engine.reset(np.flatnonzero(restart), self._rngs)
             self._steps[restart] = 0
         active = np.logical_not(restart, out=self._active)
         self.engine.step(a, active, self._rngs)
-        out = self.engine.out
-        self._steps[active] += 1
-        terminated = active & (out[:, S.O_STATUS] > 0)
-        if self.max_episode_steps is not None:
-            truncated = active & ~terminated & (self._steps >= self.max_episode_steps)
-        else:
-            truncated = np.zeros(self.num_envs, dtype=bool)
-        rewards = np.where(active, out[:, S.O_REWARD], 0.0)
+        n = self.num_envs
+        terminated, truncated = np.empty(n, dtype=bool), np.empty(n, dtype=bool)
+        rewards = np.empty(n)
+        S.episode_flags(active, self.engine.out, self._steps, self.max_episode_steps or 0,
+                        terminated, truncated, rewards)
         self._autoreset = terminated | truncated
         return (self.engine.obs.copy(), rewards, terminated, truncated, self._infos(terminated))
 
