@@ -111,6 +111,19 @@ METHODS: dict[str, Method] = {m.name: m for m in (_rk4(), _dopri5(), _dop853())}
 
 
 @jit
+def reaches(t, h, target):
+    """Whether a step h from t reaches the output time ``target`` (then it is clipped to land
+    on it exactly; a sliver left over by rounding counts as reached)."""
+    return t + h >= target - 1e-13 * max(1.0, abs(target))
+
+
+@jit
+def step_factor(err, exponent):
+    """How much the controller scales the step after an accepted one with error norm err."""
+    return MAX_FACTOR if err == 0.0 else min(MAX_FACTOR, max(MIN_FACTOR, SAFETY * err ** exponent))
+
+
+@jit
 def _stages(model, p, prof, t, y, h, d, C, A, K, ytmp, ynew, B, want_normal=False):
     """Stages 2..s of one explicit RK step from (t, y) with K[0] = f(t, y) given; the
     new point goes to ``ynew``. Returns the smallest normal force per unit mass seen at the
@@ -352,8 +365,7 @@ def integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_orde
         target = t_out[k]
         hstep = h
         clipped = False
-        # Land exactly on the output time; treat a sliver left over by rounding as reached.
-        if t + hstep >= target - 1e-13 * max(1.0, abs(target)):
+        if reaches(t, hstep, target):
             hstep = target - t
             clipped = True
         if not (hstep > 1e-14 * max(1.0, abs(t))):
@@ -424,9 +436,7 @@ def integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_orde
             k += 1
             stats[3] += 1
         if adaptive:
-            factor = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR, max(
-                MIN_FACTOR, SAFETY * err ** exponent))
-            hnew = hstep * factor
+            hnew = hstep * step_factor(err, exponent)
             # A step shortened to hit an output says nothing against the natural step.
             h = min(max(hnew, h) if clipped else hnew, max_step)
     hio[0] = h

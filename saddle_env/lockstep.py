@@ -22,11 +22,11 @@ import math
 import numpy as np
 
 from ._kernels import DRIVE_WIDTH, STATE_WIDTH, frame_terms, jit, rolling_rates, slipping_rates
-from .integrators import ERR_EMBEDDED, EVENT_DETACH, EVENT_ESCAPE, MAX_FACTOR, MIN_FACTOR, SAFETY
-from .scene import P_A, P_ALPHA, P_B, P_DRILL, P_G, P_R, P_RIM, ROLLING
+from .integrators import ERR_EMBEDDED, EVENT_DETACH, EVENT_ESCAPE, step_factor
+from .scene import N_PARAMS, P_A, P_ALPHA, P_B, P_DRILL, P_G, P_R, P_RIM, ROLLING
 
 LANES = 64  # balls per block: the stage arrays of a block stay in the L1 cache
-PARAM_WIDTH = 7
+PARAM_WIDTH = N_PARAMS
 FRAME_WIDTH = 4  # Ω, Ω̇, fx, fy (saddle axes) at one stage time
 
 
@@ -198,7 +198,4 @@ def accepted(q, model, adaptive, events, ws):
 def next_step(q, h, h_hint, err_order, max_step, ws):
     """The step-size hint `integrate_h` leaves after accepting lane q's (clipped) step."""
     P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3 = ws
-    err = Err[q]
-    exponent = -1.0 / (err_order + 1.0)
-    factor = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR, max(MIN_FACTOR, SAFETY * err ** exponent))
-    return min(max(h * factor, h_hint), max_step)
+    return min(max(h * step_factor(Err[q], -1.0 / (err_order + 1.0)), h_hint), max_step)

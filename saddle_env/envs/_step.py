@@ -22,7 +22,7 @@ import numpy as np
 
 from .._kernels import (DRIVE_WIDTH, STATE_WIDTH, angle_at, contact_velocity, geometry, jit,
                         lab_rest_velocity, rhs, state_from_velocity)
-from ..integrators import EVENT_DETACH, STATUS_DETACH, integrate_h
+from ..integrators import EVENT_DETACH, STATUS_DETACH, integrate_h, reaches
 from ..lockstep import (LANES, PARAM_WIDTH, accepted, block_size, carve_block, next_step,
                         rk_step_block, take)
 from ..scene import P_A, P_B, P_G, P_R, P_RIM, ROLLING, SLIPPING
@@ -296,8 +296,7 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, C, A,
             if not active[i] or models[i] != model:
                 continue
             _load(i, P, scales, Y, balls, noise, record)
-            if lockstep and _first_step(ball, cfg) >= dt - 1e-13 * max(1.0, dt):
-                # (the test integrate_h uses to clip its first step to the output time)
+            if lockstep and reaches(0.0, _first_step(ball, cfg), dt):
                 lanes[m] = i
                 rates[m] = _drive(ball, cfg, actions[i], D[m])
                 for k in range(PARAM_WIDTH):

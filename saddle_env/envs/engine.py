@@ -23,7 +23,7 @@ from ..integrators import (
     STATUS_MAX_STEPS,
     state_scale,
 )
-from ..scene import Scene
+from ..scene import N_PARAMS, Scene
 from ..simulate import SimulationError, default_max_step
 from . import _step as S
 from .config import EnvConfig
@@ -61,7 +61,7 @@ class TrapEngine:
         self._method_args = (m.C, m.A, m.B, m.E, m.E3, m.err_kind, m.error_order)
         self.cfg = self._build_cfg(config)
         self.models = np.zeros(self.n, dtype=np.int64)
-        self.P = np.zeros((self.n, 7))
+        self.P = np.zeros((self.n, N_PARAMS))
         self.scales = np.ones((self.n, K.STATE_WIDTH))
         self.Y = np.zeros((self.n, K.STATE_WIDTH))
         self.balls = np.zeros((self.n, S.BALL_WIDTH))
