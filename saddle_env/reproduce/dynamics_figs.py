@@ -54,6 +54,16 @@ def _linear_contact_r(scene: Scene, omega: float, tr: Trajectory) -> np.ndarray:
 # ------------------------------------------------------------------------------------------
 # Trajectories and precession
 # ------------------------------------------------------------------------------------------
+
+def _r_against_linear(ax, tr, r_lin, t_show, labels, title):
+    """One panel: r(t) of the exact model against the linearised model, first t_show s."""
+    show = tr.t <= t_show
+    ax.plot(tr.t[show], 1e3 * tr.r[show], lw=0.8, label=labels[0])
+    ax.plot(tr.t[show], 1e3 * r_lin[show], lw=0.8, ls="--", label=labels[1])
+    ax.set(xlabel="t [s]", ylabel="r_o [mm]", xlim=(0, t_show), title=title)
+    ax.legend(fontsize=7, loc="upper right")
+
+
 def fig_trajectories(ctx: Context) -> None:
     """Rolling (R = 2 cm) and slipping (R → 0) orbits at Ω = 30 from x = y = 0.1 cm; the
     precession angle vs g²/(2a²Ω³)·t and its convergence; nonlinear vs linearised r(t)."""
@@ -137,13 +147,9 @@ def fig_trajectories(ctx: Context) -> None:
     a_.set(aspect="equal", xlabel="x_lab [mm]", ylabel="y_lab [mm]",
            title=f"(b) slipping, R → 0 (mass point), {T_prec:g} s")
     a_.legend(fontsize=7, loc="upper right")
-    a_ = ax[0, 2]
-    show = tr_roll.t <= T_SHOW
-    a_.plot(tr_roll.t[show], 1e3 * tr_roll.r[show], lw=0.8, label="nonlinear (exact model)")
-    a_.plot(tr_roll.t[show], 1e3 * r_lin[show], lw=0.8, ls="--", label="linearised (Table I)")
-    a_.set(xlabel="t [s]", ylabel="r_o [mm]", xlim=(0, T_SHOW),
-           title=f"(c) r(t), rolling, lab-rest; 10 s gap {100 * gap:.0f} %")
-    a_.legend(fontsize=7, loc="upper right")
+    _r_against_linear(ax[0, 2], tr_roll, r_lin, T_SHOW,
+                      ("nonlinear (exact model)", "linearised (Table I)"),
+                      f"(c) r(t), rolling, lab-rest; 10 s gap {100 * gap:.0f} %")
     a_ = ax[1, 0]
     for d in releases[:: max(1, len(releases) // 4)]:
         t_d, a_d = orientation_series(runs[d])
@@ -164,13 +170,8 @@ def fig_trajectories(ctx: Context) -> None:
     a_.set(xlabel="release x = y [mm]", ylabel="excess angle in 33.5 s [deg]",
            title=f"(e) {angles[0]:.1f}° at 1 mm → {limit:.2f}° (formula {formula:.2f}°)")
     a_.legend(fontsize=7)
-    a_ = ax[1, 2]
-    show = tr_roll_rr.t <= T_SHOW
-    a_.plot(tr_roll_rr.t[show], 1e3 * tr_roll_rr.r[show], lw=0.8, label="nonlinear")
-    a_.plot(tr_roll_rr.t[show], 1e3 * r_lin_rr[show], lw=0.8, ls="--", label="linearised")
-    a_.set(xlabel="t [s]", ylabel="r_o [mm]", xlim=(0, T_SHOW),
-           title=f"(f) same, rotating-rest start; 10 s gap {100 * gap_rr:.0f} %")
-    a_.legend(fontsize=7, loc="upper right")
+    _r_against_linear(ax[1, 2], tr_roll_rr, r_lin_rr, T_SHOW, ("nonlinear", "linearised"),
+                      f"(f) same, rotating-rest start; 10 s gap {100 * gap_rr:.0f} %")
     fig.suptitle("Trajectories at Ω = 30 s⁻¹, a = 0.159 m, released at x = y = 0.1 cm "
                  "(paper Fig. traj); (a)–(e) placed at rest in the laboratory", fontsize=10)
     fig.tight_layout()
