@@ -10,11 +10,12 @@ from .scene import CONTACT_MODELS, Scene  # noqa: E402
 from .simulate import (DEFAULT_METHOD, DEFAULT_RTOL, BatchResult, Event,  # noqa: E402
                        SimulationError, Trajectory, initial_state, simulate, simulate_batch)
 
-__all__ = ["CONTACT_MODELS", "DEFAULT_METHOD", "DEFAULT_RTOL", "METHODS", "BatchResult", "Event",
-           "Method", "OmegaProfile", "Scene", "SimulationError", "Trajectory", "initial_state",
-           "simulate", "simulate_batch"]
+__all__ = ["CONTACT_MODELS", "DEFAULT_METHOD", "DEFAULT_RTOL", "LEVELS", "METHODS",
+           "BatchResult", "Event", "Method", "OmegaProfile", "Scene", "SimulationError",
+           "Trajectory", "initial_state", "simulate", "simulate_batch"]
 __version__ = "0.1.0"
 
+from .envs import LEVELS  # noqa: E402
 from .envs import register as _register_envs  # noqa: E402
 
 _register_envs()

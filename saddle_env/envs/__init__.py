@@ -1,20 +1,18 @@
-"""Gymnasium environments. Importing `saddle_env` registers ``SaddleTrap-v0``."""
+"""Gymnasium environments. Importing `saddle_env` registers every task level (`LEVELS`),
+``SaddleTrap-v0`` (the calm level) first."""
 
 from .config import PAPER_BALL_RADII, EnvConfig
+from .levels import DEFAULT_EPISODE_STEPS, LEVEL_IDS, LEVELS, Level, get_level, level_config
 from .saddle_trap import SaddleTrapEnv
 
-ENV_ID = "SaddleTrap-v0"
-DEFAULT_EPISODE_STEPS = 500  # 10 s at the default 20 ms control period
+ENV_ID = "SaddleTrap-v0"  # the calm level, the default of every tool
 
 
 def register() -> None:
-    from gymnasium.envs.registration import register as gym_register
-    from gymnasium.envs.registration import registry
+    from .levels import register_levels
 
-    if ENV_ID not in registry:
-        gym_register(id=ENV_ID, entry_point="saddle_env.envs.saddle_trap:SaddleTrapEnv",
-                     vector_entry_point="saddle_env.envs.vector:SaddleTrapVectorEnv",
-                     max_episode_steps=DEFAULT_EPISODE_STEPS)
+    register_levels()
 
 
-__all__ = ["ENV_ID", "PAPER_BALL_RADII", "EnvConfig", "SaddleTrapEnv", "register"]
+__all__ = ["DEFAULT_EPISODE_STEPS", "ENV_ID", "LEVELS", "LEVEL_IDS", "PAPER_BALL_RADII",
+           "EnvConfig", "Level", "SaddleTrapEnv", "get_level", "level_config", "register"]
