@@ -26,6 +26,7 @@ from ..integrators import EVENT_DETACH, STATUS_DETACH, integrate_h, reaches
 from ..lockstep import (LANES, PARAM_WIDTH, accepted, block_size, carve_block, next_step,
                         rk_step_block, take)
 from ..scene import P_A, P_B, P_G, P_R, P_RIM, ROLLING, SLIPPING
+from .observation import OBS_MAX, OMEGA_HIGH, OMEGA_LOW, POS_BOUND, VEL_BOUND
 
 # Per-ball float state besides the physics state Y.
 B_OMEGA, B_THETA, B_TIME, B_PHASE, B_FX, B_FY, B_H, B_NORMAL = range(8)
@@ -35,17 +36,14 @@ BALL_WIDTH = 8
 O_STATUS, O_TIME, O_NORMAL, O_REWARD, O_TRAPPED = range(5)
 OUT_WIDTH = 5
 
-# Configuration vector.
+# Configuration vector. C_OBS_OMEGA, C_OBS_COMMAND and C_OBS_COS are the observation's
+# column indices (-1: not observed), from `observation.layout`, which owns the layout.
 (C_DT, C_MAX_ACCEL, C_OMEGA_MAX, C_TARGET_MODE, C_LAB_FRAME, C_POS_SCALE, C_VEL_SCALE,
  C_RIPPLE_AMP, C_RIPPLE_FREQ, C_SUBSTEP, C_RTOL, C_ATOL, C_MAX_STEP, C_LOSS, C_DIST_COST,
- C_EFFORT_COST, C_EVENTS, C_LOCKSTEP) = range(18)
-CFG_WIDTH = 18
+ C_EFFORT_COST, C_EVENTS, C_LOCKSTEP, C_OBS_OMEGA, C_OBS_COMMAND, C_OBS_COS) = range(21)
+CFG_WIDTH = 21
 
-OBS_MAX = 7  # widest observation (lab frame)
 MIN_BLOCK = 4  # fewest balls worth a SIMD block (measured crossover: 4-8 balls)
-
-# Observation bounds (scaled units), shared with the declared observation space.
-POS_BOUND, VEL_BOUND, OMEGA_LOW, OMEGA_HIGH = 2.0, 10.0, -0.5, 1.5
 
 
 @jit
@@ -65,7 +63,8 @@ def omega_rate(cfg, omega, action):
 
 @jit
 def observe_one(model, p, y, ball, cfg, noise, obs):
-    """Scaled, clipped observation of one ball (rotating or lab frame)."""
+    """Scaled, clipped observation of one ball (rotating or lab frame; the columns are
+    `observation.layout`'s, passed in ``cfg``)."""
     s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(p[P_A], p[P_B], p[P_R],
                                                                        y[0], y[1])
     vx, vy = contact_velocity(model, p, y)
@@ -76,24 +75,28 @@ def observe_one(model, p, y, ball, cfg, noise, obs):
         omega += cfg[C_RIPPLE_AMP] * math.sin(ball[B_PHASE])
     L = cfg[C_POS_SCALE]
     V = cfg[C_VEL_SCALE]
+    th = ball[B_THETA]
+    ct, st = math.cos(th), math.sin(th)
     if cfg[C_LAB_FRAME] != 0.0:
-        th = ball[B_THETA]
-        ct, st = math.cos(th), math.sin(th)
         # lab velocity of the centre: ċ + Ω k×c, turned by θ
         ux = vcx - omega * cy
         uy = vcy + omega * cx
         vals = (ct * cx - st * cy, st * cx + ct * cy, ct * ux - st * uy, st * ux + ct * uy)
-        obs[4] = min(1.0, max(-1.0, ct + noise[4]))
-        obs[5] = min(1.0, max(-1.0, st + noise[5]))
-        k_omega = 6
     else:
         vals = (cx, cy, vcx, vcy)
-        k_omega = 4
+    k_cos = int(cfg[C_OBS_COS])
+    if k_cos >= 0:
+        obs[k_cos] = min(1.0, max(-1.0, ct + noise[k_cos]))
+        obs[k_cos + 1] = min(1.0, max(-1.0, st + noise[k_cos + 1]))
     obs[0] = min(POS_BOUND, max(-POS_BOUND, vals[0] / L + noise[0]))
     obs[1] = min(POS_BOUND, max(-POS_BOUND, vals[1] / L + noise[1]))
     obs[2] = min(VEL_BOUND, max(-VEL_BOUND, vals[2] / V + noise[2]))
     obs[3] = min(VEL_BOUND, max(-VEL_BOUND, vals[3] / V + noise[3]))
+    k_omega = int(cfg[C_OBS_OMEGA])
     obs[k_omega] = min(OMEGA_HIGH, max(OMEGA_LOW, omega / cfg[C_OMEGA_MAX] + noise[k_omega]))
+    k_cmd = int(cfg[C_OBS_COMMAND])
+    if k_cmd >= 0:  # the commanded speed: known to the motor controller exactly
+        obs[k_cmd] = min(1.0, max(0.0, ball[B_OMEGA] / cfg[C_OMEGA_MAX]))
 
 
 @jit

@@ -6,6 +6,8 @@ import math
 from dataclasses import asdict, dataclass, fields
 from typing import Literal
 
+import numpy as np
+
 from ..integrators import METHODS
 from ..scene import CONTACT_MODELS, Scene, _finite_number
 
@@ -46,7 +48,10 @@ class EnvConfig:
     up to max_accel).
 
     Observation: ``obs_frame`` ``"rotating"`` or ``"lab"``; sensor noise standard deviations
-    ``position_noise`` [m], ``velocity_noise`` [m/s], ``omega_noise`` [rad/s].
+    ``position_noise`` [m], ``velocity_noise`` [m/s], ``omega_noise`` [rad/s];
+    ``observe_command`` adds the commanded speed (exact: the motor controller's own
+    set-point) and ``observe_angle`` the saddle's angle as cos θ, sin θ (the lab frame always
+    has it). Layout: `saddle_env.envs.observation`.
 
     Episode start (the ball placed by hand near the centre): offset uniform in a disc of
     radius ``init_offset`` [m]; ``init_start`` ``"lab-rest"`` (placed at rest in the lab) or
@@ -84,6 +89,8 @@ class EnvConfig:
     position_noise: float = 0.0
     velocity_noise: float = 0.0
     omega_noise: float = 0.0
+    observe_command: bool = False
+    observe_angle: bool = False
     init_offset: float = 0.01
     init_start: str = "lab-rest"
     init_speed: float = 0.0
@@ -115,6 +122,10 @@ class EnvConfig:
             raise ValueError(f"action_mode must be 'acceleration' or 'target', got {self.action_mode!r}")
         if self.obs_frame not in ("rotating", "lab"):
             raise ValueError(f"obs_frame must be 'rotating' or 'lab', got {self.obs_frame!r}")
+        for name in ("observe_command", "observe_angle"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
+            set_(name, bool(getattr(self, name)))
         for name in ("position_noise", "velocity_noise", "omega_noise", "init_offset",
                      "init_speed", "loss_penalty", "distance_cost", "effort_cost",
                      "air_force", "ripple_amp", "ripple_freq"):

@@ -27,6 +27,7 @@ from ..scene import N_PARAMS, Scene
 from ..simulate import SimulationError, default_max_step
 from . import _step as S
 from .config import EnvConfig
+from .observation import layout
 
 RESET_OPTION_KEYS = ("x", "y", "vx", "vy", "omega", "R", "a", "contact", "start", "spin_normal")
 VELOCITY_SCALE = 1.0  # [m/s] observation scale of velocities
@@ -55,7 +56,8 @@ class TrapEngine:
         # threads than on one).
         self.parallel = self.n >= 2 * S.LANES if parallel is None else parallel
         self._lockstep = bool(lockstep)
-        self.obs_dim = 7 if config.obs_frame == "lab" else 5
+        self.layout = layout(config)
+        self.obs_dim = self.layout.dim
         m = METHODS[config.method]
         self.method = m
         self._method_args = (m.C, m.A, m.B, m.E, m.E3, m.err_kind, m.error_order)
@@ -118,6 +120,11 @@ class TrapEngine:
         cfg[S.C_EFFORT_COST] = c.effort_cost
         cfg[S.C_EVENTS] = EVENT_DETACH | EVENT_ESCAPE
         cfg[S.C_LOCKSTEP] = 1.0 if self._lockstep else 0.0
+        lay = layout(c)
+        cfg[S.C_OBS_OMEGA] = lay.omega
+        cfg[S.C_OBS_COMMAND] = -1 if lay.command is None else lay.command
+        # In the lab frame the angle is always observed; in the rotating frame on request.
+        cfg[S.C_OBS_COS] = -1 if lay.cos is None else lay.cos
         return cfg
 
     def _build_noise_scale(self, c: EnvConfig) -> np.ndarray | None:
@@ -126,7 +133,7 @@ class TrapEngine:
         scale = np.zeros(self.obs_dim)
         scale[:2] = c.position_noise / c.rim_radius
         scale[2:4] = c.velocity_noise / VELOCITY_SCALE
-        scale[-1] = c.omega_noise / c.omega_max
+        scale[self.layout.omega] = c.omega_noise / c.omega_max
         return scale
 
     # -- reset ---------------------------------------------------------------------------

@@ -12,18 +12,7 @@ from gymnasium import spaces
 from . import _step as S
 from .config import EnvConfig
 from .engine import TrapEngine
-
-
-def observation_space(config: EnvConfig) -> spaces.Box:
-    """Declared observation box (scaled units, float32)."""
-    if config.obs_frame == "lab":
-        low = [-S.POS_BOUND] * 2 + [-S.VEL_BOUND] * 2 + [-1.0, -1.0, S.OMEGA_LOW]
-    else:
-        low = [-S.POS_BOUND] * 2 + [-S.VEL_BOUND] * 2 + [S.OMEGA_LOW]
-    low_arr = np.array(low, dtype=np.float32)
-    high_arr = -low_arr
-    high_arr[-1] = S.OMEGA_HIGH
-    return spaces.Box(low_arr, high_arr, dtype=np.float32)
+from .observation import observation_space
 
 
 def action_space() -> spaces.Box:
