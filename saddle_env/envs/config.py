@@ -51,7 +51,8 @@ class EnvConfig:
     ``position_noise`` [m], ``velocity_noise`` [m/s], ``omega_noise`` [rad/s];
     ``observe_command`` adds the commanded speed (exact: the motor controller's own
     set-point) and ``observe_angle`` the saddle's angle as cos θ, sin θ (the lab frame always
-    has it). Layout: `saddle_env.envs.observation`.
+    has it); ``obs_history`` k (1-64) makes the observation the last k frames, newest first.
+    Layout: `saddle_env.envs.observation`.
 
     Episode start (the ball placed by hand near the centre): offset uniform in a disc of
     radius ``init_offset`` [m]; ``init_start`` ``"lab-rest"`` (placed at rest in the lab) or
@@ -91,6 +92,7 @@ class EnvConfig:
     omega_noise: float = 0.0
     observe_command: bool = False
     observe_angle: bool = False
+    obs_history: int = 1
     init_offset: float = 0.01
     init_start: str = "lab-rest"
     init_speed: float = 0.0
@@ -126,6 +128,10 @@ class EnvConfig:
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
             set_(name, bool(getattr(self, name)))
+        k = self.obs_history
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= 64:
+            raise ValueError(f"obs_history must be an integer in [1, 64], got {k!r}")
+        set_("obs_history", int(k))
         for name in ("position_noise", "velocity_noise", "omega_noise", "init_offset",
                      "init_speed", "loss_penalty", "distance_cost", "effort_cost",
                      "air_force", "ripple_amp", "ripple_freq"):

@@ -57,7 +57,8 @@ class TrapEngine:
         self.parallel = self.n >= 2 * S.LANES if parallel is None else parallel
         self._lockstep = bool(lockstep)
         self.layout = layout(config)
-        self.obs_dim = self.layout.dim
+        self.obs_dim = self.layout.dim            # the whole observation (all frames)
+        self.frame_dim = self.layout.frame_dim    # one frame, what the compiled step writes
         m = METHODS[config.method]
         self.method = m
         self._method_args = (m.C, m.A, m.B, m.E, m.E3, m.err_kind, m.error_order)
@@ -68,8 +69,12 @@ class TrapEngine:
         self.Y = np.zeros((self.n, K.STATE_WIDTH))
         self.balls = np.zeros((self.n, S.BALL_WIDTH))
         self.out = np.zeros((self.n, S.OUT_WIDTH))
-        self.obs = np.zeros((self.n, self.obs_dim), dtype=np.float32)
-        self.noise = np.zeros((self.n, self.obs_dim))
+        # The compiled step writes this step's frame; with ``obs_history`` k > 1 the
+        # observation holds the last k frames, newest first (the same array when k = 1).
+        self.frame = np.zeros((self.n, self.frame_dim), dtype=np.float32)
+        self.obs = self.frame if self.layout.frames == 1 else \
+            np.zeros((self.n, self.obs_dim), dtype=np.float32)
+        self.noise = np.zeros((self.n, self.frame_dim))
         self.scenes: list[Scene] = [config.scene()] * self.n
         self._scene_cache: dict[tuple, tuple[Scene, np.ndarray, np.ndarray]] = {}
         self._noise_scale = self._build_noise_scale(config)
@@ -130,7 +135,7 @@ class TrapEngine:
     def _build_noise_scale(self, c: EnvConfig) -> np.ndarray | None:
         if c.position_noise == c.velocity_noise == c.omega_noise == 0.0:
             return None
-        scale = np.zeros(self.obs_dim)
+        scale = np.zeros(self.frame_dim)
         scale[:2] = c.position_noise / c.rim_radius
         scale[2:4] = c.velocity_noise / VELOCITY_SCALE
         scale[self.layout.omega] = c.omega_noise / c.omega_max
@@ -186,7 +191,9 @@ class TrapEngine:
         mask[idx] = True
         self._draw_noise(rngs, mask)
         S.place(idx, self.models, self.P, self.Y, self.balls, self.cfg, x, y, vx, vy, lab_rest,
-                spin, self.noise, self.obs, self.out)
+                spin, self.noise, self.frame, self.out)
+        if self.obs is not self.frame:  # a new episode's history: its first frame, k times
+            self.obs[idx] = np.tile(self.frame[idx], self.layout.frames)
         bad = ~np.isfinite(self.Y[idx]).all(axis=1)
         if bad.any():
             j = int(np.flatnonzero(bad)[0])
@@ -228,7 +235,7 @@ class TrapEngine:
     def _draw_noise(self, rngs: Sequence[np.random.Generator], mask: np.ndarray) -> None:
         if self._noise_scale is not None:
             for i in np.flatnonzero(mask):
-                self.noise[i] = rngs[i].standard_normal(self.obs_dim) * self._noise_scale
+                self.noise[i] = rngs[i].standard_normal(self.frame_dim) * self._noise_scale
 
     # -- step ----------------------------------------------------------------------------
     def step(self, actions: np.ndarray, active: np.ndarray,
@@ -247,7 +254,7 @@ class TrapEngine:
         if self._noise_scale is not None:
             self._draw_noise(rngs, active)
         args = (self.models, self.P, self.scales, self.Y, self.balls, self.cfg, actions, active,
-                *self._method_args, self.noise, self.obs, self.out)
+                *self._method_args, self.noise, self.frame, self.out)
         if self.parallel and K.threads_usable():
             chunks = self._chunks()
             if self._chunk_scratch[0].shape[0] != chunks:  # the thread count was changed
@@ -262,6 +269,21 @@ class TrapEngine:
             raise SimulationError(
                 f"ball {bad}: integration failed at t = {self.balls[bad, S.B_TIME]:.6f} s "
                 f"({why}); scene {self.scenes[bad]}")
+        if self.obs is not self.frame:
+            self._push_frames(active)
+
+    def _push_frames(self, active: np.ndarray) -> None:
+        """Shift the stepped balls' histories by one frame and put this step's in front."""
+        d = self.frame_dim
+        if active.all():
+            self.obs[:, d:] = self.obs[:, :-d]
+            self.obs[:, :d] = self.frame
+        else:
+            rows = np.flatnonzero(active)
+            hist = self.obs[rows]
+            hist[:, d:] = hist[:, :-d]
+            hist[:, :d] = self.frame[rows]
+            self.obs[rows] = hist
 
     # -- views ---------------------------------------------------------------------------
     def cause(self, i: int) -> str | None:

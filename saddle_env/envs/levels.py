@@ -40,10 +40,16 @@ def _level(id: str, summary: str, models: str, why_hard: str, **options: Any) ->
     return Level(id, summary, models, why_hard, MappingProxyType(options))
 
 
-# What a motor controller knows besides the camera: the speed it commands (exact, free of
-# ripple and tachometer noise) and the saddle's angle (from the encoder). Every level after
-# the calm one observes both.
-_CONTROLLER_OBS = dict(observe_command=True, observe_angle=True)
+# What every level after the calm one gives a controller: the motor is a speed servo (the
+# action is the target speed, so holding a speed is holding an action); besides the camera
+# it knows the speed it commands (exact, free of ripple and tachometer noise) and the
+# saddle's angle (from the encoder); and it sees the last four frames (80 ms), enough to
+# tell a steady push from an orbit without a recurrent network.
+_CONTROLLER = {"action_mode": "target", "observe_command": True, "observe_angle": True,
+               "obs_history": 4}
+_PAPER_BALLS = list(PAPER_BALL_RADII)
+# Air currents and motor ripple (measured, 200 episodes each: docs/levels.md).
+_GUSTS = {"air_force": 0.2, "ripple_amp": 1.0, "ripple_freq": 20.0}
 
 LEVELS: tuple[Level, ...] = (
     _level(
@@ -53,6 +59,44 @@ LEVELS: tuple[Level, ...] = (
         "the laboratory, the saddle at 15-25 rad/s.",
         "It is not: every constant speed from 1.1 Omega_crt to the motor's top speed keeps every "
         "ball. It is the level for checking an agent learns the basics and for benchmarks."),
+    _level(
+        "SaddleTrap-Gusty-v0",
+        "gusty: air currents push the ball, the motor ripples, one of the paper's three balls",
+        "A draught in the room: a random horizontal force fixed in the laboratory (0.2 m/s^2 "
+        "standard deviation, correlated over 1 s), a 1 rad/s ripple of the motor's speed at "
+        "20 rad/s, and a ball drawn from the paper's 2.23, 2.65 and 3.30 cm balls; released as "
+        "in the calm level.",
+        "Speed is a trade-off: the pseudo-potential that holds the ball softens as the speed "
+        "rises, so a push carries a fast saddle's ball out to where the support force vanishes "
+        "(detachment), while just above the threshold the trap is too weak to hold it "
+        "(escape). The best constant speed keeps about a third of the balls for 10 s; a "
+        "controller must read the push from the ball's motion and answer it.",
+        **_GUSTS, ball_radii=_PAPER_BALLS, **_CONTROLLER),
+    _level(
+        "SaddleTrap-Capture-v0",
+        "capture: the saddle starts below the threshold, the ball up to 2 cm out",
+        "Starting the apparatus: the saddle turns at 10-13 rad/s, below every ball's Omega_crt "
+        "(13.09-14.52 rad/s), and one of the paper's three balls is put down at rest in the "
+        "laboratory up to 2 cm from the centre; no disturbances.",
+        "Below Omega_crt the centre repels the ball, exponentially; the motor needs 0.1-0.2 s to "
+        "reach the threshold, and by then the ball is on a wide orbit that a high speed throws "
+        "off the saddle and a low one lets escape. Spinning straight up to the best constant "
+        "loses one ball in five; how fast and how far to go depends on where the ball is.",
+        omega0_range=[10.0, 13.0], init_offset=0.02, ball_radii=_PAPER_BALLS, **_CONTROLLER),
+    _level(
+        "SaddleTrap-Storm-v0",
+        "hardest: gusts, a sub-threshold start, sensor noise and an unknown ball",
+        "Everything at once: air currents (0.15 m/s^2) and motor ripple, the saddle starting at "
+        "8-13 rad/s, noisy sensors (1 mm, 1 cm/s, 0.2 rad/s standard deviation), and a ball "
+        "whose size (one of the paper's three) and surface are unknown: it rolls without "
+        "slipping or slips without friction, the two limits the paper brackets real balls by.",
+        "A controller has to capture the ball, then hold it against the draught, through noisy "
+        "measurements of a ball whose dynamics it does not know: rolling and slipping balls "
+        "answer the same speed with different orbits, and a model-based controller that "
+        "assumes one of them mispredicts the other.",
+        air_force=0.15, ripple_amp=1.0, ripple_freq=20.0, ball_radii=_PAPER_BALLS,
+        contact_models=["rolling", "slipping"], omega0_range=[8.0, 13.0], init_offset=0.01,
+        position_noise=0.001, velocity_noise=0.01, omega_noise=0.2, **_CONTROLLER),
 )
 
 LEVEL_IDS: tuple[str, ...] = tuple(level.id for level in LEVELS)

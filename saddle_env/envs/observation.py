@@ -15,6 +15,11 @@ into the configuration vector, so the layout lives here only.
 
 "Measured" Ω carries the motor's ripple and the tachometer's noise; the commanded speed is
 what the motor controller asked for, which it knows exactly.
+
+With ``obs_history`` k > 1 the observation is the last k such frames, newest first
+(k·d columns; a new episode starts with its first frame repeated): a controller that must
+infer what it cannot see (a steady air current, the ball's size) gets a short memory
+without a recurrent network. The indices above are those of the newest frame.
 """
 
 from __future__ import annotations
@@ -33,15 +38,21 @@ OBS_MAX = 8  # the widest layout: lab frame + command, or rotating frame + comma
 
 @dataclass(frozen=True)
 class ObsLayout:
-    """Column indices of one configuration's observation (None: not observed)."""
+    """Column indices of one configuration's observation, in its newest frame (None: not
+    observed); ``dim`` is the width of one frame times ``frames``."""
 
-    dim: int
+    frame_dim: int
+    frames: int
     omega: int                 # measured speed / omega_max
     cos: int | None            # saddle angle θ: cos θ at ``cos``, sin θ at ``cos + 1``
     command: int | None        # commanded speed / omega_max
     lab_frame: bool
 
     x, y, vx, vy = 0, 1, 2, 3
+
+    @property
+    def dim(self) -> int:
+        return self.frame_dim * self.frames
 
     def speed(self, obs: np.ndarray, omega_max: float) -> np.ndarray:
         """Measured Ω [rad/s] of a batch ``(n, dim)``."""
@@ -70,14 +81,15 @@ def layout(config: EnvConfig) -> ObsLayout:
         command, k = k, k + 1
     if config.observe_angle and not lab:
         cos, k = k, k + 2
-    return ObsLayout(dim=k, omega=omega, cos=cos, command=command, lab_frame=lab)
+    return ObsLayout(frame_dim=k, frames=config.obs_history, omega=omega, cos=cos,
+                     command=command, lab_frame=lab)
 
 
 def observation_space(config: EnvConfig) -> spaces.Box:
     """Declared observation box (scaled units, float32)."""
     lay = layout(config)
-    low = np.empty(lay.dim, dtype=np.float32)
-    high = np.empty(lay.dim, dtype=np.float32)
+    low = np.empty(lay.frame_dim, dtype=np.float32)
+    high = np.empty(lay.frame_dim, dtype=np.float32)
     low[:2], high[:2] = -POS_BOUND, POS_BOUND
     low[2:4], high[2:4] = -VEL_BOUND, VEL_BOUND
     low[lay.omega], high[lay.omega] = OMEGA_LOW, OMEGA_HIGH
@@ -85,7 +97,7 @@ def observation_space(config: EnvConfig) -> spaces.Box:
         low[lay.cos:lay.cos + 2], high[lay.cos:lay.cos + 2] = -1.0, 1.0
     if lay.command is not None:
         low[lay.command], high[lay.command] = 0.0, 1.0
-    return spaces.Box(low, high, dtype=np.float32)
+    return spaces.Box(np.tile(low, lay.frames), np.tile(high, lay.frames), dtype=np.float32)
 
 
 __all__ = ["OBS_MAX", "OMEGA_HIGH", "OMEGA_LOW", "POS_BOUND", "VEL_BOUND", "ObsLayout", "layout",
