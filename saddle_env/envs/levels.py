@@ -43,10 +43,10 @@ def _level(id: str, summary: str, models: str, why_hard: str, **options: Any) ->
 # What every level after the calm one gives a controller: the motor is a speed servo (the
 # action is the target speed, so holding a speed is holding an action); besides the camera
 # it knows the speed it commands (exact, free of ripple and tachometer noise) and the
-# saddle's angle (from the encoder); and it sees the last four frames (80 ms), enough to
+# saddle's angle (from the encoder); and it sees the last eight frames (160 ms), enough to
 # tell a steady push from an orbit without a recurrent network.
 _CONTROLLER = {"action_mode": "target", "observe_command": True, "observe_angle": True,
-               "obs_history": 4}
+               "obs_history": 8}
 _PAPER_BALLS = list(PAPER_BALL_RADII)
 # Air currents and motor ripple (measured, 200 episodes each: docs/levels.md).
 _GUSTS = {"air_force": 0.2, "ripple_amp": 1.0, "ripple_freq": 20.0}
