@@ -1,7 +1,7 @@
 """Compiled equations of motion: the one implementation every caller shares.
 
-Everything here is in the frame rotating with the saddle (PHYSICS.md, "Dynamics in the
-rotating frame"), per unit mass, with the contact point ``q = (x, y)`` as generalised
+Everything here is in the frame rotating with the saddle (docs/physics.md, "The rotating
+frame and its forces"), per unit mass, with the contact point ``q = (x, y)`` as generalised
 coordinates. Vectors are handled as scalar triples so that numba keeps them in registers;
 no arrays are allocated on the hot path.
 
@@ -11,9 +11,9 @@ mixed contact models share one memory layout:
 * rolling:  ``(x, y, wx, wy, wz)`` — contact point [m] and the ball's angular velocity
   relative to the saddle, in the saddle's axes [rad/s];
 * slipping / point: ``(x, y, vx, vy, 0)`` — contact point and its velocity [m/s]. The
-  spin is decoupled (PHYSICS.md §1) and is not integrated.
+  spin is decoupled (docs/physics.md, "Frictionless slipping") and is not integrated.
 
-Notation (derivations in docs/derivation.md):
+Notation (derivations in docs/physics.md):
   m(q) = (-2x/a, 2y/b, 1) is the un-normalised normal — affine in q, so its second time
   derivative along a trajectory vanishes; s = |m|, n = m/s; c = o + R n the ball's centre;
   J = dc/dq; P = 1 - n nᵀ.  ṅ = P ṁ / s and, with q̈ = 0,

@@ -144,7 +144,7 @@ def test_small_oscillation_period(contact, omega2):
 
 
 # --------------------------------------------------------------------------------
-# 4. Cross-check against an independent ROTATING-frame implementation of PHYSICS.md
+# 4. Cross-check against an independent ROTATING-frame implementation of docs/physics.md
 #    (time-varying Omega, asymmetric saddle, spin about n, theta0 != 0)
 # --------------------------------------------------------------------------------
 def _rot_frame_geometry(a, b, Rb):
@@ -161,7 +161,7 @@ def _rot_frame_geometry(a, b, Rb):
 
 def rotating_frame_physics_md(contact, a, b, Rb, alpha, g, Om, Omd, q0, qd0, t,
                               spin_normal=0.0):
-    """PHYSICS.md's rotating-frame equations, written straight from that note."""
+    """The rotating-frame equations of docs/physics.md, written straight from that page."""
     geo = _rot_frame_geometry(a, b, Rb)
 
     def escaped(t_, s):                # keep an accidental escape from running forever
