@@ -1,0 +1,256 @@
+"""The leaderboard: every baseline and every shipped agent on every task level, on a frozen
+test set of seeded episodes, written as ``docs/leaderboard.md`` (+ JSON and survival-curve
+PNGs) by one command::
+
+    python -m agents.leaderboard                 # 1,000 episodes per level (about 30 min)
+    python -m agents.leaderboard --episodes 50 --out /tmp/lb --levels SaddleTrap-Gusty-v0
+
+The test seeds (``TEST_SEED`` onwards) are used by nothing else: training runs use seeds
+0-99 (each run's balls are seeded from its own seed), the best-constant search 12,345
+onwards, model selection during training ``VALIDATION_SEED`` onwards. Results are written
+level by level as they finish (``leaderboard.json``), so an interrupted run keeps the levels
+it finished and ``--resume`` does only the rest.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from saddle_env.envs import LEVELS, get_level
+
+MODELS_DIR = Path(__file__).parent / "models"
+TEST_SEED = 2_000_000          # the frozen test set: episodes TEST_SEED .. TEST_SEED + n - 1
+TEST_EPISODES = 1000           # 200-episode sets move the kept fraction by about 7 points
+BASELINE_POLICIES = ("zero", "random", "const-1.0", "const-1.2", "const-1.5", "best-const",
+                     "mpc")
+DOCS = Path(__file__).resolve().parent.parent / "docs"
+
+
+def shipped_agents(env_id: str, models_dir: Path = MODELS_DIR) -> list[Path]:
+    """The shipped model files trained on level ``env_id`` (their sidecar's ``env_id``, with
+    no option overridden)."""
+    out = []
+    for path in sorted(models_dir.glob("*.zip")):
+        try:
+            side = json.loads(path.with_suffix(".json").read_text())
+        except (OSError, ValueError):
+            continue
+        if side.get("env_id") == env_id and not side.get("env_kwargs"):
+            out.append(path)
+    return out
+
+
+def evaluate_level(env_id: str, episodes: int, seed: int, policies: Sequence[str] | None = None,
+                   progress: bool = True) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(table, per-episode details) of every baseline and shipped agent on ``env_id``."""
+    from .evaluation import evaluate
+
+    level = get_level(env_id)
+    specs = list(policies) if policies is not None else \
+        list(BASELINE_POLICIES) + [str(p) for p in shipped_agents(env_id)]
+    table, details = evaluate(specs, level.config(), episodes, seed,
+                              max_episode_steps=level.max_episode_steps, progress=progress,
+                              examples=0)
+    table["env_id"] = env_id
+    return table, details
+
+
+def survival_plot(env_id: str, details: dict[str, Any], horizon: float, path: Path) -> None:
+    """Fraction of balls still trapped against time, one curve per policy."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    grid = np.linspace(0.0, horizon, 501)
+    for label, res in details.items():
+        t = np.sort(res["time"])
+        alive = 1.0 - np.searchsorted(t, grid, side="right") / len(t)
+        alive[-1] = float(np.mean(res["kept"]))
+        ax.step(grid, alive, where="post", label=Path(label).stem if label.endswith(".zip")
+                else label, lw=1.8 if label.endswith(".zip") or label == "mpc" else 1.0)
+    ax.set(xlabel="t [s]", ylabel="fraction of balls still trapped", ylim=(-0.02, 1.02),
+           title=f"{env_id}: survival ({len(t)} test episodes per policy)")
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _cell(d: dict[str, float], fmt: str, scale: float = 1.0) -> str:
+    return f"{d['mean'] * scale:{fmt}} [{d['low'] * scale:{fmt}}, {d['high'] * scale:{fmt}}]"
+
+
+def level_markdown(table: dict[str, Any], figure: str | None) -> str:
+    level = get_level(table["env_id"])
+    lines = [f"## {level.id}", "", level.summary[0].upper() + level.summary[1:] + ".", ""]
+    lines += ["| policy | trapping time [s] | kept [%] | detach [%] | escape [%] | "
+              "mean distance [mm] | effort (action²) |", "|" + "---|" * 7]
+    for row in sorted(table["policies"], key=lambda r: -r["trapping_time"]["mean"]):
+        name = row["policy"]
+        if name.endswith(".zip"):
+            name = f"**{Path(name).stem}** ({row['kind']})"
+        elif "omega" in row:
+            name += f", Ω = {row['omega']:.2f}"
+        lines.append(f"| {name} | {_cell(row['trapping_time'], '.2f')} | "
+                     f"{_cell(row['kept'], '.1f', 100)} | {_cell(row['detach'], '.1f', 100)} | "
+                     f"{_cell(row['escape'], '.1f', 100)} | "
+                     f"{_cell(row['mean_distance_mm'], '.2f')} | {_cell(row['effort'], '.3f')} |")
+    lines += ["", f"{table['episodes']} episodes per policy, seeds {table['seed']}–"
+              f"{table['seed'] + table['episodes'] - 1}, {table['episode_length_s']:g} s each."]
+    if figure:
+        lines += ["", f"![{level.id} survival]({figure})"]
+    return "\n".join(lines) + "\n"
+
+
+def write_markdown(results: dict[str, Any], path: Path, figures: dict[str, str],
+                   command: str) -> None:
+    head = [
+        "# Leaderboard",
+        "",
+        f"Generated by `{command}` on {results['date']} "
+        f"({results['machine']}); do not edit by hand.",
+        "",
+        "Every policy runs the same frozen test episodes of each level (episode i is "
+        "`reset(seed=seed + i)`); trapping time is the time until the ball detaches or "
+        "leaves the rim, the episode length if it is kept. Mean [95 % interval]: percentile "
+        "bootstrap for times, distances and effort, Wilson for rates. `zero` always sends "
+        "action 0, `random` uniform actions; `const-K` holds K·Ω_crt of the nominal ball, "
+        "`best-const` the best constant speed of the level (searched on seeds 12,345–12,408), "
+        "`mpc` is the model-predictive controller. Agents (bold) are the network alone, "
+        "deterministic.",
+        "",
+        "Seeds: test episodes from "
+        f"{results['seed']:,} (used by nothing else); training runs seed 0-99; model "
+        "selection during training on validation episodes from 1,000,000; best-const search "
+        "12,345–12,408.",
+        "",
+    ]
+    body = [level_markdown(results["levels"][lid], figures.get(lid))
+            for lid in results["order"] if lid in results["levels"]]
+    path.write_text("\n".join(head) + "\n" + "\n".join(body))
+
+
+def levels_markdown() -> str:
+    """``docs/levels.md``: every registered level, what it models, why it is hard, and its
+    options, from the registry itself (`saddle_env.LEVELS`)."""
+    lines = ["# Task levels", "",
+             "Generated from `saddle_env.LEVELS` by `python -m agents.leaderboard --levels-doc`; "
+             "do not edit by hand. Each id is a fixed set of options: `gym.make(ID)` and "
+             "`gym.make_vec(ID, num_envs=n)` need no keywords, and keywords still override one "
+             "option (`gym.make(\"SaddleTrap-Gusty-v0\", air_force=0.1)`). A change of "
+             "meaning gets a new version, never a silent edit. How every baseline and agent "
+             "does on each: [leaderboard.md](leaderboard.md).", "",
+             "| id | summary | episode |", "|---|---|---|"]
+    for level in LEVELS:
+        lines.append(f"| `{level.id}` | {level.summary} | {level.max_episode_steps} steps |")
+    for level in LEVELS:
+        opts = ", ".join(f"`{k}={v!r}`" for k, v in level.options.items()) or \
+            "none: every option at its default"
+        lines += ["", f"## {level.id}", "", f"**What it models.** {level.models}", "",
+                  f"**Why it is hard.** {level.why_hard}", "", f"**Options.** {opts}."]
+    return "\n".join(lines) + "\n"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m agents.leaderboard",
+        description="Evaluate every baseline and shipped agent on every task level on a frozen "
+                    "test set; write docs/leaderboard.md, leaderboard.json and survival PNGs.")
+    p.add_argument("--episodes", type=int, default=TEST_EPISODES,
+                   help=f"test episodes per policy and level (default {TEST_EPISODES})")
+    p.add_argument("--seed", type=int, default=TEST_SEED,
+                   help=f"first test seed (default {TEST_SEED})")
+    p.add_argument("--levels", nargs="+", default=None, metavar="ID",
+                   help="level ids (default: every registered level)")
+    p.add_argument("--out", default=str(DOCS), metavar="DIR",
+                   help="where leaderboard.md, leaderboard.json and figures/ go (default docs/)")
+    p.add_argument("--resume", action="store_true",
+                   help="keep the levels already in DIR/leaderboard.json with the same settings")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--levels-doc", action="store_true",
+                   help="only (re)write DIR/levels.md from the registry, evaluating nothing")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.episodes < 1:
+        parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    ids = args.levels or [level.id for level in LEVELS]
+    for lid in ids:
+        try:
+            get_level(lid)
+        except ValueError as exc:
+            parser.error(f"--levels: {exc}")
+    out = Path(args.out)
+    if args.levels_doc:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "levels.md").write_text(levels_markdown())
+        print(f"wrote {out / 'levels.md'}")
+        return 0
+    figs = out / "figures"
+    figs.mkdir(parents=True, exist_ok=True)
+    json_path = out / "leaderboard.json"
+    import platform
+
+    results: dict[str, Any] = {"episodes": args.episodes, "seed": args.seed, "order": ids,
+                               "date": time.strftime("%Y-%m-%d"),
+                               "machine": f"{platform.machine()}, {_cores()} cores",
+                               "levels": {}}
+    if args.resume and json_path.is_file():
+        old = json.loads(json_path.read_text())
+        if old.get("episodes") == args.episodes and old.get("seed") == args.seed:
+            results["levels"] = {k: v for k, v in old.get("levels", {}).items() if k in ids}
+    command = "python -m agents.leaderboard" + (
+        "" if argv is None and len(sys.argv) <= 1 else " " + " ".join(argv or sys.argv[1:]))
+    figures: dict[str, str] = {lid: f"figures/leaderboard_{lid}.png" for lid in results["levels"]}
+
+    def stop(signum, frame):  # SIGTERM: finish like Ctrl-C, keeping the finished levels
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, stop)
+    import torch
+
+    torch.set_num_threads(1)  # the same actions on any machine
+    try:
+        for lid in ids:
+            if lid in results["levels"]:
+                continue
+            print(f"{lid}: {args.episodes} episodes per policy", file=sys.stderr, flush=True)
+            table, details = evaluate_level(lid, args.episodes, args.seed,
+                                            progress=not args.no_progress)
+            results["levels"][lid] = table
+            fig = figs / f"leaderboard_{lid}.png"
+            survival_plot(lid, details, table["episode_length_s"], fig)
+            figures[lid] = f"figures/{fig.name}"
+            json_path.write_text(json.dumps(results, indent=1) + "\n")
+            write_markdown(results, out / "leaderboard.md", figures, command)
+    except KeyboardInterrupt:
+        print(f"interrupted: kept {len(results['levels'])} finished level(s) in {json_path}",
+              file=sys.stderr)
+        return 130
+    write_markdown(results, out / "leaderboard.md", figures, command)
+    print(f"wrote {out / 'leaderboard.md'}, {json_path} and {len(figures)} figure(s)")
+    return 0
+
+
+def _cores() -> int:
+    import os
+
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,67 @@
+"""The leaderboard command: per level, every baseline and shipped agent on a frozen test set,
+written as Markdown + JSON + survival PNGs; levels.md generated from the registry."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from agents import leaderboard as lb
+from saddle_env.envs import LEVELS
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_levels_page_is_generated_from_the_registry():
+    text = lb.levels_markdown()
+    assert (ROOT / "docs" / "levels.md").read_text() == text, \
+        "docs/levels.md is stale: run python -m agents.leaderboard --levels-doc"
+    for level in LEVELS:
+        assert f"## {level.id}" in text and level.why_hard in text
+
+
+def test_resume_keeps_finished_levels_and_an_interrupt_keeps_what_finished(tmp_path,
+                                                                           monkeypatch):
+    first, second = LEVELS[1].id, LEVELS[2].id
+    calls = []
+
+    def fake(env_id, episodes, seed, policies=None, progress=True):
+        calls.append(env_id)
+        if env_id == second:
+            raise KeyboardInterrupt
+        row = {"policy": "zero", "kind": "baseline", "omega": 1.0,
+               **{k: {"mean": 0.5, "low": 0.4, "high": 0.6}
+                  for k in ("trapping_time", "kept", "detach", "escape", "mean_distance_mm",
+                            "effort", "return")}}
+        table = {"env_id": env_id, "episodes": episodes, "seed": seed,
+                 "episode_length_s": 10.0, "policies": [row]}
+        res = {"time": [1.0, 2.0], "kept": [False, False]}
+        return table, {"zero": {k: __import__("numpy").asarray(v) for k, v in res.items()}}
+
+    monkeypatch.setattr(lb, "evaluate_level", fake)
+    args = ["--episodes", "2", "--levels", first, second, "--out", str(tmp_path),
+            "--no-progress"]
+    assert lb.main(args) == 130
+    data = json.loads((tmp_path / "leaderboard.json").read_text())
+    assert list(data["levels"]) == [first]
+    calls.clear()
+    assert lb.main(args + ["--resume"]) == 130
+    assert calls == [second]  # the finished level was kept, not recomputed
+
+
+def test_shipped_agents_are_found_by_their_sidecar(tmp_path):
+    for name, side in (("a", {"env_id": "SaddleTrap-Gusty-v0"}),
+                       ("b", {"env_id": "SaddleTrap-Gusty-v0", "env_kwargs": {"R": 0.02}}),
+                       ("c", {"env_id": "SaddleTrap-v0"})):
+        (tmp_path / f"{name}.zip").write_bytes(b"")
+        (tmp_path / f"{name}.json").write_text(json.dumps(side))
+    assert lb.shipped_agents("SaddleTrap-Gusty-v0", tmp_path) == [tmp_path / "a.zip"]
+
+
+def test_bad_arguments_give_one_line_errors(capsys):
+    with pytest.raises(SystemExit):
+        lb.main(["--episodes", "0"])
+    with pytest.raises(SystemExit):
+        lb.main(["--levels", "SaddleTrap-v9"])
+    err = capsys.readouterr().err
+    assert "--episodes must be >= 1" in err and "registered levels" in err
