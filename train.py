@@ -1,44 +1,53 @@
 #!/usr/bin/env python
-"""Train an agent on SaddleTrap-v0 — a thin command line over ``agents.training``.
+"""Train an agent on a task level — a thin command line over ``agents.training``.
 
-    python train.py                                  # PPO, default budget (a few minutes)
+    python train.py                                  # PPO on SaddleTrap-v0, default budget
+    python train.py --env SaddleTrap-Gusty-v0        # a registered level (saddle_env.LEVELS)
     python train.py --algo sac --env-kwargs air_force=0.1 ball_radii=[0.0223,0.0265,0.033]
     python train.py --resume runs/<run>/checkpoints/interrupted_123456_steps.zip
 
 Ctrl-C saves a checkpoint that --resume continues from. Results go to --log-dir/<run>/.
+This file only parses arguments: defaults, checks and the work live in agents/.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
-from pathlib import Path
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from agents.training import ALGO_NAMES, ENV_ID
+    # Only the core install is needed to build the parser (and print --help).
+    from agents.training import ALGO_NAMES, TrainSettings
+    from saddle_env.envs import LEVEL_IDS
 
-    ap = argparse.ArgumentParser(description="Train an SB3 agent on SaddleTrap-v0.",
+    d = TrainSettings()
+    ap = argparse.ArgumentParser(description="Train an SB3 agent on a SaddleTrap task level.",
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument("--algo", choices=ALGO_NAMES, default="ppo")
-    ap.add_argument("--env", default=ENV_ID, help="environment id (a key of the hyperparams file)")
+    ap.add_argument("--algo", choices=ALGO_NAMES, default=d.algo)
+    ap.add_argument("--env", default=d.env_id, metavar="ID",
+                    help=f"task level: {', '.join(LEVEL_IDS)} (also the hyperparams entry)")
     ap.add_argument("--env-kwargs", nargs="*", default=[], metavar="KEY=VALUE",
-                    help="environment options, values read as YAML (e.g. R=0.033 air_force=0.1)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--n-envs", type=int, default=None, help="parallel balls (default: hyperparams)")
-    ap.add_argument("--total-timesteps", type=int, default=None,
-                    help="budget in env steps (default: hyperparams n_timesteps)")
-    ap.add_argument("--hyperparams", default=None, metavar="FILE.yml",
-                    help="zoo-format YAML (default: agents/hyperparams/<algo>.yml)")
-    ap.add_argument("--log-dir", default="runs")
-    ap.add_argument("--run-name", default=None)
-    ap.add_argument("--eval-freq", type=int, default=20_000, help="env steps between evaluations")
-    ap.add_argument("--eval-episodes", type=int, default=32)
-    ap.add_argument("--save-freq", type=int, default=50_000, help="env steps between checkpoints")
-    ap.add_argument("--max-episode-steps", type=int, default=500)
-    ap.add_argument("--torch-threads", type=int, default=1,
+                    help="options over the level's: key=value items (values as JSON/Python/YAML "
+                         "literals, e.g. R=0.033 air_force=0.1) or one JSON object")
+    ap.add_argument("--seed", type=int, default=d.seed)
+    ap.add_argument("--n-envs", type=int, default=d.n_envs,
+                    help="parallel balls (None: the hyperparams' n_envs)")
+    ap.add_argument("--total-timesteps", type=int, default=d.total_timesteps,
+                    help="budget in env steps (None: the hyperparams' n_timesteps)")
+    ap.add_argument("--hyperparams", default=d.hyperparams, metavar="FILE.yml",
+                    help="zoo-format YAML (None: agents/hyperparams/<algo>.yml)")
+    ap.add_argument("--log-dir", default=d.log_dir)
+    ap.add_argument("--run-name", default=d.run_name)
+    ap.add_argument("--eval-freq", type=int, default=d.eval_freq,
+                    help="env steps between evaluations on the validation seeds")
+    ap.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
+    ap.add_argument("--save-freq", type=int, default=d.save_freq,
+                    help="env steps between checkpoints")
+    ap.add_argument("--max-episode-steps", type=int, default=d.max_episode_steps,
+                    help="control steps per episode (None: the level's)")
+    ap.add_argument("--torch-threads", type=int, default=d.torch_threads,
                     help="torch CPU threads (1 is fastest for these small networks on 2 cores)")
     ap.add_argument("--no-progress-bar", action="store_true")
     ap.add_argument("--resume", default=None, metavar="CHECKPOINT.zip",
@@ -49,21 +58,14 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    from agents.training import TrainSettings, parse_env_kwargs, train
+    from agents.cli_args import MissingExtra, parse_env_kwargs
+    from agents.training import TrainSettings, check_dependencies, settings_for_resume, train
 
     try:
+        check_dependencies(not args.no_progress_bar)
         if args.resume:
-            ckpt = Path(args.resume)
-            config = ckpt.resolve().parent.parent / "config.json"
-            if not ckpt.is_file() or not config.is_file():
-                parser.error(f"--resume: need an existing checkpoint inside a run folder with "
-                             f"config.json, got {args.resume!r}")
-            saved = json.loads(config.read_text())
-            saved.pop("hyperparams_used", None)
-            settings = TrainSettings(**saved)
-            if args.total_timesteps:
-                settings.total_timesteps = args.total_timesteps
-            settings.progress_bar = not args.no_progress_bar
+            settings = settings_for_resume(args.resume, args.total_timesteps,
+                                           not args.no_progress_bar)
         else:
             settings = TrainSettings(
                 algo=args.algo, env_id=args.env, env_kwargs=parse_env_kwargs(args.env_kwargs),
@@ -71,14 +73,12 @@ def main(argv: list[str] | None = None) -> int:
                 hyperparams=args.hyperparams, log_dir=args.log_dir, run_name=args.run_name,
                 eval_freq=args.eval_freq, eval_episodes=args.eval_episodes,
                 save_freq=args.save_freq, max_episode_steps=args.max_episode_steps,
-                progress_bar=not args.no_progress_bar, torch_threads=args.torch_threads)
-            for name in ("n_envs", "total_timesteps", "eval_freq", "eval_episodes", "save_freq",
-                         "max_episode_steps", "torch_threads"):
-                value = getattr(settings, name)
-                if value is not None and value < 1:
-                    parser.error(f"--{name.replace('_', '-')} must be a positive integer, got {value}")
+                progress_bar=not args.no_progress_bar,
+                torch_threads=args.torch_threads).validate()
         start = time.time()
         run_dir = train(settings, resume=args.resume)
+    except MissingExtra as exc:
+        parser.exit(2, f"{parser.prog}: error: {exc}\n")
     except ValueError as exc:
         parser.error(str(exc))
     print(f"run folder: {run_dir}  ({time.time() - start:.0f} s)")

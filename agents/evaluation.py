@@ -1,13 +1,17 @@
 """``saddle-eval``: evaluate policies (baselines or Stable-Baselines3 model files) on the
-same seeded episodes of SaddleTrap-v0 and tabulate how long they keep the ball.
+same seeded episodes of a task level and tabulate how long they keep the ball.
 
 ```
 saddle-eval --policy const-1.2 --policy mpc --policy runs/ppo/model.zip \\
-            --episodes 200 --seed 0 [--env-kwargs R=0.033 air_force=0.3] [--json] [--out DIR]
+            --episodes 200 --seed 0 [--env ID] [--env-kwargs R=0.033 air_force=0.3]
+            [--json] [--out DIR]
 ```
 
-Episode i is ``reset(seed=seed + i)`` of the environment with ``--env-kwargs``, stepped
-until the ball is lost or for ``--max-episode-steps`` control steps. Every policy sees the
+The environment is the level ``--env`` (`saddle_env.LEVELS`; default: the level named by the
+sidecar of the first model file that has one, else ``SaddleTrap-v0``) with ``--env-kwargs``
+overriding single options (`agents.cli_args` has the grammar). Episode i is
+``reset(seed=seed + i)``, stepped until the ball is lost or for ``--max-episode-steps``
+control steps (default: the level's). Every policy sees the
 same episodes. Results do not depend on batching: balls are independent in the engine;
 baselines act row by row, and model files act on fixed-size chunks of ``CHUNK`` episodes
 (padded), with torch on one thread (set by the command line).
@@ -23,178 +27,43 @@ Metrics per policy (mean and 95 % interval over episodes):
 | ``effort`` | mean action² per step | bootstrap |
 | ``return`` | sum of the environment's rewards | bootstrap |
 
-Writes ``results.json``, ``results.md``, ``episodes.json`` (per-episode values) and, unless
-``--no-plots``, ``trapping_time.png`` (survival curves and histograms) and ``examples.png``
-(Ω(t) and r(t) of the first episodes) to ``--out``. ``--json`` prints the table as JSON on
-stdout and nothing else; progress goes to stderr.
+The table records ``env_id``, ``env_kwargs`` (the options over the level's) and ``options``
+(every resolved option). Writes ``results.json``, ``results.md``, ``episodes.json``
+(per-episode values) and, unless ``--no-plots``, ``trapping_time.png`` (survival curves and
+histograms) and ``examples.png`` (Ω(t) and r(t) of the first episodes) to ``--out``.
+``--json`` prints the table as JSON on stdout and writes nothing (no files, no plots);
+progress goes to stderr.
 """
 
 from __future__ import annotations
 
 import argparse
-import ast
 import json
 import math
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from saddle_env.envs import DEFAULT_EPISODE_STEPS, EnvConfig
+from saddle_env.envs import DEFAULT_EPISODE_STEPS, ENV_ID, LEVEL_IDS, EnvConfig, get_level
+from saddle_env.envs.observation import layout
 
-CHUNK = 100          # episodes per batch for model files (fixed: batch-independent actions)
+from .cli_args import (
+    MissingExtra,
+    install_hint,
+    level_overrides,
+    missing,
+    parse_env_kwargs,
+    resolve_env,
+)
+from .policies import load_policy, model_sidecar
+from .rollout import CHUNK, Actor, PolicyActor, policy_actor, run_episodes  # noqa: F401
+
 N_EXAMPLES = 3       # episodes whose Ω(t), r(t) are recorded for the plots
 METRICS = ("trapping_time", "kept", "detach", "escape", "mean_distance_mm", "effort", "return")
 RATES = ("kept", "detach", "escape")
-
-Actor = Callable[[np.ndarray, np.ndarray], np.ndarray]
-
-
-# --------------------------------------------------------------------------------------
-# Running episodes
-# --------------------------------------------------------------------------------------
-def run_episodes(config: EnvConfig, act: Actor, seeds: Sequence[int] | np.ndarray, *,
-                 max_episode_steps: int = DEFAULT_EPISODE_STEPS, row_independent: bool = True,
-                 record: int = 0, progress: bool | str = False) -> dict[str, np.ndarray]:
-    """Run one episode per seed (episode i: ``reset(seed=seeds[i])``) and collect statistics.
-
-    ``act(obs, idx)`` returns the actions (len(idx),) or (len(idx), 1) for the balls ``idx``
-    still in play, given the batch of observations ``obs``. With ``row_independent`` the
-    whole set runs as one batch; otherwise in chunks of ``CHUNK`` episodes (the last padded
-    with extra seeds), so that a policy always sees the same batch shape.
-
-    Returns per-episode arrays: ``time`` [s], ``kept``, ``cause`` ("detach", "escape" or
-    "kept"), ``mean_r`` [m], ``effort``, ``return``, ``min_normal`` (N/mg at step ends), and
-    for the first ``record`` episodes ``trace_omega``, ``trace_r`` ((record, steps + 1),
-    NaN after the end) and ``trace_t``.
-    """
-    from saddle_env.envs.vector import SaddleTrapVectorEnv
-
-    seeds = np.asarray(seeds, dtype=np.int64)
-    n = len(seeds)
-    if row_independent:
-        chunks = [seeds]
-    else:
-        pad = (-n) % CHUNK
-        padded = np.concatenate([seeds, seeds.max() + 1 + np.arange(pad)]) if pad else seeds
-        chunks = [padded[i:i + CHUNK] for i in range(0, len(padded), CHUNK)]
-    dt = config.control_period
-    out = {"time": np.zeros(n), "kept": np.zeros(n, dtype=bool),
-           "cause": np.full(n, "kept", dtype=object), "mean_r": np.zeros(n),
-           "effort": np.zeros(n), "return": np.zeros(n), "min_normal": np.full(n, np.inf)}
-    record = min(record, n)
-    trace_omega = np.full((record, max_episode_steps + 1), np.nan)
-    trace_r = np.full((record, max_episode_steps + 1), np.nan)
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=len(chunks) * max_episode_steps, unit="step", file=sys.stderr,
-                   desc=progress if isinstance(progress, str) else None, leave=False,
-                   mininterval=0.5)
-    kw = config.as_dict()
-    start = 0
-    for chunk in chunks:
-        m = len(chunk)
-        keep = min(m, n - start)                  # rows that are real episodes
-        env = SaddleTrapVectorEnv(num_envs=m, max_episode_steps=max_episode_steps, **kw)
-        obs, info = env.reset(seed=[int(s) for s in chunk])
-        if hasattr(act, "start"):
-            act.start(m)
-        alive = np.ones(m, dtype=bool)
-        t_trap, r_sum, a_sum, ret = np.zeros(m), np.zeros(m), np.zeros(m), np.zeros(m)
-        steps = np.zeros(m, dtype=np.int64)
-        min_n = np.asarray(info["N_over_mg"], dtype=float).copy()
-        cause = np.full(m, "kept", dtype=object)
-        rec = [j for j in range(m) if start + j < record]
-        for j in rec:
-            trace_omega[start + j, 0] = info["omega"][j]
-            trace_r[start + j, 0] = math.hypot(*env.engine.Y[j, :2])
-        actions = np.zeros((m, 1), dtype=np.float32)
-        for step in range(max_episode_steps):
-            idx = np.flatnonzero(alive)
-            a = np.asarray(act(obs, idx), dtype=np.float32).reshape(len(idx))
-            actions[:] = 0.0
-            actions[idx, 0] = a
-            obs, rew, term, trunc, info = env.step(actions)
-            r = np.hypot(env.engine.Y[:, 0], env.engine.Y[:, 1])
-            t_trap[idx] += info["trapped_fraction"][idx] * dt
-            r_sum[idx] += r[idx]
-            a_sum[idx] += np.clip(a.astype(np.float64), -1, 1) ** 2
-            ret[idx] += rew[idx]
-            steps[idx] += 1
-            min_n[idx] = np.minimum(min_n[idx], info["N_over_mg"][idx])
-            for j in rec:
-                if alive[j]:
-                    trace_omega[start + j, step + 1] = info["omega"][j]
-                    trace_r[start + j, step + 1] = r[j]
-            for j in np.flatnonzero(term & alive):
-                cause[j] = info["cause"][j]
-            alive &= ~(term | trunc)
-            if bar is not None:
-                bar.update(1)
-            if not alive[:keep].any():
-                if bar is not None:
-                    bar.update(max_episode_steps - step - 1)
-                break
-        env.close()
-        sl = slice(start, start + keep)
-        out["time"][sl] = t_trap[:keep]
-        out["cause"][sl] = cause[:keep]
-        out["kept"][sl] = cause[:keep] == "kept"
-        out["mean_r"][sl] = r_sum[:keep] / np.maximum(steps[:keep], 1)
-        out["effort"][sl] = a_sum[:keep] / np.maximum(steps[:keep], 1)
-        out["return"][sl] = ret[:keep]
-        out["min_normal"][sl] = min_n[:keep]
-        start += keep
-    if bar is not None:
-        bar.close()
-    out["trace_omega"], out["trace_r"] = trace_omega, trace_r
-    out["trace_t"] = np.arange(max_episode_steps + 1) * dt
-    return out
-
-
-class PolicyActor:
-    """``act(obs, idx)`` for `run_episodes` from a policy with SB3's ``predict``.
-
-    Row-independent policies (the baselines) see only the balls in play; others (model
-    files) the whole batch. A state returned by ``predict`` (SB3's recurrent slot, used by
-    the ``mpc`` baseline's estimators) is kept per ball and passed back, with
-    ``episode_start`` True on each ball's first step.
-    """
-
-    def __init__(self, policy: Any):
-        self.policy = policy
-        self.row_independent = bool(getattr(policy, "row_independent", False))
-        self.state: np.ndarray | None = None
-        self.fresh = np.ones(0, dtype=bool)
-
-    def start(self, n: int) -> None:
-        self.state, self.fresh = None, np.ones(n, dtype=bool)
-
-    def __call__(self, obs: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        rows = idx if self.row_independent else np.arange(len(obs))
-        if len(rows) == 0:
-            return np.zeros(0)
-        state = None if self.state is None else self.state[rows]
-        actions, new_state = self.policy.predict(obs[rows], state=state,
-                                                 episode_start=self.fresh[rows],
-                                                 deterministic=True)
-        if isinstance(new_state, np.ndarray) and new_state.ndim >= 1 and len(new_state) == len(rows):
-            if self.state is None:
-                self.state = np.zeros((len(obs),) + new_state.shape[1:], dtype=new_state.dtype)
-            self.state[rows] = new_state
-        self.fresh[rows] = False
-        actions = np.asarray(actions).reshape(len(rows))
-        return actions if self.row_independent else actions[idx]
-
-
-def policy_actor(policy: Any) -> tuple[PolicyActor, bool]:
-    """(actor, row_independent) for `run_episodes`."""
-    actor = PolicyActor(policy)
-    return actor, actor.row_independent
 
 
 # --------------------------------------------------------------------------------------
@@ -263,23 +132,30 @@ def policy_label(policy: Any, spec: str) -> tuple[str, str]:
 
 def evaluate(specs: Sequence[str | tuple[str, Any]], config: EnvConfig, episodes: int, seed: int,
              max_episode_steps: int = DEFAULT_EPISODE_STEPS, progress: bool = False,
-             examples: int = N_EXAMPLES) -> tuple[dict[str, Any], dict[str, Any]]:
+             examples: int = N_EXAMPLES, env_id: str | None = None
+             ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Evaluate every policy on episodes ``seed .. seed + episodes − 1``.
 
     ``specs``: baseline names or model paths (see `load_policy`), or (spec, policy) pairs of
-    already loaded policies. Returns (table, details): the table is what ``--json`` prints;
-    details hold the per-episode arrays and traces for files and plots.
+    already loaded policies. ``env_id``: the level ``config`` was built from (recorded with
+    the options that override it; default: the options over `EnvConfig`'s defaults).
+    Returns (table, details): the table is what ``--json`` prints; details hold the
+    per-episode arrays and traces for files and plots.
     """
-    from .baselines import load_policy
-
-    table: dict[str, Any] = {"env_kwargs": _nondefault(config), "episodes": episodes, "seed": seed,
-                             "max_episode_steps": max_episode_steps,
-                             "episode_length_s": round(max_episode_steps * config.control_period, 9),
-                             "policies": []}
+    level = get_level(env_id) if env_id is not None else None
+    table: dict[str, Any] = {}
+    if level is not None:
+        table["env_id"] = level.id
+    table.update({"env_kwargs": level_overrides(level, config) if level else _nondefault(config),
+                  "options": _jsonable(config.as_dict()),
+                  "episodes": episodes, "seed": seed, "max_episode_steps": max_episode_steps,
+                  "episode_length_s": round(max_episode_steps * config.control_period, 9),
+                  "policies": []})
     details: dict[str, Any] = {}
     seeds = seed + np.arange(episodes)
     for item in specs:
-        spec, policy = item if isinstance(item, tuple) else (item, load_policy(item, config))
+        spec, policy = item if isinstance(item, tuple) else \
+            (item, load_policy(item, config, max_episode_steps=max_episode_steps))
         _check_compatible(policy, config, spec)
         label, kind = policy_label(policy, spec)
         act, row_independent = policy_actor(policy)
@@ -296,33 +172,46 @@ def evaluate(specs: Sequence[str | tuple[str, Any]], config: EnvConfig, episodes
 
 def _check_compatible(policy: Any, config: EnvConfig, spec: str) -> None:
     space = getattr(policy, "observation_space", None)
-    want = 7 if config.obs_frame == "lab" else 5
+    want = layout(config).dim
     if space is not None and tuple(space.shape) != (want,):
         raise ValueError(f"{spec}: the policy expects observations of shape {tuple(space.shape)}, "
                          f"the environment gives ({want},) (obs_frame={config.obs_frame!r}); "
-                         "pass the --env-kwargs it was trained with")
+                         "pass the --env or --env-kwargs it was trained with")
 
 
-def _warn_if_trained_elsewhere(spec: str, config: EnvConfig, max_episode_steps: int) -> None:
-    from .baselines import model_sidecar
-
+def _warn_if_trained_elsewhere(spec: str, env_id: str, config: EnvConfig) -> None:
     side = model_sidecar(spec if spec.endswith(".zip") else spec + ".zip")
-    if not side or not isinstance(side.get("env_kwargs"), dict):
+    if not side:
         return
     try:
-        trained = EnvConfig.from_kwargs(**parse_env_kwargs([json.dumps(side["env_kwargs"])]))
+        _, trained = trained_env(side)
     except (ValueError, TypeError):
         return
     if trained != config:
-        print(f"saddle-eval: warning: {spec} was trained with env kwargs "
-              f"{json.dumps(_nondefault(trained))}, evaluated with "
+        print(f"saddle-eval: warning: {spec} was trained on {side.get('env_id', ENV_ID)} "
+              f"with options {json.dumps(_nondefault(trained))}, evaluated on {env_id} with "
               f"{json.dumps(_nondefault(config))}", file=sys.stderr)
+
+
+def trained_env(sidecar: dict[str, Any]) -> tuple[str, EnvConfig]:
+    """(env id, config) a model was trained on, from its sidecar: ``env_id`` (default the
+    calm level, as sidecars written before levels existed) with ``env_kwargs`` on top."""
+    env_id = sidecar.get("env_id") or ENV_ID
+    kwargs = sidecar.get("env_kwargs") or {}
+    if not isinstance(kwargs, dict):
+        raise ValueError(f"sidecar env_kwargs must be a mapping, got {kwargs!r}")
+    _, config = resolve_env(env_id, parse_env_kwargs([json.dumps(kwargs)]) if kwargs else {})
+    return env_id, config
 
 
 def _nondefault(config: EnvConfig) -> dict[str, Any]:
     defaults = EnvConfig()
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in config.as_dict().items()
             if v != getattr(defaults, k)}
+
+
+def _jsonable(d: dict[str, Any]) -> dict[str, Any]:
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
 
 
 def markdown(table: dict[str, Any]) -> str:
@@ -343,9 +232,10 @@ def markdown(table: dict[str, Any]) -> str:
                      f"{cell(row['escape'], '.0f', 100)} | "
                      f"{cell(row['mean_distance_mm'], '.2f')} | {cell(row['effort'], '.3f')} |")
     kw = table["env_kwargs"]
+    where = table.get("env_id", "env")
     note = (f"\n{table['episodes']} episodes (seeds {table['seed']}–"
             f"{table['seed'] + table['episodes'] - 1}) of {table['episode_length_s']:g} s; "
-            f"env kwargs: {json.dumps(kw) if kw else 'defaults'}. Mean [95 % interval: "
+            f"{where}{' with ' + json.dumps(kw) if kw else ''}. Mean [95 % interval: "
             "percentile bootstrap for times, distances and effort; Wilson for rates].\n")
     return "\n".join(lines) + "\n" + note
 
@@ -359,7 +249,7 @@ def plot(table: dict[str, Any], details: dict[str, Any], config: EnvConfig, out:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .baselines import critical_speed
+    from .controllers import critical_speed
 
     T = table["episode_length_s"]
     files = []
@@ -407,59 +297,44 @@ def plot(table: dict[str, Any], details: dict[str, Any], config: EnvConfig, out:
 # --------------------------------------------------------------------------------------
 # Command line
 # --------------------------------------------------------------------------------------
-def parse_env_kwargs(items: Sequence[str] | None) -> dict[str, Any]:
-    """``--env-kwargs``: one JSON object, or ``key=value`` items (values as JSON or Python
-    literals, else strings)."""
-    if not items:
-        return {}
-    if len(items) == 1 and items[0].lstrip().startswith("{"):
-        try:
-            kw = json.loads(items[0])
-        except ValueError as exc:
-            raise ValueError(f"--env-kwargs is not valid JSON: {exc}") from None
-        if not isinstance(kw, dict):
-            raise ValueError("--env-kwargs JSON must be an object")
-    else:
-        kw = {}
-        for item in items:
-            key, sep, text = item.partition("=")
-            if not sep or not key.strip():
-                raise ValueError(f"--env-kwargs items must be key=value, got {item!r}")
-            kw[key.strip()] = _literal(text.strip())
-    return {k: tuple(v) if isinstance(v, list) else v for k, v in kw.items()}
-
-
-def _literal(text: str) -> Any:
-    for parse in (json.loads, ast.literal_eval):
-        try:
-            return parse(text)
-        except (ValueError, SyntaxError):
-            pass
-    return text
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="saddle-eval",
         description="Evaluate policies (baseline names or Stable-Baselines3 .zip files) on the "
-                    "same seeded SaddleTrap-v0 episodes; write a table (JSON + Markdown) and plots.")
+                    "same seeded episodes of a task level; write a table (JSON + Markdown) and "
+                    "plots, or with --json print the table and write nothing.")
     p.add_argument("--policy", action="append", required=True, metavar="NAME_OR_PATH",
-                   help="a baseline (const-1.0, const-1.2, const-<K>, masspoint, best-const, mpc) "
-                        "or a model file; repeat for several")
+                   help="a baseline (const-1.0, const-1.2, const-<K>, masspoint, best-const, mpc, "
+                        "zero, random) or a model file; repeat for several")
+    p.add_argument("--env", default=None, metavar="ID",
+                   help=f"task level ({', '.join(LEVEL_IDS)}); default: the level a model "
+                        f"file's sidecar names, else {ENV_ID}")
     p.add_argument("--episodes", type=int, default=100, help="episodes per policy (default 100)")
     p.add_argument("--seed", type=int, default=0, help="episode i uses seed + i (default 0)")
     p.add_argument("--env-kwargs", nargs="+", metavar="KW",
-                   help="environment options: one JSON object or key=value items")
-    p.add_argument("--max-episode-steps", type=int, default=DEFAULT_EPISODE_STEPS,
-                   help=f"control steps per episode (default {DEFAULT_EPISODE_STEPS})")
+                   help="options over the level's: key=value items (values as JSON/Python/YAML "
+                        "literals) or one JSON object")
+    p.add_argument("--max-episode-steps", type=int, default=None,
+                   help="control steps per episode (default: the level's, "
+                        f"{DEFAULT_EPISODE_STEPS} for {ENV_ID})")
     p.add_argument("--examples", type=int, default=N_EXAMPLES,
                    help=f"episodes shown in examples.png (default {N_EXAMPLES})")
     p.add_argument("--out", default="eval-results", metavar="DIR",
-                   help="output directory (default ./eval-results)")
-    p.add_argument("--json", action="store_true", help="print the table as JSON on stdout only")
+                   help="output directory (default ./eval-results; not used with --json)")
+    p.add_argument("--json", action="store_true",
+                   help="print the table as JSON on stdout and write no files")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
+
+
+def _default_env_id(specs: Sequence[str]) -> str:
+    """The level of the first model file whose sidecar names one, else the calm level."""
+    for spec in specs:
+        side = model_sidecar(spec if spec.endswith(".zip") else spec + ".zip")
+        if side and side.get("env_id"):
+            return str(side["env_id"])
+    return ENV_ID
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -467,32 +342,53 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
-    if args.max_episode_steps < 1:
+    if args.max_episode_steps is not None and args.max_episode_steps < 1:
         parser.error(f"--max-episode-steps must be >= 1, got {args.max_episode_steps}")
     if args.examples < 0:
         parser.error(f"--examples must be >= 0, got {args.examples}")
+    env_id = args.env or _default_env_id(args.policy)
     try:
-        config = EnvConfig.from_kwargs(**parse_env_kwargs(args.env_kwargs))
-    except (ValueError, TypeError) as exc:
+        overrides = parse_env_kwargs(args.env_kwargs)
+    except ValueError as exc:
         parser.error(f"--env-kwargs: {exc}")
-    from .baselines import load_policy
+    try:
+        level, config = resolve_env(env_id, overrides)
+    except ValueError as exc:
+        if env_id not in LEVEL_IDS:
+            parser.error(f"--env: {exc}")
+        parser.error(f"--env-kwargs: {exc}")
+    except TypeError as exc:
+        parser.error(f"--env-kwargs: {exc}")
+    steps = args.max_episode_steps or level.max_episode_steps
+    # --json: the table on stdout and nothing on disk, so no plots either.
+    plots = not (args.no_plots or args.json)
+    if plots and missing(["matplotlib"]):
+        parser.error(f"the plots need matplotlib, which is not installed: {install_hint('plot')} "
+                     "(or pass --no-plots)")
+    progress = not args.no_progress
+    if progress and missing(["tqdm"]):
+        print(f"saddle-eval: no progress bar (tqdm is not installed: {install_hint('plot')})",
+              file=sys.stderr)
+        progress = False
 
     policies = []
     for spec in args.policy:  # fail on a bad name or file before any work
         try:
-            policy = load_policy(spec, config)
+            policy = load_policy(spec, config, max_episode_steps=steps)
             _check_compatible(policy, config, spec)
-        except (ValueError, OSError) as exc:
+        except (ValueError, OSError, MissingExtra) as exc:
             parser.error(str(exc))
         policies.append((spec, policy))
         if hasattr(policy, "algo_name"):
             import torch
 
             torch.set_num_threads(1)  # one thread: the same actions on any machine
-            _warn_if_trained_elsewhere(spec, config, args.max_episode_steps)
-    table, details = evaluate(policies, config, args.episodes, args.seed,
-                              args.max_episode_steps, progress=not args.no_progress,
-                              examples=args.examples)
+            _warn_if_trained_elsewhere(spec, level.id, config)
+    table, details = evaluate(policies, config, args.episodes, args.seed, steps,
+                              progress=progress, examples=args.examples, env_id=level.id)
+    if args.json:
+        sys.stdout.write(json.dumps(table, indent=1) + "\n")
+        return 0
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps(table, indent=1) + "\n")
@@ -503,15 +399,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                            "mean_r_m": np.round(res["mean_r"], 9).tolist(),
                            "effort": np.round(res["effort"], 9).tolist()}
                    for label, res in details.items()}
-    (out / "episodes.json").write_text(json.dumps({"seed": args.seed, "policies": per_episode}) + "\n")
-    if not args.no_plots:
+    (out / "episodes.json").write_text(json.dumps({"seed": args.seed, "policies": per_episode})
+                                       + "\n")
+    if plots:
         plot(table, details, config, out)
-    if args.json:
-        sys.stdout.write(json.dumps(table, indent=1) + "\n")
-    else:
-        sys.stdout.write(md)
-        print(f"wrote {out}/results.json, results.md, episodes.json"
-              + ("" if args.no_plots else ", trapping_time.png, examples.png"))
+    sys.stdout.write(md)
+    print(f"wrote {out}/results.json, results.md, episodes.json"
+          + ("" if not plots else ", trapping_time.png, examples.png"))
     return 0
 
 

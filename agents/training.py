@@ -1,15 +1,34 @@
-"""Training SB3 agents on SaddleTrap-v0 (the logic behind ``train.py``).
+"""Training SB3 agents on the task levels (the logic behind ``train.py``).
 
 The environment is stepped through the batch adapter (`saddle_env.envs.sb3`), so all
 ``n_envs`` balls advance in one compiled call. Hyperparameters come from YAML files keyed by
-environment id (rl-baselines3-zoo format, ``agents/hyperparams/<algo>.yml``).
+environment id (rl-baselines3-zoo format, ``agents/hyperparams/<algo>.yml``); a level with no
+entry of its own uses the ``SaddleTrap-v0`` entry (a note says so).
+
+Zoo keys honoured besides the algorithm's own arguments: ``n_envs``, ``n_timesteps``,
+``policy``, ``noise_type``/``noise_std`` (off-policy action noise), ``normalize`` (``true`` or
+``"dict(norm_obs=True, norm_reward=False)"``: VecNormalize, its statistics saved next to
+every model as ``<model>.vecnormalize.pkl``), ``frame_stack`` (VecFrameStack with that many
+frames) and ``warm_start`` (`agents.warm_start`). ``env_wrapper`` and ``callback`` are
+rejected with an error (no wrapper or callback classes are importable by name here).
+Evaluation (`agents.policies.load_policy`) applies the same normalisation and stacking from
+the sidecar.
 
 Every run writes to its own folder: ``config.json`` (everything needed to rebuild the
 environment and resume), TensorBoard logs, ``progress.csv``, ``evaluations.npz``,
-``best_model.zip``, ``checkpoints/`` and ``final_model.zip`` with a ``.json`` sidecar that
-records the environment options the model was trained on, and ``learning_curve.png``.
+``best_model.zip`` (SB3's EvalCallback: the *first* evaluation that reached the highest mean
+return), ``selected_model.zip`` (see below), ``checkpoints/`` and ``final_model.zip``, each
+model with a ``.json`` sidecar that records the level (``env_id``), the options overriding
+it (``env_kwargs``), the episode length and the wrappers, and ``learning_curve.png``.
 Ctrl-C or SIGTERM saves a checkpoint (and the replay buffer of off-policy algorithms);
 ``--resume CHECKPOINT.zip`` continues from it.
+
+**Model selection.** Every ``eval_freq`` steps, and once more on the final model, the policy
+is evaluated on ``eval_episodes`` validation episodes (seeds from `VALIDATION_SEED`, never
+used for training or for the leaderboard's test set). ``selected_model.zip`` is the *latest*
+snapshot whose mean validation return is at least the best mean seen so far: ties go to the
+later snapshot, so a run whose curve reaches its plateau early ships a model from the end of
+the plateau, not its first point (which ``best_model.zip`` keeps, as SB3 does).
 """
 
 from __future__ import annotations
@@ -17,20 +36,40 @@ from __future__ import annotations
 import ast
 import json
 import signal
+import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
-ENV_ID = "SaddleTrap-v0"
+from saddle_env.envs import ENV_ID, EnvConfig, Level
+
+from .cli_args import (  # noqa: F401
+    MissingExtra,
+    install_hint,
+    level_overrides,
+    missing,
+    parse_env_kwargs,
+    resolve_env,
+)
+
 HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
 ALGO_NAMES = ("ppo", "sac", "td3", "a2c")
 # Keys of the zoo format that are not constructor arguments of the algorithm.
 ZOO_ONLY_KEYS = {"n_envs", "n_timesteps", "policy", "noise_type", "noise_std", "normalize",
-                 "env_wrapper", "frame_stack", "callback"}
+                 "env_wrapper", "frame_stack", "callback", "warm_start"}
+# Zoo keys this trainer cannot honour: an error, never silently dropped.
+REJECTED_KEYS = {"env_wrapper": "environment wrappers by class name are not supported; wrap "
+                                "in code (agents.training.make_vec_env) instead",
+                 "callback": "callbacks by class name are not supported"}
+# Validation episodes (model selection during training) start here: apart from the training
+# seeds (0-99), the best-constant search (12,345 on) and the leaderboard's test set.
+VALIDATION_SEED = 1_000_000
+# What training imports beyond the core install (all in the "train" extra).
+TRAIN_MODULES = ("stable_baselines3", "torch", "yaml", "matplotlib")
+PROGRESS_MODULES = ("tqdm", "rich")
 
 
 def algo_class(name: str):
@@ -44,11 +83,12 @@ def algo_class(name: str):
 
 @dataclass
 class TrainSettings:
-    """What a run needs; saved as ``config.json`` in the run folder."""
+    """What a run needs; saved as ``config.json`` in the run folder. The defaults here are
+    the command line's (``train.py`` reads them from this class)."""
 
     algo: str = "ppo"
     env_id: str = ENV_ID
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    env_kwargs: dict[str, Any] = field(default_factory=dict)   # options over the level's
     seed: int = 0
     n_envs: int | None = None
     total_timesteps: int | None = None
@@ -58,7 +98,7 @@ class TrainSettings:
     eval_freq: int = 20_000
     eval_episodes: int = 32
     save_freq: int = 50_000
-    max_episode_steps: int = 500
+    max_episode_steps: int | None = None                       # None: the level's
     progress_bar: bool = True
     device: str = "cpu"
     # One torch thread: small MLPs gain nothing from more, and on a 2-core machine extra
@@ -67,19 +107,85 @@ class TrainSettings:
     torch_threads: int = 1
     hyperparams_used: dict[str, Any] = field(default_factory=dict)
 
+    POSITIVE = ("n_envs", "total_timesteps", "eval_freq", "eval_episodes", "save_freq",
+                "max_episode_steps", "torch_threads")
+
+    def validate(self) -> TrainSettings:
+        """Check every setting (ValueError naming the flag); fill in the level's episode
+        length. Returns self."""
+        if self.algo not in ALGO_NAMES:
+            raise ValueError(f"--algo must be one of {list(ALGO_NAMES)}, got {self.algo!r}")
+        for name in self.POSITIVE:
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int)
+                                      or value < 1):
+                raise ValueError(f"--{name.replace('_', '-')} must be a positive integer, "
+                                 f"got {value}")
+        level, _ = self.environment()
+        if self.max_episode_steps is None:
+            self.max_episode_steps = level.max_episode_steps
+        return self
+
+    def environment(self) -> tuple[Level, EnvConfig]:
+        """The level and its config with ``env_kwargs`` on top (ValueError if invalid)."""
+        try:
+            return resolve_env(self.env_id, self.env_kwargs)
+        except TypeError as exc:
+            raise ValueError(f"--env-kwargs: {exc}") from None
+
+
+def settings_for_resume(checkpoint: str | Path, total_timesteps: int | None = None,
+                        progress_bar: bool = True) -> TrainSettings:
+    """The settings of the run a checkpoint belongs to (its ``config.json``), with a new
+    budget if given."""
+    ckpt = Path(checkpoint)
+    config = ckpt.resolve().parent.parent / "config.json"
+    if not ckpt.is_file() or not config.is_file():
+        raise ValueError(f"--resume: need an existing checkpoint inside a run folder with "
+                         f"config.json, got {str(checkpoint)!r}")
+    saved = json.loads(config.read_text())
+    saved.pop("hyperparams_used", None)
+    known = {f.name for f in fields(TrainSettings)}
+    settings = TrainSettings(**{k: v for k, v in saved.items() if k in known})
+    if total_timesteps:
+        settings.total_timesteps = total_timesteps
+    settings.progress_bar = progress_bar
+    return settings.validate()
+
+
+def check_dependencies(progress_bar: bool) -> None:
+    """One line naming the extra to install if training cannot import what it needs."""
+    lacking = missing(TRAIN_MODULES + (PROGRESS_MODULES if progress_bar else ()))
+    if lacking:
+        raise MissingExtra(f"training needs {', '.join(lacking)}, not installed: "
+                           f"{install_hint('train')}")
+
 
 # ---------------------------------------------------------------------------------------
 # hyperparameters
 # ---------------------------------------------------------------------------------------
-def load_hyperparams(algo: str, env_id: str = ENV_ID, path: str | Path | None = None) -> dict[str, Any]:
-    """The entry for ``env_id`` in the algorithm's YAML file (zoo format)."""
+def load_hyperparams(algo: str, env_id: str = ENV_ID, path: str | Path | None = None,
+                     note: bool = False) -> dict[str, Any]:
+    """The entry for ``env_id`` in the algorithm's YAML file (zoo format); a level without
+    an entry uses the ``SaddleTrap-v0`` one (printing a note if ``note``)."""
+    import yaml
+
     file = Path(path) if path else HYPERPARAMS_DIR / f"{algo}.yml"
     if not file.is_file():
         raise ValueError(f"hyperparams file not found: {file}")
     data = yaml.safe_load(file.read_text()) or {}
+    if env_id not in data and ENV_ID in data and env_id != ENV_ID:
+        if note:
+            print(f"train.py: {file.name} has no entry for {env_id}; using its {ENV_ID} entry",
+                  file=sys.stderr)
+        env_id = ENV_ID
     if env_id not in data:
         raise ValueError(f"{file} has no entry for {env_id!r} (has: {sorted(data)})")
-    return dict(data[env_id])
+    hyper = dict(data[env_id])
+    for key, why in REJECTED_KEYS.items():
+        if hyper.get(key) is not None:
+            raise ValueError(f"{file}: {key}: {why}")
+    return hyper
 
 
 def parse_policy_kwargs(value: Any) -> dict[str, Any]:
@@ -109,33 +215,62 @@ def parse_policy_kwargs(value: Any) -> dict[str, Any]:
     return result
 
 
-def parse_env_kwargs(pairs: list[str] | None) -> dict[str, Any]:
-    """``key=value`` (or the zoo's ``key:value``) pairs; values are read as YAML."""
-    out: dict[str, Any] = {}
-    for pair in pairs or []:
-        sep = "=" if "=" in pair else ":"
-        key, _, raw = pair.partition(sep)
-        if not key or not _:
-            raise ValueError(f"--env-kwargs items must look like key=value, got {pair!r}")
-        value = yaml.safe_load(raw)
-        if isinstance(value, list):
-            value = tuple(value)
-        out[key.strip()] = value
-    return out
-
-
 # ---------------------------------------------------------------------------------------
 # environments
 # ---------------------------------------------------------------------------------------
-def make_vec_env(n_envs: int, seed: int, env_kwargs: dict[str, Any], max_episode_steps: int):
-    """The batch environment for SB3, with episode statistics (VecMonitor)."""
+def make_vec_env(n_envs: int, seed: int, env_kwargs: dict[str, Any], max_episode_steps: int,
+                 env_id: str = ENV_ID):
+    """The batch environment for SB3 (level ``env_id`` with ``env_kwargs`` on top), with
+    episode statistics (VecMonitor)."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
 
-    env = SaddleTrapSB3VecEnv(num_envs=n_envs, max_episode_steps=max_episode_steps, **env_kwargs)
+    _, config = resolve_env(env_id, env_kwargs)
+    env = SaddleTrapSB3VecEnv(num_envs=n_envs, max_episode_steps=max_episode_steps,
+                              **config.as_dict())
     env.seed(seed)
     return VecMonitor(env)
+
+
+def wrapper_settings(hyper: dict[str, Any]) -> tuple[dict[str, Any] | None, int]:
+    """(VecNormalize keywords or None, frames to stack) from the zoo keys ``normalize`` and
+    ``frame_stack``; ValueError for a value the zoo would not accept either."""
+    norm = hyper.get("normalize")
+    if norm in (None, False):
+        norm_kw = None
+    elif norm is True:
+        norm_kw = {}
+    elif isinstance(norm, (str, dict)):
+        norm_kw = parse_policy_kwargs(norm) if isinstance(norm, str) else dict(norm)
+        allowed = {"norm_obs", "norm_reward", "clip_obs", "clip_reward", "gamma", "epsilon"}
+        bad = set(norm_kw) - allowed
+        if bad:
+            raise ValueError(f"normalize: unknown VecNormalize option(s) {sorted(bad)}; "
+                             f"allowed: {sorted(allowed)}")
+    else:
+        raise ValueError(f"normalize must be true/false or a dict of VecNormalize options, "
+                         f"got {norm!r}")
+    k = hyper.get("frame_stack") or 1
+    if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= 64:
+        raise ValueError(f"frame_stack must be an integer in [1, 64], got {k!r}")
+    return norm_kw, k
+
+
+def wrap_env(env, norm_kw: dict[str, Any] | None, frame_stack: int, training: bool = True):
+    """VecNormalize, then VecFrameStack, as the zoo orders them (frames are stacked after
+    normalisation). An evaluation env normalises with the training statistics (synced by
+    EvalCallback) and leaves rewards alone."""
+    from stable_baselines3.common.vec_env import VecFrameStack, VecNormalize
+
+    if norm_kw is not None:
+        kw = dict(norm_kw)
+        if not training:
+            kw.update(training=False, norm_reward=False)
+        env = VecNormalize(env, **kw)
+    if frame_stack > 1:
+        env = VecFrameStack(env, frame_stack)
+    return env
 
 
 def _action_noise(hyper: dict[str, Any]):
@@ -158,34 +293,162 @@ class _Stop(Exception):
     """Raised in the main thread by SIGTERM so the run can checkpoint and exit."""
 
 
-def _save_checkpoint(model, folder: Path, tag: str) -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{tag}_{model.num_timesteps}_steps.zip"
+def save_model(model, path: Path, settings: TrainSettings, extra: dict[str, Any] | None = None
+               ) -> Path:
+    """Save ``model`` at ``path`` with its sidecar and, if observations are normalised, the
+    statistics next to it (what evaluation needs to act as in training)."""
+    from .policies import vecnormalize_path
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     model.save(path)
+    norm = model.get_vec_normalize_env()
+    if norm is not None:
+        norm.save(str(vecnormalize_path(path)))
+    write_sidecar(path, settings, extra)
+    return path
+
+
+def save_model_extras(model, path: Path, settings: TrainSettings) -> None:
+    """The sidecar and normalisation statistics of a model file someone else saved (SB3's
+    best_model.zip), written at the time it was saved."""
+    from .policies import vecnormalize_path
+
+    norm = model.get_vec_normalize_env()
+    if norm is not None:
+        norm.save(str(vecnormalize_path(path)))
+    write_sidecar(path, settings)
+
+
+def checkpoint_statistics(checkpoint: str | Path) -> Path | None:
+    """The normalisation statistics saved with a checkpoint: ours (``<stem>.vecnormalize.pkl``)
+    or SB3's CheckpointCallback's (``checkpoint_vecnormalize_<steps>_steps.pkl``)."""
+    from .policies import vecnormalize_path
+
+    ckpt = Path(checkpoint)
+    ours = vecnormalize_path(ckpt)
+    if ours.is_file():
+        return ours
+    prefix, _, steps = ckpt.stem.partition("_")
+    theirs = ckpt.with_name(f"{prefix}_vecnormalize_{steps}.pkl")
+    return theirs if theirs.is_file() else None
+
+
+def _save_checkpoint(model, folder: Path, tag: str, settings: TrainSettings) -> Path:
+    path = save_model(model, folder / f"{tag}_{model.num_timesteps}_steps.zip", settings)
     if hasattr(model, "replay_buffer") and model.replay_buffer is not None:
         model.save_replay_buffer(path.with_suffix(".replay.pkl"))
     return path
 
 
-def write_sidecar(model_path: Path, settings: TrainSettings) -> None:
-    """Record what a saved model was trained on, for evaluation tools."""
-    sidecar = {"algo": settings.algo, "env_id": settings.env_id,
-               "env_kwargs": settings.env_kwargs, "max_episode_steps": settings.max_episode_steps,
-               "seed": settings.seed}
-    model_path.with_suffix(".json").write_text(json.dumps(sidecar, indent=2, default=list))
+def write_sidecar(model_path: Path, settings: TrainSettings,
+                  extra: dict[str, Any] | None = None) -> None:
+    """Record what a saved model was trained on, for evaluation tools: the level
+    (``env_id``), only the options that override it (``env_kwargs``), the episode length,
+    the seed and the observation wrappers (``frame_stack``, ``normalize``)."""
+    level, config = settings.environment()
+    norm_kw, frame_stack = wrapper_settings(settings.hyperparams_used)
+    sidecar = {"algo": settings.algo, "env_id": level.id,
+               "env_kwargs": level_overrides(level, config),
+               "max_episode_steps": settings.max_episode_steps, "seed": settings.seed,
+               "frame_stack": frame_stack, "normalize": norm_kw is not None}
+    sidecar.update(extra or {})
+    Path(model_path).with_suffix(".json").write_text(json.dumps(sidecar, indent=2, default=list))
+
+
+def _selection_callback(eval_env, settings: TrainSettings, run_dir: Path, n_envs: int):
+    """SB3's EvalCallback (writes evaluations.npz and best_model.zip, the first best), which
+    also keeps ``selected_model.zip``: the latest snapshot whose mean validation return is
+    at least the best so far (ties go to the later snapshot; see the module docstring)."""
+    from stable_baselines3.common.callbacks import EvalCallback
+
+    class SelectingEvalCallback(EvalCallback):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.selected_mean = -np.inf
+            self.selected_steps: int | None = None
+            self.last_eval_steps: int | None = None
+
+        def _on_step(self) -> bool:
+            due = self.eval_freq > 0 and self.n_calls % self.eval_freq == 0
+            best_before = self.best_mean_reward
+            keep_going = super()._on_step()
+            if due:
+                if self.best_mean_reward != best_before:   # SB3 just wrote best_model.zip
+                    save_model_extras(self.model, run_dir / "best_model.zip", settings)
+                self._select()
+            return keep_going
+
+        def _select(self) -> None:
+            self.last_eval_steps = self.num_timesteps
+            if self.last_mean_reward >= self.selected_mean:
+                self.selected_mean = float(self.last_mean_reward)
+                self.selected_steps = int(self.num_timesteps)
+                save_model(self.model, run_dir / "selected_model.zip", settings,
+                           {"selected_at_steps": self.selected_steps,
+                            "validation_mean_return": self.selected_mean,
+                            "validation_episodes": self.n_eval_episodes,
+                            "validation_seed": VALIDATION_SEED})
+
+        def evaluate_now(self) -> None:
+            """One more evaluation (of the final model), unless the last one was of it."""
+            if self.last_eval_steps == self.num_timesteps:
+                return
+            period, self.eval_freq = self.eval_freq, 1   # due now, whatever n_calls is
+            try:
+                self._on_step()
+            finally:
+                self.eval_freq = period
+
+    per_env = max(1, settings.eval_freq // n_envs)    # callbacks count vector steps
+    return SelectingEvalCallback(eval_env, n_eval_episodes=settings.eval_episodes,
+                                 eval_freq=per_env, best_model_save_path=str(run_dir),
+                                 log_path=str(run_dir), deterministic=True, verbose=0)
+
+
+def _progress_callback():
+    """A progress bar that ends at the number of steps actually taken: SB3's counts to the
+    budget asked for, but on-policy algorithms collect whole rollouts (n_steps × n_envs)
+    and finish past it (e.g. 303,104 of 300,000), so the bar's total follows the count."""
+    from stable_baselines3.common.callbacks import ProgressBarCallback
+
+    class ExactProgressBar(ProgressBarCallback):
+        def _on_training_start(self) -> None:
+            super()._on_training_start()
+            self.pbar.total = self._expected()
+            self.pbar.refresh()
+
+        def _expected(self) -> int:
+            remaining = self.locals["total_timesteps"] - self.model.num_timesteps
+            chunk = self.training_env.num_envs * int(getattr(self.model, "n_steps", 1))
+            return -(-remaining // chunk) * chunk          # whole rollouts of `chunk` steps
+
+        def _on_step(self) -> bool:
+            self.pbar.update(self.training_env.num_envs)
+            if self.pbar.n > self.pbar.total:               # never show more than the total
+                self.pbar.total = self.pbar.n
+            return True
+
+        def _on_training_end(self) -> None:
+            self.pbar.total = self.pbar.n                    # the true number of steps
+            super()._on_training_end()
+
+    return ExactProgressBar()
 
 
 def train(settings: TrainSettings, resume: str | Path | None = None) -> Path:
     """Train (or resume) an agent; return the run folder."""
-    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback, EvalCallback
+    check_dependencies(settings.progress_bar)
+    import torch
+    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
     from stable_baselines3.common.logger import configure
 
-    import torch
-
+    settings.validate()
     torch.set_num_threads(settings.torch_threads)
     cls = algo_class(settings.algo)
-    hyper = load_hyperparams(settings.algo, settings.env_id, settings.hyperparams)
+    hyper = load_hyperparams(settings.algo, settings.env_id, settings.hyperparams, note=True)
     settings.hyperparams_used = hyper
+    norm_kw, frame_stack = wrapper_settings(hyper)
     n_envs = int(settings.n_envs or hyper.get("n_envs", 8))
     total = int(settings.total_timesteps or float(hyper.get("n_timesteps", 1e5)))
     if n_envs < 1 or total < 1:
@@ -198,15 +461,25 @@ def train(settings: TrainSettings, resume: str | Path | None = None) -> Path:
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.json").write_text(json.dumps(asdict(settings), indent=2, default=list))
 
-    env = make_vec_env(n_envs, settings.seed, settings.env_kwargs, settings.max_episode_steps)
-    eval_env = make_vec_env(min(settings.eval_episodes, 16), settings.seed + 10_000,
-                            settings.env_kwargs, settings.max_episode_steps)
+    steps = settings.max_episode_steps
+    env = make_vec_env(n_envs, settings.seed, settings.env_kwargs, steps, settings.env_id)
+    eval_env = make_vec_env(min(settings.eval_episodes, 16), VALIDATION_SEED + settings.seed,
+                            settings.env_kwargs, steps, settings.env_id)
     if resume is not None:
+        stats = checkpoint_statistics(resume)
+        if norm_kw is not None and stats is not None:
+            from stable_baselines3.common.vec_env import VecNormalize
+
+            env = VecNormalize.load(str(stats), env)
+            env = wrap_env(env, None, frame_stack)
+        else:
+            env = wrap_env(env, norm_kw, frame_stack)
         model = cls.load(resume, env=env, device=settings.device)
         buffer = Path(resume).with_suffix(".replay.pkl")
         if hasattr(model, "load_replay_buffer") and buffer.is_file():
             model.load_replay_buffer(buffer)
     else:
+        env = wrap_env(env, norm_kw, frame_stack)
         kwargs = {k: v for k, v in hyper.items() if k not in ZOO_ONLY_KEYS}
         kwargs["policy_kwargs"] = parse_policy_kwargs(kwargs.get("policy_kwargs"))
         noise = _action_noise(hyper)
@@ -214,16 +487,21 @@ def train(settings: TrainSettings, resume: str | Path | None = None) -> Path:
             kwargs["action_noise"] = noise
         model = cls(hyper.get("policy", "MlpPolicy"), env, seed=settings.seed,
                     device=settings.device, verbose=0, **kwargs)
+        if hyper.get("warm_start"):
+            from .warm_start import apply_warm_start, warm_start_action
+
+            _, config = settings.environment()
+            apply_warm_start(model, warm_start_action(config, hyper["warm_start"], steps))
+    eval_env = wrap_env(eval_env, norm_kw, frame_stack, training=False)
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
-    per_env = lambda steps: max(1, steps // n_envs)  # noqa: E731  (callbacks count vec steps)
-    callbacks = CallbackList([
-        CheckpointCallback(per_env(settings.save_freq), str(run_dir / "checkpoints"),
-                           name_prefix="checkpoint",
-                           save_replay_buffer=hasattr(model, "replay_buffer")),
-        EvalCallback(eval_env, n_eval_episodes=settings.eval_episodes,
-                     eval_freq=per_env(settings.eval_freq), best_model_save_path=str(run_dir),
-                     log_path=str(run_dir), deterministic=True, verbose=0),
-    ])
+    selector = _selection_callback(eval_env, settings, run_dir, n_envs)
+    callbacks = [CheckpointCallback(max(1, settings.save_freq // n_envs),
+                                    str(run_dir / "checkpoints"), name_prefix="checkpoint",
+                                    save_replay_buffer=hasattr(model, "replay_buffer"),
+                                    save_vecnormalize=norm_kw is not None),
+                 selector]
+    if settings.progress_bar:
+        callbacks.append(_progress_callback())
 
     def on_sigterm(signum, frame):  # noqa: ARG001
         raise _Stop()
@@ -233,20 +511,19 @@ def train(settings: TrainSettings, resume: str | Path | None = None) -> Path:
     interrupted = False
     try:
         if remaining > 0:
-            model.learn(remaining, callback=callbacks, progress_bar=settings.progress_bar,
+            model.learn(remaining, callback=CallbackList(callbacks),
                         reset_num_timesteps=resume is None)
     except (KeyboardInterrupt, _Stop):
         interrupted = True
-        path = _save_checkpoint(model, run_dir / "checkpoints", "interrupted")
-        write_sidecar(path, settings)
+        path = _save_checkpoint(model, run_dir / "checkpoints", "interrupted", settings)
         print(f"\ninterrupted at {model.num_timesteps} steps; checkpoint saved to {path}\n"
               f"continue with: python train.py --resume {path}")
     finally:
         signal.signal(signal.SIGTERM, previous)
     if not interrupted:
-        final = run_dir / "final_model.zip"
-        model.save(final)
-        write_sidecar(final, settings)
+        if remaining > 0:
+            selector.evaluate_now()      # the final model is a candidate too
+        save_model(model, run_dir / "final_model.zip", settings)
         if (run_dir / "best_model.zip").is_file():
             write_sidecar(run_dir / "best_model.zip", settings)
         plot_learning_curve(run_dir)
@@ -284,5 +561,7 @@ def plot_learning_curve(run_dir: Path) -> Path | None:
     return out
 
 
-__all__ = ["ALGO_NAMES", "TrainSettings", "load_hyperparams", "make_vec_env",
-           "parse_env_kwargs", "parse_policy_kwargs", "plot_learning_curve", "train"]
+__all__ = ["ALGO_NAMES", "VALIDATION_SEED", "TrainSettings", "check_dependencies",
+           "load_hyperparams", "make_vec_env", "parse_env_kwargs", "parse_policy_kwargs",
+           "plot_learning_curve", "save_model", "settings_for_resume", "train",
+           "wrapper_settings", "write_sidecar"]

@@ -1,4 +1,5 @@
-"""Baselines (agents.baselines) and the evaluation tool (agents.evaluation, saddle-eval)."""
+"""Baselines (agents.controllers, agents.best_constant, agents.mpc, agents.policies) and the
+evaluation tool (agents.evaluation, saddle-eval)."""
 
 import json
 import math
@@ -7,8 +8,12 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from agents import baselines as B
+from agents import best_constant as BC
+from agents import controllers as C
 from agents import evaluation as E
+from agents import mpc as M
+from agents import policies as P
+from agents import rollout as R
 from saddle_env.envs import PAPER_BALL_RADII, EnvConfig
 from saddle_env.linear import critical_omega
 
@@ -19,7 +24,7 @@ HARD = dict(ball_radii=PAPER_BALL_RADII, air_force=0.2)
 
 def _mpc(config, **kw):
     """The feedback baseline with an explicit reference speed (no best-const search)."""
-    return B.ModelPredictiveController(config, omega_ref=kw.pop("omega_ref", 20.0), **kw)
+    return M.ModelPredictiveController(config, omega_ref=kw.pop("omega_ref", 20.0), **kw)
 
 
 def _run(config, policy, seeds, **kw):
@@ -33,7 +38,7 @@ def test_predict_accepts_single_and_batched_observations(kwargs):
     config = EnvConfig(**kwargs)
     env = gym.make("SaddleTrap-v0", **kwargs)
     obs, _ = env.reset(seed=1)
-    for policy in (B.load_policy("const-1.2", config), B.load_policy("masspoint", config),
+    for policy in (P.load_policy("const-1.2", config), P.load_policy("masspoint", config),
                    _mpc(config)):
         a, _ = policy.predict(obs)
         assert a.shape == (1,) and a.dtype == np.float32 and -1 <= a[0] <= 1
@@ -48,7 +53,7 @@ def test_predict_accepts_single_and_batched_observations(kwargs):
 @pytest.mark.parametrize("kwargs", MODES[:2])
 def test_constant_speed_reaches_its_target_at_full_motor_rate_and_holds_it(kwargs):
     config = EnvConfig(**kwargs)
-    policy = B.load_policy("const-1.5", config)
+    policy = P.load_policy("const-1.5", config)
     target = 1.5 * critical_omega(config.scene())
     assert policy.omega == pytest.approx(target)
     env = gym.make("SaddleTrap-v0", **kwargs)
@@ -70,7 +75,7 @@ def test_constant_speed_holds_the_commanded_speed_despite_ripple_and_noise():
     controller holds the commanded speed (info["omega"]) instead of chasing them."""
     kwargs = dict(ripple_amp=0.5, ripple_freq=20.0, omega_noise=0.2)
     config = EnvConfig(**kwargs)
-    policy = B.load_policy("const-1.2", config)
+    policy = P.load_policy("const-1.2", config)
     env = gym.make("SaddleTrap-v0", **kwargs)
     for use_state in (True, False):
         obs, _ = env.reset(seed=3, options={"omega": 16.0})
@@ -90,16 +95,16 @@ def test_constant_speed_holds_the_commanded_speed_despite_ripple_and_noise():
 def test_thresholds_are_the_papers():
     config = EnvConfig()
     wc = math.sqrt(2 * config.g / (config.a - 2 * config.R))
-    assert B.critical_speed(config) == pytest.approx(wc)
-    assert B.load_policy("const-1.0", config).omega == pytest.approx(wc)
-    assert B.load_policy("masspoint", config).omega == pytest.approx(math.sqrt(2 * config.g / config.a))
-    assert B.load_policy("const-2.5", config).omega == pytest.approx(2.5 * wc)
-    assert B.load_policy("const-9", config).omega == config.omega_max  # capped
+    assert C.critical_speed(config) == pytest.approx(wc)
+    assert P.load_policy("const-1.0", config).omega == pytest.approx(wc)
+    assert P.load_policy("masspoint", config).omega == pytest.approx(math.sqrt(2 * config.g / config.a))
+    assert P.load_policy("const-2.5", config).omega == pytest.approx(2.5 * wc)
+    assert P.load_policy("const-9", config).omega == config.omega_max  # capped
 
 
 def test_const_1_2_keeps_a_small_offset_ball_in_the_default_task():
     config = EnvConfig()
-    res = _run(config, B.load_policy("const-1.2", config), np.arange(20))
+    res = _run(config, P.load_policy("const-1.2", config), np.arange(20))
     assert res["kept"].mean() >= 0.9
     assert np.all(res["time"] <= 10.0 + 1e-9)
 
@@ -107,13 +112,13 @@ def test_const_1_2_keeps_a_small_offset_ball_in_the_default_task():
 def test_mass_point_threshold_loses_a_large_ball():
     """sqrt(2g/a) is below a 3.3 cm ball's Ω_crt = sqrt(2g/(a − 2R)): the ball escapes."""
     config = EnvConfig(R=0.033)
-    policy = B.load_policy("masspoint", config)
+    policy = P.load_policy("masspoint", config)
     assert policy.omega < 0.8 * critical_omega(config.scene())
     res = _run(config, policy, np.arange(20))
     assert res["kept"].mean() <= 0.1
     assert np.all(res["cause"][~res["kept"]] == "escape")
     # ... while its own threshold (with margin) keeps it.
-    res = _run(config, B.load_policy("const-1.2", config), np.arange(20))
+    res = _run(config, P.load_policy("const-1.2", config), np.arange(20))
     assert res["kept"].mean() >= 0.9
 
 
@@ -134,7 +139,7 @@ def test_mpc_keeps_the_ball_and_damps_the_orbit_in_the_default_task():
     config = EnvConfig()
     seeds = np.arange(4)
     mpc = _run(config, _mpc(config, omega_ref=20.0), seeds, max_episode_steps=300)
-    const = _run(config, B.ConstantSpeed(config, 20.0), seeds, max_episode_steps=300)
+    const = _run(config, C.ConstantSpeed(config, 20.0), seeds, max_episode_steps=300)
     assert mpc["kept"].all() and const["kept"].all()
     # Feedback around 20 rad/s keeps the ball closer than holding 20 rad/s.
     assert mpc["mean_r"].mean() < 0.9 * const["mean_r"].mean()
@@ -144,9 +149,9 @@ def test_mpc_keeps_the_ball_and_damps_the_orbit_in_the_default_task():
 def test_mpc_beats_the_best_constant_with_air_currents_and_random_balls():
     config = EnvConfig(**HARD)
     seeds = 1000 + np.arange(40)
-    best = B.best_constant(config)  # shipped in agents/best_const.json
-    mpc = _run(config, B.load_policy("mpc", config), seeds)
-    const = _run(config, B.ConstantSpeed(config, best["omega"]), seeds)
+    best = BC.best_constant(config)  # shipped in agents/best_const.json
+    mpc = _run(config, P.load_policy("mpc", config), seeds)
+    const = _run(config, C.ConstantSpeed(config, best["omega"]), seeds)
     assert mpc["time"].mean() > const["time"].mean()
     assert mpc["kept"].mean() > const["kept"].mean()
 
@@ -154,7 +159,7 @@ def test_mpc_beats_the_best_constant_with_air_currents_and_random_balls():
 @pytest.mark.slow
 def test_mpc_identifies_the_ball_radius():
     config = EnvConfig(**HARD)
-    policy = B.load_policy("mpc", config)
+    policy = P.load_policy("mpc", config)
     env = gym.make("SaddleTrap-v0", **HARD)
     right = 0
     for seed in range(12):
@@ -171,15 +176,15 @@ def test_mpc_identifies_the_ball_radius():
 
 
 def test_best_constant_search_is_cached(tmp_path, monkeypatch):
-    monkeypatch.setattr(B, "CACHE_FILE", tmp_path / "best.json")
-    monkeypatch.setattr(B, "USER_CACHE_FILE", tmp_path / "user.json")
+    monkeypatch.setattr(BC, "CACHE_FILE", tmp_path / "best.json")
+    monkeypatch.setattr(BC, "USER_CACHE_FILE", tmp_path / "user.json")
     config = EnvConfig(R=0.033)
-    first = B.best_constant(config, episodes=4, max_episode_steps=100)
+    first = BC.best_constant(config, episodes=4, max_episode_steps=100)
     wc = critical_omega(config.scene())
     assert wc < first["omega"] <= config.omega_max and first["kept"] == 1.0
     calls = []
-    monkeypatch.setattr(B, "search_best_constant", lambda *a, **k: calls.append(1))
-    again = B.best_constant(EnvConfig(R=0.033, action_mode="target", loss_penalty=1.0),
+    monkeypatch.setattr(BC, "search_best_constant", lambda *a, **k: calls.append(1))
+    again = BC.best_constant(EnvConfig(R=0.033, action_mode="target", loss_penalty=1.0),
                             episodes=4, max_episode_steps=100)
     assert again == first and not calls
     assert json.loads((tmp_path / "best.json").read_text())
@@ -187,11 +192,11 @@ def test_best_constant_search_is_cached(tmp_path, monkeypatch):
 
 def test_load_policy_rejects_unknown_names(tmp_path):
     with pytest.raises(ValueError, match="unknown policy"):
-        B.load_policy("nope", EnvConfig())
+        P.load_policy("nope", EnvConfig())
     bad = tmp_path / "bad.zip"
     bad.write_text("not a zip")
     with pytest.raises(ValueError, match="not a Stable-Baselines3 model"):
-        B.load_policy(str(bad), EnvConfig())
+        P.load_policy(str(bad), EnvConfig())
 
 
 @pytest.mark.parametrize("algo", ["PPO", "A2C", "SAC", "TD3", "DDPG"])
@@ -204,8 +209,8 @@ def test_sb3_model_files_are_detected_and_evaluated(tmp_path, algo):
     model = getattr(sb3, algo)("MlpPolicy", env, seed=0, **kw)
     path = tmp_path / "model.zip"
     model.save(path)
-    assert B.sb3_algorithm(path) == algo
-    policy = B.load_policy(str(path), EnvConfig())
+    assert P.sb3_algorithm(path) == algo
+    policy = P.load_policy(str(path), EnvConfig())
     table, _ = E.evaluate([str(path)], EnvConfig(), episodes=3, seed=0, max_episode_steps=20)
     assert table["policies"][0]["kind"] == algo
     assert policy.predict(np.zeros(5, np.float32))[0].shape == (1,)
@@ -219,7 +224,7 @@ def test_evaluation_is_deterministic_and_independent_of_batching():
     t2, _ = E.evaluate(specs, config, episodes=4, seed=7, max_episode_steps=100)
     assert json.dumps(t1) == json.dumps(t2)
     # Episodes 9 and 10 alone give what they gave in the batch of four.
-    for label, policy in (("const-1.2", B.load_policy("const-1.2", config)),
+    for label, policy in (("const-1.2", P.load_policy("const-1.2", config)),
                           ("mpc", _mpc(config, omega_ref=15.0))):
         alone = _run(config, policy, [9, 10], max_episode_steps=100)
         assert np.array_equal(alone["time"], d1[label]["time"][2:])
@@ -235,7 +240,7 @@ def test_model_files_act_on_fixed_size_chunks(monkeypatch):
             seen.append(len(obs))
             return np.zeros((len(obs), 1), np.float32), None
 
-    monkeypatch.setattr(E, "CHUNK", 8)
+    monkeypatch.setattr(R, "CHUNK", 8)
     act, row_independent = E.policy_actor(Batch())
     assert not row_independent
     res = E.run_episodes(EnvConfig(), act, np.arange(11), max_episode_steps=5,
@@ -257,23 +262,39 @@ def test_intervals():
 
 def test_saddle_eval_json_output(tmp_path, capsys):
     out = tmp_path / "ev"
-    code = E.main(["--policy", "const-1.2", "--policy", "masspoint", "--episodes", "3",
-                   "--seed", "5", "--max-episode-steps", "60", "--json", "--out", str(out),
-                   "--env-kwargs", "R=0.033", "omega0_range=[14, 16]", "--no-progress"])
+    argv = ["--policy", "const-1.2", "--policy", "masspoint", "--episodes", "3", "--seed", "5",
+            "--max-episode-steps", "60", "--out", str(out), "--env-kwargs", "R=0.033",
+            "omega0_range=[14, 16]", "--no-progress"]
+    code = E.main(argv + ["--json"])
     assert code == 0
     captured = capsys.readouterr()
     table = json.loads(captured.out)
     assert table["env_kwargs"] == {"R": 0.033, "omega0_range": [14.0, 16.0]}
+    assert table["env_id"] == "SaddleTrap-v0"
+    assert table["options"]["R"] == 0.033 and table["options"]["omega0_range"] == [14.0, 16.0]
     assert [p["policy"] for p in table["policies"]] == ["const-1.2", "masspoint"]
     for row in table["policies"]:
         for key in E.METRICS:
             assert set(row[key]) == {"mean", "low", "high"}
             assert row[key]["low"] <= row[key]["mean"] <= row[key]["high"]
+    # --json: the table on stdout only; nothing is written (no folder, no plots).
+    assert not out.exists()
+    # Without --json the same table goes to files, with the plots.
+    assert E.main(argv) == 0
+    capsys.readouterr()
     assert json.loads((out / "results.json").read_text()) == table
     md = (out / "results.md").read_text()
     assert md.startswith("| policy |") and "masspoint" in md
     for name in ("trapping_time.png", "examples.png", "episodes.json"):
         assert (out / name).stat().st_size > 0
+
+
+def test_saddle_eval_json_writes_nothing_in_the_working_folder(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert E.main(["--policy", "const-1.2", "--episodes", "2", "--max-episode-steps", "10",
+                   "--json", "--no-progress"]) == 0
+    assert json.loads(capsys.readouterr().out)["policies"][0]["policy"] == "const-1.2"
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_saddle_eval_env_kwargs_as_json(tmp_path, capsys):

@@ -131,7 +131,7 @@ def test_shipped_models_load_and_act_in_the_task_they_were_trained_on():
     import gymnasium as gym
 
     import saddle_env  # noqa: F401
-    from agents.baselines import load_policy
+    from agents.policies import load_policy
     from saddle_env.envs import EnvConfig
     models = sorted((ROOT / "agents" / "models").glob("*.zip"))
     assert {m.stem for m in models} >= {"ppo_default", "sac_default", "ppo_hard", "sac_hard"}
