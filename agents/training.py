@@ -23,8 +23,8 @@ it (``env_kwargs``), the episode length and the wrappers, and ``learning_curve.p
 Ctrl-C or SIGTERM saves a checkpoint (and the replay buffer of off-policy algorithms);
 ``--resume CHECKPOINT.zip`` continues from it.
 
-**Model selection.** Every ``eval_freq`` steps, and once more on the final model, the policy
-is evaluated on ``eval_episodes`` validation episodes (seeds from `VALIDATION_SEED`, never
+**Model selection.** Every ``eval_freq`` steps (default: a twentieth of the budget), and
+once more on the final model, the policy is evaluated on ``eval_episodes`` validation episodes (seeds from `VALIDATION_SEED`, never
 used for training or for the leaderboard's test set). ``selected_model.zip`` is the *latest*
 snapshot whose mean validation return is at least the best mean seen so far: ties go to the
 later snapshot, so a run whose curve reaches its plateau early ships a model from the end of
@@ -95,8 +95,8 @@ class TrainSettings:
     hyperparams: str | None = None
     log_dir: str = "runs"
     run_name: str | None = None
-    eval_freq: int = 20_000
-    eval_episodes: int = 32
+    eval_freq: int | None = None     # None: 20 evaluations per run (at least 20,000 steps apart)
+    eval_episodes: int = 64
     save_freq: int = 50_000
     max_episode_steps: int | None = None                       # None: the level's
     progress_bar: bool = True
@@ -454,6 +454,8 @@ def train(settings: TrainSettings, resume: str | Path | None = None) -> Path:
     if n_envs < 1 or total < 1:
         raise ValueError("n_envs and total_timesteps must be positive")
     settings.n_envs, settings.total_timesteps = n_envs, total
+    if settings.eval_freq is None:
+        settings.eval_freq = max(20_000, total // 20)
     name = settings.run_name or f"{settings.algo}_seed{settings.seed}_{time.strftime('%Y%m%d-%H%M%S')}"
     run_dir = Path(settings.log_dir) / name
     if resume is not None:

@@ -20,6 +20,25 @@ def test_levels_page_is_generated_from_the_registry():
         assert f"## {level.id}" in text and level.why_hard in text
 
 
+def test_a_small_leaderboard_has_every_baseline_with_intervals(tmp_path):
+    rc = lb.main(["--episodes", "3", "--seed", "5", "--levels", "SaddleTrap-v0", "--out",
+                  str(tmp_path), "--no-progress"])
+    assert rc == 0
+    data = json.loads((tmp_path / "leaderboard.json").read_text())
+    table = data["levels"]["SaddleTrap-v0"]
+    names = [row["policy"] for row in table["policies"]]
+    assert names[:len(lb.BASELINE_POLICIES)] == list(lb.BASELINE_POLICIES)
+    assert table["episodes"] == 3 and table["seed"] == 5 and table["env_id"] == "SaddleTrap-v0"
+    for row in table["policies"]:
+        t = row["trapping_time"]
+        assert 0.0 <= t["low"] <= t["mean"] <= t["high"] <= 10.0
+    md = (tmp_path / "leaderboard.md").read_text()
+    assert "## SaddleTrap-v0" in md and "seeds 5–7" in md
+    assert all(name in md for name in lb.BASELINE_POLICIES)
+    png = tmp_path / "figures" / "leaderboard_SaddleTrap-v0.png"
+    assert png.is_file() and png.read_bytes()[:4] == b"\x89PNG"
+
+
 def test_resume_keeps_finished_levels_and_an_interrupt_keeps_what_finished(tmp_path,
                                                                            monkeypatch):
     first, second = LEVELS[1].id, LEVELS[2].id

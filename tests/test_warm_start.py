@@ -1,0 +1,49 @@
+"""Warm start: the untrained policy's mean action is the level's best constant speed."""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from agents import warm_start as ws  # noqa: E402
+from saddle_env.envs import level_config  # noqa: E402
+
+
+def test_untrained_policy_starts_at_the_best_constant_speed(monkeypatch):
+    from stable_baselines3 import PPO
+
+    from agents import best_constant
+    from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
+
+    config = level_config("SaddleTrap-Capture-v0")
+    monkeypatch.setattr(best_constant, "best_constant", lambda c, **kw: {"omega": 18.0})
+    action = ws.warm_start_action(config, "best-const", 500)
+    assert action == pytest.approx(2 * 18.0 / config.omega_max - 1)
+    env = SaddleTrapSB3VecEnv(4, **config.as_dict())
+    model = PPO("MlpPolicy", env, n_steps=8, batch_size=8, seed=0, device="cpu")
+    obs = env.reset()
+    before, _ = model.predict(obs, deterministic=True)
+    assert np.abs(before - action).max() > 0.05  # the untrained network is elsewhere
+    ws.apply_warm_start(model, action)
+    after, _ = model.predict(obs, deterministic=True)
+    # the head's weights are tiny at initialisation: the mean is the bias, to ~1e-2
+    assert np.abs(after - action).max() < 0.02
+
+
+def test_warm_start_refuses_what_it_cannot_do():
+    with pytest.raises(ValueError, match="warm_start must be one of"):
+        ws.warm_start_action(level_config("SaddleTrap-Capture-v0"), "mpc", 500)
+    with pytest.raises(ValueError, match="action_mode='target'"):
+        ws.warm_start_action(level_config("SaddleTrap-v0"), "best-const", 500)
+
+    class NotOnPolicy:
+        policy = object()
+
+    with pytest.raises(ValueError, match="PPO and A2C"):
+        ws.apply_warm_start(NotOnPolicy(), 0.0)
+    with pytest.raises(ValueError, match=r"\[-1, 1\]"):
+        from types import SimpleNamespace
+
+        import torch
+        ws.apply_warm_start(SimpleNamespace(policy=SimpleNamespace(
+            action_net=torch.nn.Linear(2, 1))), 1.5)
