@@ -1,7 +1,9 @@
 """Automatic accuracy: ask for a position error, get the cheapest integrator that meets it.
 
 ``simulate(..., tol=1e-6)`` (and ``simulate_batch``) call `choose`, which picks a method and
-a tolerance or step for *this* scene, speed profile and horizon:
+a tolerance or step for *this* scene, speed profile and horizon. This module sits between the
+runs it pilots (`saddle_env.runner`) and the public entry points (`saddle_env.simulate`),
+which resolve ``tol=`` with it:
 
 1. **Candidates.** Three families, each ordered from cheap to expensive: ``dop853`` and
    ``dopri5`` at rtol = 1e-4 … 1e-13, ``rk4`` at fixed steps ``h0/k``. ``h0`` is
@@ -36,7 +38,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import _kernels as K
 from .omega import OmegaProfile
+from .runner import Settings, drive_row, run
 from .scene import Scene, _finite_number
 
 SAFETY = 2.0                     # predicted error must be below tol / SAFETY
@@ -96,8 +100,6 @@ def check_tol(tol: object) -> float:
 def _base_step(scene: Scene, profile: OmegaProfile, t_end: float) -> float:
     """Largest fixed step tried: π/(8·max(|Ω|, ω₀)), and never above the simulator's
     default adaptive step cap (which keeps the detachment event from being stepped over)."""
-    from .simulate import Settings
-
     omega0 = math.sqrt(2.0 * scene.g / scene.a) if scene.g > 0 else 0.0
     rate = max(profile.bound(t_end), omega0)
     h0 = math.pi / (8.0 * rate) if rate > 0 else t_end / 64.0
@@ -161,11 +163,9 @@ def choose(scenes: Scene | Sequence[Scene], states: Sequence[np.ndarray], t_end:
     ``scenes``/``states``/``omegas`` are one or more balls (a batch passes a few
     representatives); the pick must pass for all of them.
     """
-    from .simulate import simulate
-
     token = _INTERNAL.set(True)  # candidates that are too coarse are expected here
     try:
-        return _choose(simulate, scenes, states, t_end, tol, omegas, dt_out, events, force)
+        return _choose(run, scenes, states, t_end, tol, omegas, dt_out, events, force)
     finally:
         _INTERNAL.reset(token)
 
@@ -255,9 +255,6 @@ def _jacobi_rows(traj) -> np.ndarray:
     h = traj.h
     if traj.event is None:
         return h
-    from . import _kernels as K
-    from .simulate import drive_row
-
     y = np.zeros(K.STATE_WIDTH)
     y[: traj.scene.state_size] = traj.event.state
     he = K.jacobi(traj.scene.model_code, traj.scene.params(), drive_row(traj.omega, traj.force),
@@ -284,8 +281,6 @@ def jacobi_drift(traj) -> float:
 def _doubling_estimate(traj, dt: float, method: str) -> float:
     """Error over the run estimated by step doubling on a window at its start (16 steps or
     5 % of the run): |y(dt) − y(dt/2)| at the window's end, scaled to the run linearly."""
-    from .simulate import simulate
-
     t_run = float(traj.event.t) if traj.event is not None else float(traj.t[-1])
     window = min(t_run, max(16.0 * dt, 0.05 * t_run))
     if window <= 0.0:
@@ -294,8 +289,8 @@ def _doubling_estimate(traj, dt: float, method: str) -> float:
           "force": traj.force}
     token = _INTERNAL.set(True)
     try:
-        coarse = simulate(traj.scene, traj.state[0], window, dt=dt, **kw)
-        fine = simulate(traj.scene, traj.state[0], window, dt=dt / 2.0, **kw)
+        coarse = run(traj.scene, traj.state[0], window, dt=dt, **kw)
+        fine = run(traj.scene, traj.state[0], window, dt=dt / 2.0, **kw)
     except Exception:  # noqa: BLE001 — a step that cannot even do the window is too large
         return math.inf
     finally:
@@ -349,8 +344,6 @@ def assess(traj, **settings: object) -> dict[str, float]:
     (or rtol/100 for an adaptive run; pass the run's ``method``/``dt``/``rtol`` as
     ``settings``) and report the largest contact-point distance between the two, plus the
     Jacobi drift where it is conserved."""
-    from .simulate import simulate
-
     kw = dict(settings)
     dt_out = float(traj.t[1] - traj.t[0]) if len(traj.t) > 2 else None
     if kw.get("dt") is not None:
@@ -360,7 +353,7 @@ def assess(traj, **settings: object) -> dict[str, float]:
         kw["rtol"] = max(float(kw.get("rtol") or 1e-10) / 100.0, 1e-14)  # type: ignore[arg-type]
     token = _INTERNAL.set(True)
     try:
-        finer = simulate(traj.scene, traj.state[0], float(traj.t[-1]), omega=traj.omega,
+        finer = run(traj.scene, traj.state[0], float(traj.t[-1]), omega=traj.omega,
                          dt_out=dt_out, force=traj.force, **kw)
     finally:
         _INTERNAL.reset(token)

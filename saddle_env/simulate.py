@@ -1,335 +1,29 @@
 """Python API: initial states, `simulate` (one ball) and `simulate_batch` (many balls).
 
-Both call the same compiled loop (`saddle_env.integrators.integrate`); the batch path runs
-it once per ball in parallel threads, so a ball gives bit-identical results either way.
+Both call the same compiled loop (`saddle_env.integrators.integrate`, through
+`saddle_env.runner`); the batch path runs it once per ball in parallel threads, so a ball
+gives bit-identical results either way.
+
+This module is the one place ``tol=`` is resolved: it asks `saddle_env.accuracy.choose`
+(which pilots `saddle_env.runner`, below both) for the cheapest setting, then runs it. It
+also reports fixed steps that are too large. Everything else (`initial_state`, `Settings`,
+`Trajectory`, ...) lives in `saddle_env.runner` and is re-exported here.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
-from typing import Literal
 
 import numpy as np
 
-from . import _kernels as K
-from .integrators import (EVENT_DETACH, EVENT_ESCAPE, EVENT_KINDS, METHODS, STATUS_FAILED,
-                          STATUS_MAX_STEPS, Method, integrate, integrate_batch,
-                          integrate_batch_serial, state_scale)
+from . import runner
+from .accuracy import Choice, check_fixed_step, check_tol, choose
 from .omega import OmegaProfile
-from .scene import Scene, _finite_number
-
-# Default accuracy: DOP853 at this tolerance (see README, "Accuracy and speed").
-DEFAULT_METHOD = "dop853"
-DEFAULT_RTOL = 1e-10
-DEFAULT_FIXED_DT = 1e-3
-EVENT_NAMES = {"detach": EVENT_DETACH, "escape": EVENT_ESCAPE}
-DEFAULT_EVENTS = ("detach", "escape")
-MAX_OUTPUTS = 10_000_000
-
-Start = Literal["rotating-rest", "lab-rest"]
-
-
-class SimulationError(RuntimeError):
-    """The integration could not continue (non-finite state, step-size underflow, step limit)."""
-
-
-# --------------------------------------------------------------------------------------
-# Initial states
-# --------------------------------------------------------------------------------------
-def initial_state(scene: Scene, x: float, y: float, vx: float = 0.0, vy: float = 0.0, *,
-                  start: Start | None = None, omega: float | OmegaProfile = 0.0,
-                  spin_normal: float = 0.0) -> np.ndarray:
-    """State vector of a ball whose contact point is at (x, y) [m] in the rotating frame.
-
-    Parameters
-    ----------
-    scene : Scene
-    x, y : float — contact point [m], rotating (saddle) coordinates.
-    vx, vy : float — contact-point velocity relative to the saddle [m/s]. Ignored when
-        ``start`` is given.
-    start : {"rotating-rest", "lab-rest"}, optional
-        ``"rotating-rest"``: at rest on the saddle (vx = vy = 0). ``"lab-rest"``: placed at
-        rest in the laboratory — the centre's velocity relative to the saddle is the
-        tangential part of -Ω k×c (the normal part cannot be given to a ball that stays on
-        the surface); needs ``omega``.
-    omega : float or OmegaProfile — the saddle speed at t = 0 (used by ``"lab-rest"``).
-    spin_normal : float — rolling only: spin about the normal relative to the saddle [rad/s];
-        0 is the state friction drives the ball to (the paper's ω_z = 0).
-
-    Returns
-    -------
-    ndarray, shape (scene.state_size,)
-        rolling ``(x, y, wx, wy, wz)``: the spin w relative to the saddle is n × ċ / R +
-        spin_normal · n; slipping/point ``(x, y, vx, vy)``.
-    """
-    if not isinstance(scene, Scene):
-        raise ValueError(f"scene must be a saddle_env.Scene, got {type(scene).__name__}")
-    x = _finite_number("x", x)
-    y = _finite_number("y", y)
-    vx = _finite_number("vx", vx)
-    vy = _finite_number("vy", vy)
-    spin_normal = _finite_number("spin_normal", spin_normal)
-    profile = OmegaProfile.coerce(omega)
-    if start is not None:
-        if start not in ("rotating-rest", "lab-rest"):
-            raise ValueError(f"start must be 'rotating-rest' or 'lab-rest', got {start!r}")
-        if start == "rotating-rest":
-            vx = vy = 0.0
-        else:
-            vx, vy = K.lab_rest_velocity(scene.params(), profile(0.0), x, y)
-    out = np.empty(K.STATE_WIDTH)
-    K.state_from_velocity(scene.model_code, scene.params(), x, y, vx, vy, spin_normal, out)
-    if not np.all(np.isfinite(out)):
-        raise ValueError(f"initial state is not finite for x = {x:g}, y = {y:g}, vx = {vx:g}, "
-                         f"vy = {vy:g} m: the position or velocity is too large for the saddle")
-    return out[: scene.state_size].copy()
-
-
-def _check_force(force: object) -> tuple[float, float]:
-    if not isinstance(force, (tuple, list, np.ndarray)) or len(force) != 2:
-        raise ValueError(f"force must be a pair (fx, fy) of lab-frame accelerations [m/s^2], "
-                         f"got {force!r}")
-    return _finite_number("force fx", force[0]), _finite_number("force fy", force[1])
-
-
-def drive_row(profile: OmegaProfile, force: tuple[float, float] = (0.0, 0.0),
-              theta0: float = 0.0) -> np.ndarray:
-    """The kernels' drive row: Ω profile, saddle angle at t = 0, lab-frame force per unit mass."""
-    return np.concatenate([profile.array(), [theta0, force[0], force[1]]])
-
-
-def _check_state(scene: Scene, state: object, name: str = "state") -> np.ndarray:
-    try:
-        arr = np.asarray(state, dtype=float)
-    except (TypeError, ValueError):
-        arr = np.asarray(state, dtype=object)
-    if arr.dtype.kind not in "fiu" or arr.shape != (scene.state_size,):
-        raise ValueError(f"{name} must be a real vector of length {scene.state_size} for "
-                         f"contact={scene.contact!r} (see initial_state), got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite, got {arr}")
-    padded = np.zeros(K.STATE_WIDTH)
-    padded[: scene.state_size] = arr
-    return padded
-
-
-# --------------------------------------------------------------------------------------
-# Integration settings
-# --------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Settings:
-    """Validated integration settings (method, step or tolerance, events)."""
-
-    method: Method
-    dt: float           # 0 → adaptive
-    rtol: float
-    atol: float
-    events: int
-    max_step: float | None
-    max_steps: int
-
-    @classmethod
-    def build(cls, method: str | None, rtol: float | None, atol: float | None,
-              dt: float | None, events: Sequence[str], max_step: float | None,
-              max_steps: int) -> Settings:
-        name = DEFAULT_METHOD if method is None else method
-        if not isinstance(name, str) or name not in METHODS:
-            raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
-        m = METHODS[name]
-        if dt is not None:
-            dt = _finite_number("dt", dt)
-            if dt <= 0:
-                raise ValueError(f"dt must be > 0 seconds, got {dt}")
-            if rtol is not None or atol is not None:
-                raise ValueError("give either dt (fixed step) or rtol/atol (adaptive), not both")
-        elif not m.adaptive:
-            if rtol is not None:
-                raise ValueError(f"method {name!r} has no error estimate: give dt, not rtol")
-            dt = DEFAULT_FIXED_DT
-        rtol_v = DEFAULT_RTOL if rtol is None else _finite_number("rtol", rtol)
-        atol_v = rtol_v if atol is None else _finite_number("atol", atol)
-        if not 1e-15 <= rtol_v < 1:
-            raise ValueError(f"rtol must satisfy 1e-15 <= rtol < 1, got {rtol_v}")
-        if not 0 < atol_v < 1:
-            raise ValueError(f"atol must satisfy 0 < atol < 1 (relative to the saddle size), "
-                             f"got {atol_v}")
-        if isinstance(events, str):
-            events = (events,)
-        if not isinstance(events, (tuple, list, set, frozenset)):
-            raise ValueError(f"events must be a sequence drawn from {sorted(EVENT_NAMES)}, "
-                             f"got {events!r}")
-        mask = 0
-        for e in events:
-            if e not in EVENT_NAMES:
-                raise ValueError(f"events must be a subset of {sorted(EVENT_NAMES)}, got {e!r}")
-            mask |= EVENT_NAMES[e]
-        if max_step is not None:
-            max_step = _finite_number("max_step", max_step)
-            if max_step <= 0:
-                raise ValueError(f"max_step must be > 0 seconds, got {max_step}")
-        if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) \
-                or max_steps < 1:
-            raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
-        return cls(m, 0.0 if dt is None else float(dt), rtol_v, atol_v, mask, max_step,
-                   int(max_steps))
-
-    def max_step_for(self, profile: OmegaProfile, t_end: float) -> float:
-        """Largest step: the user's; else, for adaptive steps, half the half-turn period
-        π/|Ω| (N oscillates at 2Ω; the stage points sample it about ten times per step, so a
-        dip is not stepped over). A fixed step ``dt`` is taken as given."""
-        if self.max_step is not None:
-            return self.max_step
-        if self.dt > 0:
-            return math.inf
-        return default_max_step(profile.bound(t_end))
-
-    def describe(self) -> str:
-        if self.dt > 0:
-            return f"{self.method.name} (order {self.method.order}), fixed dt = {self.dt:g} s"
-        return (f"{self.method.name} (order {self.method.order}), adaptive, "
-                f"rtol = {self.rtol:g}, atol = {self.atol:g}")
-
-
-def default_max_step(omega_bound: float) -> float:
-    """Default largest adaptive step [s] for saddle speeds up to ``omega_bound``: π/(2Ω)."""
-    return math.pi / (2.0 * omega_bound) if omega_bound > 0 else math.inf
-
-
-def _output_times(t_end: float, dt_out: float | None) -> np.ndarray:
-    t_end = _finite_number("t_end", t_end)
-    if t_end <= 0:
-        raise ValueError(f"t_end must be > 0 seconds, got {t_end}")
-    if dt_out is None:
-        return np.array([0.0, t_end])
-    dt_out = _finite_number("dt_out", dt_out)
-    if dt_out <= 0:
-        raise ValueError(f"dt_out must be > 0 seconds, got {dt_out}")
-    ratio = t_end / dt_out * (1 + 1e-12)
-    if not ratio < MAX_OUTPUTS:  # also catches inf from a huge t_end or a denormal dt_out
-        raise ValueError(f"dt_out = {dt_out:g} s gives {ratio:.3g} outputs over t_end = "
-                         f"{t_end:g} s; at most {MAX_OUTPUTS} are allowed")
-    n = int(math.floor(ratio)) + 1
-    # Multiples of dt_out (not a cumulative sum) so the grid carries no rounding drift.
-    return np.arange(n) * dt_out
-
-
-# --------------------------------------------------------------------------------------
-# Results
-# --------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Event:
-    """Why a run stopped early: ``kind`` is "detach" (N fell below 0) or "escape" (left the rim)."""
-
-    kind: str
-    t: float
-    state: np.ndarray
-
-    def as_dict(self) -> dict[str, object]:
-        return {"kind": self.kind, "t": self.t}
-
-
-@dataclass(frozen=True)
-class Stats:
-    steps: int
-    rejected: int
-    rhs_evaluations: int
-
-
-@dataclass
-class Trajectory:
-    """One ball's run, sampled at the output times reached before any event.
-
-    Attributes
-    ----------
-    t : (n,) output times [s].  state : (n, state_size) states (see `initial_state`).
-    event : Event or None.  settings : str, the integrator used.  stats : Stats.
-    Derived quantities (velocity, normal force, Jacobi integral, centre, laboratory
-    coordinates) are computed on first access from the shared kernels.
-    """
-
-    scene: Scene
-    omega: OmegaProfile
-    t: np.ndarray
-    state: np.ndarray
-    event: Event | None
-    settings: str
-    stats: Stats
-    force: tuple[float, float] = (0.0, 0.0)
-    _obs: np.ndarray | None = field(default=None, repr=False)
-    _obs_has_normal: bool = field(default=False, repr=False)
-
-    def _observables(self, want_normal: bool) -> np.ndarray:
-        if self._obs is None or (want_normal and not self._obs_has_normal):
-            padded = np.zeros((len(self.t), K.STATE_WIDTH))
-            padded[:, : self.scene.state_size] = self.state
-            out = np.empty((len(self.t), K.OBS_WIDTH))
-            K.observables(self.scene.model_code, self.scene.params(),
-                          drive_row(self.omega, self.force), self.t, padded, want_normal, out)
-            self._obs, self._obs_has_normal = out, want_normal
-        return self._obs
-
-    @property
-    def x(self) -> np.ndarray:
-        return self.state[:, 0]
-
-    @property
-    def y(self) -> np.ndarray:
-        return self.state[:, 1]
-
-    @property
-    def vx(self) -> np.ndarray:
-        return self._observables(False)[:, K.OBS_VX]
-
-    @property
-    def vy(self) -> np.ndarray:
-        return self._observables(False)[:, K.OBS_VY]
-
-    @property
-    def r(self) -> np.ndarray:
-        """Distance of the contact point from the axis [m]."""
-        return np.hypot(self.x, self.y)
-
-    @property
-    def N_over_mg(self) -> np.ndarray:
-        """Normal force in units of the ball's weight (computed on first access)."""
-        g = self.scene.g
-        n = self._observables(True)[:, K.OBS_N]
-        return n / g if g > 0 else n
-
-    @property
-    def h(self) -> np.ndarray:
-        """Jacobi integral per unit mass [J/kg]; conserved when Ω is constant."""
-        return self._observables(False)[:, K.OBS_H]
-
-    @property
-    def centre(self) -> np.ndarray:
-        """Ball centre (n, 3) [m], rotating frame."""
-        return self._observables(False)[:, K.OBS_CX:K.OBS_CZ + 1]
-
-    @property
-    def theta(self) -> np.ndarray:
-        """Saddle angle θ(t) [rad]."""
-        return np.asarray(self.omega.angle(self.t))
-
-    def lab_xy(self, of: Literal["contact", "centre"] = "contact") -> np.ndarray:
-        """Horizontal position (n, 2) [m] in the laboratory frame (saddle axes at t = 0)."""
-        if of == "contact":
-            px, py = self.x, self.y
-        elif of == "centre":
-            px, py = self.centre[:, 0], self.centre[:, 1]
-        else:
-            raise ValueError(f"of must be 'contact' or 'centre', got {of!r}")
-        c, s = np.cos(self.theta), np.sin(self.theta)
-        return np.column_stack([c * px - s * py, s * px + c * py])
-
-    def as_dict(self) -> dict[str, object]:
-        """The columns of `saddle-sim --format json`."""
-        return {"t": self.t.tolist(), "x": self.x.tolist(), "y": self.y.tolist(),
-                "vx": self.vx.tolist(), "vy": self.vy.tolist(),
-                "N_over_mg": self.N_over_mg.tolist(), "h": self.h.tolist(),
-                "event": None if self.event is None else self.event.as_dict()}
+from .runner import (DEFAULT_EVENTS, DEFAULT_FIXED_DT, DEFAULT_METHOD, DEFAULT_RTOL,  # noqa: F401
+                     EVENT_NAMES, MAX_OUTPUTS, RTOL_MIN, BatchResult, Event, Settings,
+                     SimulationError, Start, Stats, Trajectory, check_fixed_step_fits,
+                     check_rtol, default_max_step, drive_row, initial_state)
+from .scene import Scene
 
 
 # --------------------------------------------------------------------------------------
@@ -349,11 +43,16 @@ def simulate(scene: Scene, state: np.ndarray, t_end: float, *,
     state : array (scene.state_size,) — from `initial_state`.
     t_end : float — final time [s].
     omega : float, OmegaProfile or tuple — Ω(t) [rad/s] (a number means constant speed).
-    dt_out : float or None — output spacing [s]; None outputs only t = 0 and t_end.
+    dt_out : float or None — output spacing [s]; None outputs only t = 0 and t_end. The
+        outputs are the multiples of ``dt_out`` up to ``t_end``, and ``t_end`` itself when
+        it is not one of them.
     method : str — a name in ``METHODS`` (default ``"dop853"``).
     rtol, atol : float — adaptive tolerances (default 1e-10); ``atol`` is relative to the
         saddle's size (see `state_scale`).
-    dt : float — fixed step [s]; selects fixed-step integration.
+    dt : float — fixed step [s]; selects fixed-step integration. It must not exceed
+        ``dt_out`` (ValueError: the loop lands on every output, so a larger step would be
+        cut to the output spacing). A step too large for the scene's dynamics runs, with an
+        `AccuracyWarning` (`saddle_env.accuracy.check_fixed_step`).
     events : subset of ("detach", "escape") — stop when the normal force falls below 0 or
         the contact point leaves ``scene.rim_radius``; the normal force is computed during
         integration only if "detach" is asked for.
@@ -374,46 +73,36 @@ def simulate(scene: Scene, state: np.ndarray, t_end: float, *,
     ValueError — invalid input (the message names the parameter and the allowed range).
     SimulationError — the integration failed (non-finite state or step-size underflow).
     """
-    if not isinstance(scene, Scene):
-        raise ValueError(f"scene must be a saddle_env.Scene, got {type(scene).__name__}")
-    y = _check_state(scene, state)
-    profile = OmegaProfile.coerce(omega)
-    force = _check_force(force)
-    t_out = _output_times(t_end, dt_out)
-    auto = None
     if tol is not None:  # automatic accuracy (saddle_env.accuracy)
-        auto = _auto([scene], [y[: scene.state_size]], [profile], t_out, dt_out, tol,
+        if not isinstance(scene, Scene):
+            raise ValueError(f"scene must be a saddle_env.Scene, got {type(scene).__name__}")
+        y = runner._check_state(scene, state)[: scene.state_size]
+        profile = OmegaProfile.coerce(omega)
+        force = runner._check_force(force)
+        t_out = runner._output_times(t_end, dt_out)
+        auto = _auto([scene], [y], [profile], t_out, dt_out, tol,
                      (method, rtol, atol, dt, max_step), events, force)
-        method, rtol, dt, max_step = auto.method, auto.rtol, auto.dt, auto.max_step
+        traj = runner.run(scene, state, t_end, omega=profile, dt_out=dt_out, events=events,
+                          max_steps=max_steps, force=force, **_run_kwargs(auto, dt_out))
+        traj.settings = auto.describe()
+        return traj
+    if dt is not None:
+        check_fixed_step_fits(runner._finite_number("dt", dt), _spacing(dt_out))
+    traj = runner.run(scene, state, t_end, omega=omega, dt_out=dt_out, method=method, rtol=rtol,
+                      atol=atol, dt=dt, events=events, max_step=max_step, max_steps=max_steps,
+                      force=force)
     settings = Settings.build(method, rtol, atol, dt, events, max_step, max_steps)
-    p = scene.params()
-    m = settings.method
-    Y_out = np.empty((len(t_out), K.STATE_WIDTH))
-    stats = np.zeros(4, dtype=np.int64)
-    status, t_final = integrate(
-        scene.model_code, p, drive_row(profile, force), y, 0.0, t_out, m.C, m.A, m.B, m.E, m.E3,
-        m.err_kind, m.error_order, settings.dt, settings.rtol, settings.atol,
-        state_scale(p, scene.model_code), settings.max_step_for(profile, float(t_out[-1])),
-        settings.events, settings.max_steps, Y_out, stats)
-    _raise_on_failure(status, t_final, math.hypot(y[0], y[1]), scene)
-    n = int(stats[3])
-    event = None
-    if status in EVENT_KINDS:
-        event = Event(EVENT_KINDS[status], float(t_final), y[: scene.state_size].copy())
-    traj = Trajectory(scene, profile, t_out[:n].copy(), Y_out[:n, : scene.state_size].copy(),
-                      event, settings.describe() if auto is None else auto.describe(),
-                      Stats(int(stats[0]), int(stats[1]), int(stats[2])), force)
-    if settings.dt > 0 and auto is None:  # a fixed step too large is reported, not hidden
-        from .accuracy import check_fixed_step
-
-        check_fixed_step(traj, settings.dt, m.name)
+    if settings.dt > 0:  # a fixed step too large is reported, not hidden
+        check_fixed_step(traj, settings.dt, settings.method.name)
     return traj
 
 
-def _auto(scenes, states, profiles, t_out, dt_out, tol, explicit, events, force):
-    """Pick the integrator for ``tol`` (see saddle_env.accuracy); ``explicit`` must be unset."""
-    from .accuracy import check_tol, choose
+def _spacing(dt_out: float | None) -> float | None:
+    return None if dt_out is None else runner._finite_number("dt_out", dt_out)
 
+
+def _auto(scenes, states, profiles, t_out, dt_out, tol, explicit, events, force) -> Choice:
+    """Pick the integrator for ``tol`` (see saddle_env.accuracy); ``explicit`` must be unset."""
     if any(v is not None for v in explicit):
         raise ValueError("give either tol (automatic accuracy) or method/rtol/atol/dt/"
                          "max_step, not both")
@@ -422,45 +111,13 @@ def _auto(scenes, states, profiles, t_out, dt_out, tol, explicit, events, force)
                   events=events, force=force)
 
 
-def _raise_on_failure(status: int, t_final: float, r: float, scene: Scene) -> None:
-    if status in (STATUS_FAILED, STATUS_MAX_STEPS) and not r < 10 * max(scene.a, scene.b):
-        raise SimulationError(
-            f"integration stopped at t = {t_final:.9g} s with the ball {r:.3g} m from the axis: "
-            "it has left the saddle and runs away; give the scene a finite rim_radius and "
-            "keep the 'escape' event on")
-    if status == STATUS_FAILED:
-        raise SimulationError(
-            f"integration failed at t = {t_final:.9g} s: the state became non-finite or the "
-            "step size underflowed (a fixed step too large for this scene, or the ball left "
-            "the saddle with no rim to stop it)")
-    if status == STATUS_MAX_STEPS:
-        raise SimulationError(f"integration stopped at t = {t_final:.9g} s after max_steps "
-                              "steps; raise max_steps or loosen rtol")
-
-
-@dataclass
-class BatchResult:
-    """Many balls' runs on a common output grid.
-
-    Attributes
-    ----------
-    t : (m,) output times.  state : (n, m, 5) padded states; rows after a ball's last output
-    are NaN.  n_out : (n,) outputs reached per ball.  status : (n,) STATUS_* codes.
-    t_final : (n,) time of each final state (event time where one fired).
-    final_state : (n, 5) state at t_final.
-    """
-
-    t: np.ndarray
-    state: np.ndarray
-    n_out: np.ndarray
-    status: np.ndarray
-    t_final: np.ndarray
-    final_state: np.ndarray
-    stats: np.ndarray
-    settings: str = ""
-
-    def event(self, i: int) -> str | None:
-        return EVENT_KINDS.get(int(self.status[i]))
+def _run_kwargs(choice: Choice, dt_out: float | None) -> dict[str, object]:
+    """The run's settings from a pick. A fixed step above the output spacing runs at the
+    spacing (the loop lands on every output), which is what the pilot measured."""
+    kw = choice.kwargs()
+    if "dt" in kw and dt_out is not None:
+        kw["dt"] = min(float(kw["dt"]), float(dt_out))  # type: ignore[arg-type]
+    return kw
 
 
 def simulate_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float, *,
@@ -479,70 +136,51 @@ def simulate_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: f
     constant speeds, or an (n, 5) array of profile rows). Failures do not raise; they are
     reported per ball in ``status``. ``tol`` [m] picks the integrator automatically as in
     `simulate`, from pilot runs of up to four balls spread over the batch (first, last and
-    two between); the pick is in ``settings``.
+    two between); the pick is in ``settings``. Outputs and ``dt`` as in `simulate`.
     """
-    try:
-        states = np.asarray(states, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError("states must be a real array of shape (n, state_size)") from None
-    if states.ndim != 2 or states.shape[0] < 1:
-        raise ValueError(f"states must have shape (n, state_size), got {states.shape}")
-    n = states.shape[0]
-    if isinstance(scenes, Scene):
-        scene_list = [scenes] * n
-    elif isinstance(scenes, (list, tuple)):
-        scene_list = list(scenes)
-    else:
-        raise ValueError(f"scenes must be a Scene or a sequence of {n} Scenes, "
-                         f"got {type(scenes).__name__}")
-    if len(scene_list) != n or not all(isinstance(s, Scene) for s in scene_list):
-        raise ValueError(f"scenes must be a Scene or a sequence of {n} Scenes (one per ball)")
-    Y = np.zeros((n, K.STATE_WIDTH))
-    for i, (sc, row) in enumerate(zip(scene_list, states)):
-        if states.shape[1] == K.STATE_WIDTH and sc.state_size < K.STATE_WIDTH:
-            row = row[: sc.state_size]
-        Y[i] = _check_state(sc, row, f"states[{i}]")
-    profiles = _profiles(omega, n)
-    force = _check_force(force)
-    drives = np.array([drive_row(OmegaProfile(*row), force) for row in profiles])
-    t_out = _output_times(t_end, dt_out)
-    auto = None
     if tol is not None:  # automatic accuracy, piloted on a few balls spread over the batch
+        try:
+            arr = np.asarray(states, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError("states must be a real array of shape (n, state_size)") from None
+        if arr.ndim != 2 or arr.shape[0] < 1:
+            raise ValueError(f"states must have shape (n, state_size), got {arr.shape}")
+        n = arr.shape[0]
+        scene_list = _scene_list(scenes, n)
         pick = sorted({0, n // 3, (2 * n) // 3, n - 1})
-        auto = _auto([scene_list[i] for i in pick],
-                     [Y[i, : scene_list[i].state_size] for i in pick],
+        rows = []
+        for i in pick:
+            row = arr[i]
+            if arr.shape[1] == runner.K.STATE_WIDTH and scene_list[i].state_size < arr.shape[1]:
+                row = row[: scene_list[i].state_size]
+            rows.append(runner._check_state(scene_list[i], row, f"states[{i}]")
+                        [: scene_list[i].state_size])
+        profiles = runner._profiles(omega, n)
+        force = runner._check_force(force)
+        t_out = runner._output_times(t_end, dt_out)
+        auto = _auto([scene_list[i] for i in pick], rows,
                      [OmegaProfile(*profiles[i]) for i in pick], t_out, dt_out, tol,
                      (method, rtol, atol, dt, max_step), events, force)
-        method, rtol, dt, max_step = auto.method, auto.rtol, auto.dt, auto.max_step
-    settings = Settings.build(method, rtol, atol, dt, events, max_step, max_steps)
-    P = np.array([sc.params() for sc in scene_list])
-    models = np.array([sc.model_code for sc in scene_list], dtype=np.int64)
-    scales = np.array([state_scale(P[i], models[i]) for i in range(n)])
-    max_step_arr = np.array([settings.max_step_for(OmegaProfile(*profiles[i]), float(t_out[-1]))
-                             for i in range(n)])
-    m = settings.method
-    Y_out = np.full((n, len(t_out), K.STATE_WIDTH), np.nan)
-    status = np.zeros(n, dtype=np.int64)
-    t_final = np.zeros(n)
-    stats = np.zeros((n, 4), dtype=np.int64)
-    batch = integrate_batch if K.threads_usable() else integrate_batch_serial
-    batch(models, P, drives, Y, 0.0, t_out, m.C, m.A, m.B, m.E, m.E3, m.err_kind,
-          m.error_order, settings.dt, settings.rtol, settings.atol, scales, max_step_arr,
-          settings.events, settings.max_steps, np.ones(n, dtype=bool), Y_out, status, t_final,
-          stats)
-    return BatchResult(t_out, Y_out, stats[:, 3].copy(), status, t_final, Y, stats,
-                       settings.describe() if auto is None else auto.describe())
+        res = runner.run_batch(scenes, states, t_end, omega=omega, dt_out=dt_out, events=events,
+                               max_steps=max_steps, force=force, **_run_kwargs(auto, dt_out))
+        res.settings = auto.describe()
+        return res
+    if dt is not None:
+        check_fixed_step_fits(runner._finite_number("dt", dt), _spacing(dt_out))
+    return runner.run_batch(scenes, states, t_end, omega=omega, dt_out=dt_out, method=method,
+                            rtol=rtol, atol=atol, dt=dt, events=events, max_step=max_step,
+                            max_steps=max_steps, force=force)
 
 
-def _profiles(omega: object, n: int) -> np.ndarray:
-    if isinstance(omega, np.ndarray) and omega.ndim >= 1:
-        if omega.shape == (n,):
-            return np.array([OmegaProfile.coerce(float(w)).array() for w in omega])
-        if omega.shape == (n, 5):
-            return np.array([OmegaProfile(*row).array() for row in omega])
-        raise ValueError(f"omega array must have shape ({n},) or ({n}, 5), got {omega.shape}")
-    if isinstance(omega, (list, tuple)) and len(omega) == n and n > 1 and all(
-            isinstance(w, (OmegaProfile, int, float, np.floating, np.integer)) for w in omega):
-        return np.array([OmegaProfile.coerce(w).array() for w in omega])
-    row = OmegaProfile.coerce(omega).array()
-    return np.tile(row, (n, 1))
+def _scene_list(scenes: object, n: int) -> list[Scene]:
+    if isinstance(scenes, Scene):
+        return [scenes] * n
+    if isinstance(scenes, (list, tuple)) and len(scenes) == n and \
+            all(isinstance(s, Scene) for s in scenes):
+        return list(scenes)
+    raise ValueError(f"scenes must be a Scene or a sequence of {n} Scenes (one per ball)")
+
+
+__all__ = ["DEFAULT_METHOD", "DEFAULT_RTOL", "BatchResult", "Event", "Settings",
+           "SimulationError", "Stats", "Trajectory", "check_rtol", "default_max_step",
+           "drive_row", "initial_state", "simulate", "simulate_batch"]

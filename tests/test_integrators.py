@@ -104,6 +104,7 @@ def test_a_dip_of_N_inside_one_step_is_not_stepped_over():
     ends = simulate(sc, s0, 0.32, omega=30.0, method="dop853", dt=0.08, dt_out=0.08, events=())
     assert np.all(ends.N_over_mg > 0)
     tight = simulate(sc, s0, 1.0, omega=30.0, rtol=1e-13)
-    coarse = simulate(sc, s0, 1.0, omega=30.0, method="dop853", dt=0.08)
+    # dt_out = dt: the default 0.01 s grid would cut the steps to 0.01 s (now a ValueError).
+    coarse = simulate(sc, s0, 1.0, omega=30.0, method="dop853", dt=0.08, dt_out=0.08)
     assert coarse.event is not None and coarse.event.kind == "detach"
     assert abs(coarse.event.t - tight.event.t) < 1e-3

@@ -1,0 +1,541 @@
+"""The simulator with explicit integrator settings: initial states, validated settings, the
+output grid, results, and `run` (one ball) / `run_batch` (many balls).
+
+This is the layer automatic accuracy (`saddle_env.accuracy`) pilots: it never resolves
+``tol=``. The public entry points `saddle_env.simulate.simulate` / `simulate_batch` sit above
+both, resolve ``tol=`` there (one place) and report fixed steps that are too large.
+
+Both runs call the same compiled loop (`saddle_env.integrators.integrate`); the batch path
+runs it once per ball in parallel threads, so a ball gives bit-identical results either way.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from . import _kernels as K
+from .integrators import (EVENT_DETACH, EVENT_ESCAPE, EVENT_KINDS, METHODS, STATUS_FAILED,
+                          STATUS_MAX_STEPS, Method, integrate, integrate_batch,
+                          integrate_batch_serial, state_scale)
+from .omega import OmegaProfile
+from .scene import Scene, _finite_number
+
+# Default accuracy: DOP853 at this tolerance (see README, "Accuracy and speed").
+DEFAULT_METHOD = "dop853"
+DEFAULT_RTOL = 1e-10
+DEFAULT_FIXED_DT = 1e-3
+EVENT_NAMES = {"detach": EVENT_DETACH, "escape": EVENT_ESCAPE}
+DEFAULT_EVENTS = ("detach", "escape")
+MAX_OUTPUTS = 10_000_000
+RTOL_MIN = 1e-15
+
+Start = Literal["rotating-rest", "lab-rest"]
+
+
+class SimulationError(RuntimeError):
+    """The integration could not continue (non-finite state, step-size underflow, step limit)."""
+
+
+# --------------------------------------------------------------------------------------
+# Initial states
+# --------------------------------------------------------------------------------------
+def initial_state(scene: Scene, x: float, y: float, vx: float = 0.0, vy: float = 0.0, *,
+                  start: Start | None = None, omega: float | OmegaProfile = 0.0,
+                  spin_normal: float = 0.0) -> np.ndarray:
+    """State vector of a ball whose contact point is at (x, y) [m] in the rotating frame.
+
+    Parameters
+    ----------
+    scene : Scene
+    x, y : float — contact point [m], rotating (saddle) coordinates.
+    vx, vy : float — contact-point velocity relative to the saddle [m/s]. Ignored when
+        ``start`` is given.
+    start : {"rotating-rest", "lab-rest"}, optional
+        ``"rotating-rest"``: at rest on the saddle (vx = vy = 0). ``"lab-rest"``: placed at
+        rest in the laboratory — the centre's velocity relative to the saddle is the
+        tangential part of -Ω k×c (the normal part cannot be given to a ball that stays on
+        the surface); needs ``omega``.
+    omega : float or OmegaProfile — the saddle speed at t = 0 (used by ``"lab-rest"``).
+    spin_normal : float — rolling only: spin about the normal relative to the saddle [rad/s];
+        0 is the state friction drives the ball to (the paper's ω_z = 0).
+
+    Returns
+    -------
+    ndarray, shape (scene.state_size,)
+        rolling ``(x, y, wx, wy, wz)``: the spin w relative to the saddle is n × ċ / R +
+        spin_normal · n; slipping/point ``(x, y, vx, vy)``.
+    """
+    if not isinstance(scene, Scene):
+        raise ValueError(f"scene must be a saddle_env.Scene, got {type(scene).__name__}")
+    x = _finite_number("x", x)
+    y = _finite_number("y", y)
+    vx = _finite_number("vx", vx)
+    vy = _finite_number("vy", vy)
+    spin_normal = _finite_number("spin_normal", spin_normal)
+    profile = OmegaProfile.coerce(omega)
+    if start is not None:
+        if start not in ("rotating-rest", "lab-rest"):
+            raise ValueError(f"start must be 'rotating-rest' or 'lab-rest', got {start!r}")
+        if start == "rotating-rest":
+            vx = vy = 0.0
+        else:
+            vx, vy = K.lab_rest_velocity(scene.params(), profile(0.0), x, y)
+    out = np.empty(K.STATE_WIDTH)
+    K.state_from_velocity(scene.model_code, scene.params(), x, y, vx, vy, spin_normal, out)
+    if not np.all(np.isfinite(out)):
+        raise ValueError(f"initial state is not finite for x = {x:g}, y = {y:g}, vx = {vx:g}, "
+                         f"vy = {vy:g} m: the position or velocity is too large for the saddle")
+    return out[: scene.state_size].copy()
+
+
+def _check_force(force: object) -> tuple[float, float]:
+    if not isinstance(force, (tuple, list, np.ndarray)) or len(force) != 2:
+        raise ValueError(f"force must be a pair (fx, fy) of lab-frame accelerations [m/s^2], "
+                         f"got {force!r}")
+    return _finite_number("force fx", force[0]), _finite_number("force fy", force[1])
+
+
+def drive_row(profile: OmegaProfile, force: tuple[float, float] = (0.0, 0.0),
+              theta0: float = 0.0) -> np.ndarray:
+    """The kernels' drive row: Ω profile, saddle angle at t = 0, lab-frame force per unit mass."""
+    return np.concatenate([profile.array(), [theta0, force[0], force[1]]])
+
+
+def _check_state(scene: Scene, state: object, name: str = "state") -> np.ndarray:
+    try:
+        arr = np.asarray(state, dtype=float)
+    except (TypeError, ValueError):
+        arr = np.asarray(state, dtype=object)
+    if arr.dtype.kind not in "fiu" or arr.shape != (scene.state_size,):
+        raise ValueError(f"{name} must be a real vector of length {scene.state_size} for "
+                         f"contact={scene.contact!r} (see initial_state), got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {arr}")
+    padded = np.zeros(K.STATE_WIDTH)
+    padded[: scene.state_size] = arr
+    return padded
+
+
+# --------------------------------------------------------------------------------------
+# Integration settings
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Settings:
+    """Validated integration settings (method, step or tolerance, events)."""
+
+    method: Method
+    dt: float           # 0 → adaptive
+    rtol: float
+    atol: float
+    events: int
+    max_step: float | None
+    max_steps: int
+
+    @classmethod
+    def build(cls, method: str | None, rtol: float | None, atol: float | None,
+              dt: float | None, events: Sequence[str], max_step: float | None,
+              max_steps: int) -> Settings:
+        name = DEFAULT_METHOD if method is None else method
+        if not isinstance(name, str) or name not in METHODS:
+            raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
+        m = METHODS[name]
+        if dt is not None:
+            dt = _finite_number("dt", dt)
+            if dt <= 0:
+                raise ValueError(f"dt must be > 0 seconds, got {dt}")
+            if rtol is not None or atol is not None:
+                raise ValueError("give either dt (fixed step) or rtol/atol (adaptive), not both")
+        elif not m.adaptive:
+            if rtol is not None:
+                raise ValueError(f"method {name!r} has no error estimate: give dt, not rtol")
+            dt = DEFAULT_FIXED_DT
+        rtol_v = DEFAULT_RTOL if rtol is None else check_rtol(rtol)
+        atol_v = rtol_v if atol is None else _finite_number("atol", atol)
+        if not 0 < atol_v < 1:
+            raise ValueError(f"atol must satisfy 0 < atol < 1 (relative to the saddle size), "
+                             f"got {atol_v}")
+        if isinstance(events, str):
+            events = (events,)
+        if not isinstance(events, (tuple, list, set, frozenset)):
+            raise ValueError(f"events must be a sequence drawn from {sorted(EVENT_NAMES)}, "
+                             f"got {events!r}")
+        mask = 0
+        for e in events:
+            if e not in EVENT_NAMES:
+                raise ValueError(f"events must be a subset of {sorted(EVENT_NAMES)}, got {e!r}")
+            mask |= EVENT_NAMES[e]
+        if max_step is not None:
+            max_step = _finite_number("max_step", max_step)
+            if max_step <= 0:
+                raise ValueError(f"max_step must be > 0 seconds, got {max_step}")
+        if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) \
+                or max_steps < 1:
+            raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+        return cls(m, 0.0 if dt is None else float(dt), rtol_v, atol_v, mask, max_step,
+                   int(max_steps))
+
+    def max_step_for(self, profile: OmegaProfile, t_end: float) -> float:
+        """Largest step: the user's; else, for adaptive steps, half the half-turn period
+        π/|Ω| (N oscillates at 2Ω; the stage points sample it about ten times per step, so a
+        dip is not stepped over). A fixed step ``dt`` is taken as given."""
+        if self.max_step is not None:
+            return self.max_step
+        if self.dt > 0:
+            return math.inf
+        return default_max_step(profile.bound(t_end))
+
+    def describe(self) -> str:
+        if self.dt > 0:
+            return f"{self.method.name} (order {self.method.order}), fixed dt = {self.dt:g} s"
+        return (f"{self.method.name} (order {self.method.order}), adaptive, "
+                f"rtol = {self.rtol:g}, atol = {self.atol:g}")
+
+
+def default_max_step(omega_bound: float) -> float:
+    """Default largest adaptive step [s] for saddle speeds up to ``omega_bound``: π/(2Ω)."""
+    return math.pi / (2.0 * omega_bound) if omega_bound > 0 else math.inf
+
+
+def _output_times(t_end: float, dt_out: float | None) -> np.ndarray:
+    t_end = _finite_number("t_end", t_end)
+    if t_end <= 0:
+        raise ValueError(f"t_end must be > 0 seconds, got {t_end}")
+    if dt_out is None:
+        return np.array([0.0, t_end])
+    dt_out = _finite_number("dt_out", dt_out)
+    if dt_out <= 0:
+        raise ValueError(f"dt_out must be > 0 seconds, got {dt_out}")
+    ratio = t_end / dt_out * (1 + 1e-12)
+    if not ratio < MAX_OUTPUTS:  # also catches inf from a huge t_end or a denormal dt_out
+        raise ValueError(f"dt_out = {dt_out:g} s gives {ratio:.3g} outputs over t_end = "
+                         f"{t_end:g} s; at most {MAX_OUTPUTS} are allowed")
+    n = int(math.floor(ratio)) + 1
+    # Multiples of dt_out (not a cumulative sum) so the grid carries no rounding drift.
+    grid = np.arange(n) * dt_out
+    if t_end - grid[-1] > 1e-12 * t_end:  # t_end off the grid: its state is an output too
+        grid = np.append(grid, t_end)
+    return grid
+
+
+def check_rtol(rtol: object) -> float:
+    """A relative tolerance of the adaptive integrators: a finite number in [1e-15, 1)
+    (below 1e-15 the error estimate is rounding noise). The one check of ``rtol`` for the
+    simulator and the environment's config."""
+    r = _finite_number("rtol", rtol)
+    if not RTOL_MIN <= r < 1:
+        raise ValueError(f"rtol must satisfy {RTOL_MIN:g} <= rtol < 1, got {r}")
+    return r
+
+
+def check_fixed_step_fits(dt: float, dt_out: float | None) -> None:
+    """A fixed step larger than the output spacing would be cut to it (the loop lands on
+    every output): say so rather than run with a step other than the one asked for."""
+    if dt_out is not None and dt > dt_out * (1 + 1e-9):
+        raise ValueError(f"dt = {dt:g} s is larger than dt_out = {dt_out:g} s: the integrator "
+                         "lands on every output, so the step would be cut to dt_out; give "
+                         "dt <= dt_out or a larger dt_out")
+
+
+# --------------------------------------------------------------------------------------
+# Results
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Event:
+    """Why a run stopped early: ``kind`` is "detach" (N fell below 0) or "escape" (left the rim)."""
+
+    kind: str
+    t: float
+    state: np.ndarray
+
+    def as_dict(self) -> dict[str, object]:
+        return {"kind": self.kind, "t": self.t}
+
+
+@dataclass(frozen=True)
+class Stats:
+    steps: int
+    rejected: int
+    rhs_evaluations: int
+
+
+@dataclass
+class Trajectory:
+    """One ball's run, sampled at the output times reached before any event.
+
+    Attributes
+    ----------
+    t : (n,) output times [s].  state : (n, state_size) states (see `initial_state`).
+    event : Event or None.  settings : str, the integrator used.  stats : Stats.
+    Derived quantities (velocity, normal force, Jacobi integral, centre, laboratory
+    coordinates) are computed on first access from the shared kernels.
+    """
+
+    scene: Scene
+    omega: OmegaProfile
+    t: np.ndarray
+    state: np.ndarray
+    event: Event | None
+    settings: str
+    stats: Stats
+    force: tuple[float, float] = (0.0, 0.0)
+    _obs: np.ndarray | None = field(default=None, repr=False)
+    _obs_has_normal: bool = field(default=False, repr=False)
+
+    def _observables(self, want_normal: bool) -> np.ndarray:
+        if self._obs is None or (want_normal and not self._obs_has_normal):
+            padded = np.zeros((len(self.t), K.STATE_WIDTH))
+            padded[:, : self.scene.state_size] = self.state
+            out = np.empty((len(self.t), K.OBS_WIDTH))
+            K.observables(self.scene.model_code, self.scene.params(),
+                          drive_row(self.omega, self.force), self.t, padded, want_normal, out)
+            self._obs, self._obs_has_normal = out, want_normal
+        return self._obs
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.state[:, 0]
+
+    @property
+    def y(self) -> np.ndarray:
+        return self.state[:, 1]
+
+    @property
+    def vx(self) -> np.ndarray:
+        return self._observables(False)[:, K.OBS_VX]
+
+    @property
+    def vy(self) -> np.ndarray:
+        return self._observables(False)[:, K.OBS_VY]
+
+    @property
+    def r(self) -> np.ndarray:
+        """Distance of the contact point from the axis [m]."""
+        return np.hypot(self.x, self.y)
+
+    @property
+    def N_over_mg(self) -> np.ndarray:
+        """Normal force in units of the ball's weight (computed on first access)."""
+        g = self.scene.g
+        n = self._observables(True)[:, K.OBS_N]
+        return n / g if g > 0 else n
+
+    @property
+    def h(self) -> np.ndarray:
+        """Jacobi integral per unit mass [J/kg]; conserved when Ω is constant."""
+        return self._observables(False)[:, K.OBS_H]
+
+    @property
+    def centre(self) -> np.ndarray:
+        """Ball centre (n, 3) [m], rotating frame."""
+        return self._observables(False)[:, K.OBS_CX:K.OBS_CZ + 1]
+
+    @property
+    def theta(self) -> np.ndarray:
+        """Saddle angle θ(t) [rad]."""
+        return np.asarray(self.omega.angle(self.t))
+
+    def lab_xy(self, of: Literal["contact", "centre"] = "contact") -> np.ndarray:
+        """Horizontal position (n, 2) [m] in the laboratory frame (saddle axes at t = 0)."""
+        if of == "contact":
+            px, py = self.x, self.y
+        elif of == "centre":
+            px, py = self.centre[:, 0], self.centre[:, 1]
+        else:
+            raise ValueError(f"of must be 'contact' or 'centre', got {of!r}")
+        c, s = np.cos(self.theta), np.sin(self.theta)
+        return np.column_stack([c * px - s * py, s * px + c * py])
+
+    def as_dict(self) -> dict[str, object]:
+        """The columns of `saddle-sim --format json`."""
+        return {"t": self.t.tolist(), "x": self.x.tolist(), "y": self.y.tolist(),
+                "vx": self.vx.tolist(), "vy": self.vy.tolist(),
+                "N_over_mg": self.N_over_mg.tolist(), "h": self.h.tolist(),
+                "event": None if self.event is None else self.event.as_dict()}
+
+
+# --------------------------------------------------------------------------------------
+# Runs
+# --------------------------------------------------------------------------------------
+def run(scene: Scene, state: np.ndarray, t_end: float, *,
+             omega: float | OmegaProfile | Sequence[float] = 20.0, dt_out: float | None = 0.01,
+             method: str | None = None, rtol: float | None = None, atol: float | None = None,
+             dt: float | None = None, events: Sequence[str] = DEFAULT_EVENTS,
+             max_step: float | None = None, max_steps: int = 50_000_000,
+             force: tuple[float, float] = (0.0, 0.0)) -> Trajectory:
+    """Integrate one ball from t = 0 to ``t_end`` with the given integrator settings (no
+    ``tol=``, no check of a fixed step's accuracy: see `saddle_env.simulate.simulate`).
+
+    Parameters
+    ----------
+    scene : Scene
+    state : array (scene.state_size,) — from `initial_state`.
+    t_end : float — final time [s].
+    omega : float, OmegaProfile or tuple — Ω(t) [rad/s] (a number means constant speed).
+    dt_out : float or None — output spacing [s]; None outputs only t = 0 and t_end.
+    method : str — a name in ``METHODS`` (default ``"dop853"``).
+    rtol, atol : float — adaptive tolerances (default 1e-10); ``atol`` is relative to the
+        saddle's size (see `state_scale`).
+    dt : float — fixed step [s]; selects fixed-step integration.
+    events : subset of ("detach", "escape") — stop when the normal force falls below 0 or
+        the contact point leaves ``scene.rim_radius``; the normal force is computed during
+        integration only if "detach" is asked for.
+    max_step : float — largest step [s] (default: an eighth of π/max|Ω|).
+    max_steps : int — give up after this many steps.
+    force : (fx, fy) — constant horizontal force per unit mass [m/s²] fixed in the
+        laboratory (whose axes coincide with the saddle's at t = 0), e.g. an air current.
+
+    Returns
+    -------
+    Trajectory
+
+    Raises
+    ------
+    ValueError — invalid input (the message names the parameter and the allowed range).
+    SimulationError — the integration failed (non-finite state or step-size underflow).
+    """
+    if not isinstance(scene, Scene):
+        raise ValueError(f"scene must be a saddle_env.Scene, got {type(scene).__name__}")
+    y = _check_state(scene, state)
+    profile = OmegaProfile.coerce(omega)
+    force = _check_force(force)
+    t_out = _output_times(t_end, dt_out)
+    settings = Settings.build(method, rtol, atol, dt, events, max_step, max_steps)
+    p = scene.params()
+    m = settings.method
+    Y_out = np.empty((len(t_out), K.STATE_WIDTH))
+    stats = np.zeros(4, dtype=np.int64)
+    status, t_final = integrate(
+        scene.model_code, p, drive_row(profile, force), y, 0.0, t_out, m.C, m.A, m.B, m.E, m.E3,
+        m.err_kind, m.error_order, settings.dt, settings.rtol, settings.atol,
+        state_scale(p, scene.model_code), settings.max_step_for(profile, float(t_out[-1])),
+        settings.events, settings.max_steps, Y_out, stats)
+    _raise_on_failure(status, t_final, math.hypot(y[0], y[1]), scene)
+    n = int(stats[3])
+    event = None
+    if status in EVENT_KINDS:
+        event = Event(EVENT_KINDS[status], float(t_final), y[: scene.state_size].copy())
+    traj = Trajectory(scene, profile, t_out[:n].copy(), Y_out[:n, : scene.state_size].copy(),
+                      event, settings.describe(),
+                      Stats(int(stats[0]), int(stats[1]), int(stats[2])), force)
+    return traj
+
+
+def _raise_on_failure(status: int, t_final: float, r: float, scene: Scene) -> None:
+    if status in (STATUS_FAILED, STATUS_MAX_STEPS) and not r < 10 * max(scene.a, scene.b):
+        raise SimulationError(
+            f"integration stopped at t = {t_final:.9g} s with the ball {r:.3g} m from the axis: "
+            "it has left the saddle and runs away; give the scene a finite rim_radius and "
+            "keep the 'escape' event on")
+    if status == STATUS_FAILED:
+        raise SimulationError(
+            f"integration failed at t = {t_final:.9g} s: the state became non-finite or the "
+            "step size underflowed (a fixed step too large for this scene, or the ball left "
+            "the saddle with no rim to stop it)")
+    if status == STATUS_MAX_STEPS:
+        raise SimulationError(f"integration stopped at t = {t_final:.9g} s after max_steps "
+                              "steps; raise max_steps or loosen rtol")
+
+
+@dataclass
+class BatchResult:
+    """Many balls' runs on a common output grid.
+
+    Attributes
+    ----------
+    t : (m,) output times.  state : (n, m, 5) padded states; rows after a ball's last output
+    are NaN.  n_out : (n,) outputs reached per ball.  status : (n,) STATUS_* codes.
+    t_final : (n,) time of each final state (event time where one fired).
+    final_state : (n, 5) state at t_final.
+    """
+
+    t: np.ndarray
+    state: np.ndarray
+    n_out: np.ndarray
+    status: np.ndarray
+    t_final: np.ndarray
+    final_state: np.ndarray
+    stats: np.ndarray
+    settings: str = ""
+
+    def event(self, i: int) -> str | None:
+        return EVENT_KINDS.get(int(self.status[i]))
+
+
+def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float, *,
+                   omega: float | OmegaProfile | Sequence[float | OmegaProfile] | np.ndarray = 20.0,
+                   dt_out: float | None = 0.01, method: str | None = None,
+                   rtol: float | None = None, atol: float | None = None,
+                   dt: float | None = None, events: Sequence[str] = DEFAULT_EVENTS,
+                   max_step: float | None = None, max_steps: int = 50_000_000,
+                   force: tuple[float, float] = (0.0, 0.0)) -> BatchResult:
+    """Integrate many balls at once (threads over balls; same kernel as `run`), with the
+    given integrator settings (``tol=`` is `saddle_env.simulate.simulate_batch`'s).
+
+    ``scenes`` is one Scene for all balls or one per ball (contact models may differ).
+    ``states`` is (n, k) with k = 5 (padded) or the common ``state_size``.
+    ``omega`` is one value/profile for all, or one per ball (a sequence, or an (n,) array of
+    constant speeds, or an (n, 5) array of profile rows). Failures do not raise; they are
+    reported per ball in ``status``.
+    """
+    try:
+        states = np.asarray(states, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError("states must be a real array of shape (n, state_size)") from None
+    if states.ndim != 2 or states.shape[0] < 1:
+        raise ValueError(f"states must have shape (n, state_size), got {states.shape}")
+    n = states.shape[0]
+    if isinstance(scenes, Scene):
+        scene_list = [scenes] * n
+    elif isinstance(scenes, (list, tuple)):
+        scene_list = list(scenes)
+    else:
+        raise ValueError(f"scenes must be a Scene or a sequence of {n} Scenes, "
+                         f"got {type(scenes).__name__}")
+    if len(scene_list) != n or not all(isinstance(s, Scene) for s in scene_list):
+        raise ValueError(f"scenes must be a Scene or a sequence of {n} Scenes (one per ball)")
+    Y = np.zeros((n, K.STATE_WIDTH))
+    for i, (sc, row) in enumerate(zip(scene_list, states)):
+        if states.shape[1] == K.STATE_WIDTH and sc.state_size < K.STATE_WIDTH:
+            row = row[: sc.state_size]
+        Y[i] = _check_state(sc, row, f"states[{i}]")
+    profiles = _profiles(omega, n)
+    force = _check_force(force)
+    drives = np.array([drive_row(OmegaProfile(*row), force) for row in profiles])
+    t_out = _output_times(t_end, dt_out)
+    settings = Settings.build(method, rtol, atol, dt, events, max_step, max_steps)
+    P = np.array([sc.params() for sc in scene_list])
+    models = np.array([sc.model_code for sc in scene_list], dtype=np.int64)
+    scales = np.array([state_scale(P[i], models[i]) for i in range(n)])
+    max_step_arr = np.array([settings.max_step_for(OmegaProfile(*profiles[i]), float(t_out[-1]))
+                             for i in range(n)])
+    m = settings.method
+    Y_out = np.full((n, len(t_out), K.STATE_WIDTH), np.nan)
+    status = np.zeros(n, dtype=np.int64)
+    t_final = np.zeros(n)
+    stats = np.zeros((n, 4), dtype=np.int64)
+    batch = integrate_batch if K.threads_usable() else integrate_batch_serial
+    batch(models, P, drives, Y, 0.0, t_out, m.C, m.A, m.B, m.E, m.E3, m.err_kind,
+          m.error_order, settings.dt, settings.rtol, settings.atol, scales, max_step_arr,
+          settings.events, settings.max_steps, np.ones(n, dtype=bool), Y_out, status, t_final,
+          stats)
+    return BatchResult(t_out, Y_out, stats[:, 3].copy(), status, t_final, Y, stats,
+                       settings.describe())
+
+
+def _profiles(omega: object, n: int) -> np.ndarray:
+    if isinstance(omega, np.ndarray) and omega.ndim >= 1:
+        if omega.shape == (n,):
+            return np.array([OmegaProfile.coerce(float(w)).array() for w in omega])
+        if omega.shape == (n, 5):
+            return np.array([OmegaProfile(*row).array() for row in omega])
+        raise ValueError(f"omega array must have shape ({n},) or ({n}, 5), got {omega.shape}")
+    if isinstance(omega, (list, tuple)) and len(omega) == n and n > 1 and all(
+            isinstance(w, (OmegaProfile, int, float, np.floating, np.integer)) for w in omega):
+        return np.array([OmegaProfile.coerce(w).array() for w in omega])
+    row = OmegaProfile.coerce(omega).array()
+    return np.tile(row, (n, 1))

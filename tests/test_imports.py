@@ -1,0 +1,140 @@
+"""The project's modules import each other without a circle.
+
+Every import statement of ``saddle_env/**``, ``agents/**`` and ``train.py`` is read with
+`ast`, function-local imports included (a local import only postpones a circle to run time;
+it does not remove the knot a reader has to untie). An edge A → B means A imports B, or a
+name from B, or B's package ``__init__`` runs first because A imports something inside the
+package. A module reading from a package that encloses it (``from . import x`` inside the
+package) adds no edge: that package's ``__init__`` is already running when the module is
+imported.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("saddle_env", "agents")
+SCRIPTS = ("train.py",)
+
+
+def module_files(root: Path = ROOT) -> dict[str, Path]:
+    """Dotted module name → file, for every module of the project."""
+    out = {}
+    for pkg in PACKAGES:
+        for path in sorted((root / pkg).rglob("*.py")):
+            parts = list(path.relative_to(root).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join(parts)] = path
+    for script in SCRIPTS:
+        if (root / script).is_file():
+            out[Path(script).stem] = root / script
+    return out
+
+
+def _resolve(module: str, is_package: bool, node: ast.ImportFrom) -> str:
+    """The absolute module an ``from ... import`` statement reads from."""
+    if node.level == 0:
+        return node.module or ""
+    base = module.split(".") if is_package else module.split(".")[:-1]
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def _target(name: str, modules: dict[str, Path]) -> str | None:
+    """The project module ``name`` refers to (a module, or a name inside one), or None."""
+    while name and name not in modules:
+        name = name.rpartition(".")[0]
+    return name or None
+
+
+def import_graph(modules: dict[str, Path]) -> dict[str, set[str]]:
+    """Module → the project modules it imports (every import statement, at any depth)."""
+    graph: dict[str, set[str]] = {m: set() for m in modules}
+    for module, path in modules.items():
+        is_package = path.name == "__init__.py"
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        for node in ast.walk(tree):
+            names: list[str] = []
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = _resolve(module, is_package, node)
+                # "from pkg import sub" imports the submodule pkg.sub when there is one.
+                names = [f"{base}.{alias.name}" for alias in node.names] + [base]
+            for name in names:
+                target = _target(name, modules)
+                if target is None or target == module or module.startswith(target + "."):
+                    continue  # a package enclosing the importer has already started running
+                graph[module].add(target)
+                # Importing pkg.sub runs pkg/__init__ first: an edge to every enclosing
+                # package, unless the importer lives inside it (then it is already running).
+                parent = target.rpartition(".")[0]
+                while parent:
+                    if parent in modules and not module.startswith(parent + ".") \
+                            and parent != module:
+                        graph[module].add(parent)
+                    parent = parent.rpartition(".")[0]
+    return graph
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import circle (its modules, the first repeated at the end), or None."""
+    WHITE, GREY, BLACK = 0, 1, 2
+    colour = dict.fromkeys(graph, WHITE)
+    stack: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        colour[node] = GREY
+        stack.append(node)
+        for nxt in sorted(graph[node]):
+            if colour[nxt] == GREY:
+                return stack[stack.index(nxt):] + [nxt]
+            if colour[nxt] == WHITE:
+                found = visit(nxt)
+                if found:
+                    return found
+        stack.pop()
+        colour[node] = BLACK
+        return None
+
+    for node in sorted(graph):
+        if colour[node] == WHITE:
+            found = visit(node)
+            if found:
+                return found
+    return None
+
+
+def test_no_import_circle():
+    graph = import_graph(module_files())
+    cycle = find_cycle(graph)
+    assert cycle is None, "import circle: " + " -> ".join(cycle)
+
+
+def test_the_graph_sees_local_and_relative_imports(tmp_path):
+    """The checker finds a circle closed by a function-local relative import (the kind the
+    old agents.baselines <-> agents.evaluation and saddle_env.accuracy <-> simulate were)."""
+    pkg = tmp_path / "agents"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from .b import g\n\ndef f():\n    return g()\n")
+    (pkg / "b.py").write_text("def g():\n    from .a import f\n    return f\n")
+    (pkg / "c.py").write_text("from . import a\n")
+    graph = import_graph(module_files(tmp_path))
+    assert graph["agents.a"] == {"agents.b"} and graph["agents.b"] == {"agents.a"}
+    assert "agents.a" in graph["agents.c"]
+    cycle = find_cycle(graph)
+    assert cycle is not None and set(cycle) == {"agents.a", "agents.b"}
+
+
+@pytest.mark.parametrize("importer, imported", [("agents.evaluation", "agents.policies"),
+                                                ("saddle_env.simulate", "saddle_env.accuracy"),
+                                                ("train", "agents.training")])
+def test_the_graph_has_the_edges_it_should(importer, imported):
+    """A checker that saw no imports would pass the first test trivially."""
+    assert imported in import_graph(module_files())[importer]
