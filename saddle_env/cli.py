@@ -12,9 +12,20 @@ from typing import NoReturn
 from .integrators import METHODS
 from .omega import OmegaProfile
 from .scene import CONTACT_MODELS, Scene
-from .simulate import SimulationError, Trajectory, initial_state, simulate
+from .simulate import (DEFAULT_METHOD, DEFAULT_RTOL, SimulationError, Trajectory, initial_state,
+                       simulate)
 
 COLUMNS = ("t", "x", "y", "vx", "vy", "N_over_mg", "h")
+
+
+class _Formatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Appends "(default: X)" unless the help already says what the default is, or there is
+    none to show (None means "chosen for you", which the help explains)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        if action.default is None or "default" in (action.help or ""):
+            return action.help
+        return super()._get_help_string(action)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -31,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Simulate a rigid ball on a rotating saddle z = x²/a − y²/b. "
                     "Positions and velocities are the contact point's, in metres and m/s, "
                     "in the frame rotating with the saddle. Ω(t) = W0 + WDOT·t + AMP·sin(F·t).",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=_Formatter)
     ap.add_argument("--contact", choices=CONTACT_MODELS, default="rolling", help="contact model")
     ap.add_argument("--a", type=float, default=d.a, help="saddle length a [m]")
     ap.add_argument("--b", type=float, default=None, help="saddle length b [m] (default: = a)")
@@ -58,9 +69,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--t-end", type=float, default=2.0, metavar="T", help="duration [s]")
     ap.add_argument("--dt-out", type=float, default=0.01, metavar="DT", help="output spacing [s]")
     ap.add_argument("--method", choices=sorted(METHODS), default=None,
-                    help="integrator (default: dop853, adaptive)")
+                    help=f"integrator (default: {DEFAULT_METHOD}, adaptive)")
     ap.add_argument("--rtol", type=float, default=None, metavar="TOL",
-                    help="adaptive tolerance (default 1e-10)")
+                    help=f"adaptive tolerance (default {DEFAULT_RTOL:g})")
     ap.add_argument("--dt", type=float, default=None, help="fixed step [s] (fixed-step integration)")
     ap.add_argument("--format", choices=("csv", "json"), default="csv", help="output format")
     ap.add_argument("--output", default=None, metavar="FILE", help="output file (default: stdout)")

@@ -474,10 +474,16 @@ def state_scale(p: np.ndarray, model: int) -> np.ndarray:
     Lengths scale with the saddle length a; velocities with a·ω₀ where ω₀ = sqrt(2g/a)
     (1 s⁻¹ when g = 0); a rolling ball's spin with a·ω₀/R.
     """
-    a = p[P_A]
-    omega0 = math.sqrt(2.0 * p[P_G] / a) if p[P_G] > 0 else 1.0
+    # Python floats: an extreme scene (g = 1e308, R = 1e-320) overflows to inf here without
+    # NumPy's RuntimeWarning, and is then reported as the clear error it is.
+    a, b, g, R = float(p[P_A]), float(p[P_B]), float(p[P_G]), float(p[P_R])
+    omega0 = math.sqrt(2.0 * g / a) if g > 0 else 1.0
     v = a * omega0
-    sc = np.array([a, min(a, p[P_B]), v, v, v])
+    sc = np.array([a, min(a, b), v, v, v])
     if model == ROLLING:
-        sc[2:] = v / p[P_R]
+        sc[2:] = v / R
+    if not (np.all(np.isfinite(sc)) and np.all(sc > 0)):
+        raise ValueError(f"the scene's scales are out of floating-point range (a = {a:g} m, "
+                         f"g = {g:g} m/s^2, R = {R:g} m give a speed scale of "
+                         f"{sc[2]:g}): use physical values")
     return sc

@@ -140,7 +140,10 @@ OPTIONAL = {"b", "dt_out", "method", "rtol", "atol", "dt", "max_step", "start", 
 SEQUENCES = {"omega", "force", "events", "state", "states", "t", "centre_state",
              "omega0_range", "ball_radii", "a_range"}
 VALID_SPECIAL = {("Scene", "rim_radius", "inf"),        # an unbounded saddle
-                 ("EnvConfig", "rim_radius", "inf")}
+                 ("EnvConfig", "rim_radius", "inf"),
+                 # switches: True is their value, not a number in disguise
+                 *{("EnvConfig", f.name, "bool") for f in fields(_env_config())
+                   if isinstance(f.default, bool)}}
 
 # Gaps found by this fuzzer in code outside this suite's scope (reported to its owners);
 # each is an expected failure until fixed. Patterns match the case id.
@@ -183,6 +186,8 @@ def _check(name, param, label, value) -> None:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", AccuracyWarning)
+            # An overflow or invalid-value warning escaping to the user is not a clear error.
+            warnings.simplefilter("error", RuntimeWarning)
             result = fn(**{param: value})
     except (ValueError, SimulationError) as exc:
         msg = str(exc)
@@ -246,6 +251,7 @@ def _check_cli(flag, value, tmp_path, capsys):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", AccuracyWarning)
+            warnings.simplefilter("error", RuntimeWarning)
             code = main(argv)
     except SystemExit as exc:
         code = exc.code
