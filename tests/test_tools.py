@@ -270,3 +270,57 @@ def test_a_fixed_step_larger_than_the_output_spacing_is_an_error():
 def test_tol_still_works_on_any_grid():
     tr = se.simulate(SCENE, STATE, 0.5, dt_out=0.001, tol=1e-4)
     assert tr.settings.startswith("auto (tol = 0.0001 m)") and len(tr.t) == 501
+
+
+# -- train.py --env, sidecars, wrappers, model selection --------------------------------
+def _train_py(tmp_path, *args):
+    import train
+
+    flags = {s for a in train.build_parser()._actions for s in a.option_strings}
+    quiet = ["--compare-episodes", "0"] if "--compare-episodes" in flags else []
+    return subprocess.run([sys.executable, str(ROOT / "train.py"), "--log-dir", str(tmp_path),
+                           "--no-progress-bar", *quiet, *args], capture_output=True, text=True,
+                          timeout=300)
+
+
+def test_train_on_a_level_records_it_and_honours_normalize_and_frame_stack(tmp_path, capsys):
+    pytest.importorskip("stable_baselines3")
+    hyper = tmp_path / "small.yml"
+    # Keyed by the calm level only: a level without an entry of its own falls back to it.
+    hyper.write_text("SaddleTrap-v0:\n  n_envs: 2\n  policy: MlpPolicy\n  n_steps: 64\n"
+                     "  batch_size: 64\n  n_epochs: 1\n  normalize: true\n  frame_stack: 2\n")
+    proc = _train_py(tmp_path, "--env", GUSTY, "--env-kwargs", "air_force=0.1", "--hyperparams",
+                     str(hyper), "--total-timesteps", "256", "--eval-freq", "128",
+                     "--eval-episodes", "2", "--save-freq", "128", "--run-name", "g")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert f"no entry for {GUSTY}" in proc.stderr
+    run = tmp_path / "g"
+    side = json.loads((run / "final_model.json").read_text())
+    assert side["env_id"] == GUSTY and side["env_kwargs"] == {"air_force": 0.1}
+    assert side["frame_stack"] == 2 and side["normalize"] is True
+    assert side["max_episode_steps"] == get_level(GUSTY).max_episode_steps
+    for name in ("final_model", "selected_model", "best_model"):
+        assert (run / f"{name}.zip").is_file() and (run / f"{name}.vecnormalize.pkl").is_file()
+    selected = json.loads((run / "selected_model.json").read_text())
+    evals = np.load(run / "evaluations.npz")
+    means = evals["results"].mean(axis=1)
+    # the latest evaluation that reached the best mean, the final model's included
+    last_best = int(np.flatnonzero(means >= means.max())[-1])
+    assert selected["selected_at_steps"] == int(evals["timesteps"][last_best])
+    assert int(evals["timesteps"][-1]) >= 256
+    # saddle-eval finds the level in the sidecar and feeds the model as training did
+    table = _eval_json(capsys, "--policy", str(run / "final_model.zip"), "--episodes", "2",
+                       "--max-episode-steps", "10", "--env-kwargs", "air_force=0.1")
+    assert table["env_id"] == GUSTY and table["env_kwargs"] == {"air_force": 0.1}
+    assert table["policies"][0]["kind"] == "PPO"
+
+
+def test_train_rejects_an_env_wrapper_and_an_unknown_level(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    hyper = tmp_path / "w.yml"
+    hyper.write_text("SaddleTrap-v0:\n  env_wrapper: gymnasium.wrappers.TimeLimit\n")
+    proc = _train_py(tmp_path, "--hyperparams", str(hyper), "--total-timesteps", "64")
+    assert proc.returncode == 2 and "env_wrapper" in proc.stderr
+    proc = _train_py(tmp_path, "--env", "Nope-v0")
+    assert proc.returncode == 2 and "Nope-v0" in proc.stderr and GUSTY in proc.stderr
+    assert "Traceback" not in proc.stderr
