@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Train an agent on a task level — a thin command line over ``agents.training``.
 
-    python train.py                                  # PPO on SaddleTrap-v0, default budget
+    python train.py                                  # the main job: PPO on SaddleTrap-Capture-v0
     python train.py --env SaddleTrap-Gusty-v0        # a registered level (saddle_env.LEVELS)
     python train.py --algo sac --env-kwargs air_force=0.1 ball_radii=[0.0223,0.0265,0.033]
     python train.py --resume runs/<run>/checkpoints/interrupted_123456_steps.zip
@@ -49,6 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="control steps per episode (None: the level's)")
     ap.add_argument("--torch-threads", type=int, default=d.torch_threads,
                     help="torch CPU threads (1 is fastest for these small networks on 2 cores)")
+    ap.add_argument("--compare-episodes", type=int, default=d.compare_episodes,
+                    help="fresh episodes on which the trained agent is compared with best-const "
+                         "and mpc at the end (0: skip)")
     ap.add_argument("--no-progress-bar", action="store_true")
     ap.add_argument("--resume", default=None, metavar="CHECKPOINT.zip",
                     help="continue a run from a checkpoint (its config.json supplies the rest)")
@@ -73,8 +76,8 @@ def main(argv: list[str] | None = None) -> int:
                 hyperparams=args.hyperparams, log_dir=args.log_dir, run_name=args.run_name,
                 eval_freq=args.eval_freq, eval_episodes=args.eval_episodes,
                 save_freq=args.save_freq, max_episode_steps=args.max_episode_steps,
-                progress_bar=not args.no_progress_bar,
-                torch_threads=args.torch_threads).validate()
+                progress_bar=not args.no_progress_bar, torch_threads=args.torch_threads,
+                compare_episodes=args.compare_episodes).validate()
         start = time.time()
         run_dir = train(settings, resume=args.resume)
     except MissingExtra as exc:

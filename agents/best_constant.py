@@ -23,12 +23,12 @@ from saddle_env.linear import critical_omega
 
 from .controllers import ConstantSpeed, critical_speed
 from .rollout import run_episodes
+from .seeds import SEARCH_SEED
 
 CACHE_FILE = Path(__file__).with_name("best_const.json")
 USER_CACHE_FILE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / \
     "saddle-env" / "best_const.json"
 SEARCH_EPISODES = 64
-SEARCH_SEED = 12345
 SEARCH_STEP = 1.0         # coarse grid [rad/s], then refined by SEARCH_STEP / 4 around the best
 TIME_TIE = 0.01           # mean trapping times within this fraction of the episode tie
 # Options that do not change a constant-speed run (the search always runs in target mode).

@@ -27,8 +27,9 @@ import numpy as np
 
 from saddle_env.envs import LEVELS, get_level
 
+from .seeds import SEARCH_SEED, TEST_SEED, VALIDATION_SEED
+
 MODELS_DIR = Path(__file__).parent / "models"
-TEST_SEED = 2_000_000          # the frozen test set: episodes TEST_SEED .. TEST_SEED + n - 1
 TEST_EPISODES = 1000           # 200-episode sets move the kept fraction by about 7 points
 BASELINE_POLICIES = ("zero", "random", "const-1.0", "const-1.2", "const-1.5", "best-const",
                      "mpc")
@@ -126,14 +127,14 @@ def write_markdown(results: dict[str, Any], path: Path, figures: dict[str, str],
         "leaves the rim, the episode length if it is kept. Mean [95 % interval]: percentile "
         "bootstrap for times, distances and effort, Wilson for rates. `zero` always sends "
         "action 0, `random` uniform actions; `const-K` holds K·Ω_crt of the nominal ball, "
-        "`best-const` the best constant speed of the level (searched on seeds 12,345–12,408), "
+        "`best-const` the best constant speed of the level (searched on 64 seeded episodes), "
         "`mpc` is the model-predictive controller. Agents (bold) are the network alone, "
         "deterministic.",
         "",
-        "Seeds: test episodes from "
+        "Seeds (agents/seeds.py): test episodes from "
         f"{results['seed']:,} (used by nothing else); training runs seed 0-99; model "
-        "selection during training on validation episodes from 1,000,000; best-const search "
-        "12,345–12,408.",
+        f"selection during training on validation episodes from {VALIDATION_SEED:,}; "
+        f"best-const search {SEARCH_SEED:,}–{SEARCH_SEED + 63:,}.",
         "",
     ]
     body = [level_markdown(results["levels"][lid], figures.get(lid))

@@ -24,11 +24,16 @@ Ctrl-C or SIGTERM saves a checkpoint (and the replay buffer of off-policy algori
 ``--resume CHECKPOINT.zip`` continues from it.
 
 **Model selection.** Every ``eval_freq`` steps (default: a twentieth of the budget), and
-once more on the final model, the policy is evaluated on ``eval_episodes`` validation episodes (seeds from `VALIDATION_SEED`, never
-used for training or for the leaderboard's test set). ``selected_model.zip`` is the *latest*
+once more on the final model, the policy is evaluated on ``eval_episodes`` validation
+episodes (seeds from `VALIDATION_SEED`, never used for training or for the leaderboard's
+test set). ``selected_model.zip`` is the *latest*
 snapshot whose mean validation return is at least the best mean seen so far: ties go to the
 later snapshot, so a run whose curve reaches its plateau early ships a model from the end of
 the plateau, not its first point (which ``best_model.zip`` keeps, as SB3 does).
+
+**What learning bought.** A finished run ends by evaluating the selected model beside
+``best-const`` and ``mpc`` on ``compare_episodes`` fresh episodes (seeds from
+`COMPARE_SEED`), printed and saved as ``comparison.md``/``comparison.json``.
 """
 
 from __future__ import annotations
@@ -46,6 +51,9 @@ import numpy as np
 
 from saddle_env.envs import ENV_ID, EnvConfig, Level
 
+MAIN_JOB_ENV_ID = "SaddleTrap-Capture-v0"
+
+from .seeds import COMPARE_SEED, VALIDATION_SEED
 from .cli_args import (  # noqa: F401
     MissingExtra,
     install_hint,
@@ -66,7 +74,6 @@ REJECTED_KEYS = {"env_wrapper": "environment wrappers by class name are not supp
                  "callback": "callbacks by class name are not supported"}
 # Validation episodes (model selection during training) start here: apart from the training
 # seeds (0-99), the best-constant search (12,345 on) and the leaderboard's test set.
-VALIDATION_SEED = 1_000_000
 # What training imports beyond the core install (all in the "train" extra).
 TRAIN_MODULES = ("stable_baselines3", "torch", "yaml", "matplotlib")
 PROGRESS_MODULES = ("tqdm", "rich")
@@ -87,7 +94,9 @@ class TrainSettings:
     the command line's (``train.py`` reads them from this class)."""
 
     algo: str = "ppo"
-    env_id: str = ENV_ID
+    # The main job (`python train.py`) trains on a level where learning shows within minutes:
+    # the untrained policy loses balls that the trained one keeps (docs/agents.md).
+    env_id: str = MAIN_JOB_ENV_ID
     env_kwargs: dict[str, Any] = field(default_factory=dict)   # options over the level's
     seed: int = 0
     n_envs: int | None = None
@@ -105,8 +114,10 @@ class TrainSettings:
     # threads fight the environment for the cores (PPO measured 2,900 steps/s with 1 thread,
     # 200 with 2, on a loaded machine).
     torch_threads: int = 1
+    compare_episodes: int = 200      # the closing comparison (0: none)
     hyperparams_used: dict[str, Any] = field(default_factory=dict)
 
+    NON_NEGATIVE = ("compare_episodes",)
     POSITIVE = ("n_envs", "total_timesteps", "eval_freq", "eval_episodes", "save_freq",
                 "max_episode_steps", "torch_threads")
 
@@ -120,6 +131,11 @@ class TrainSettings:
             if value is not None and (isinstance(value, bool) or not isinstance(value, int)
                                       or value < 1):
                 raise ValueError(f"--{name.replace('_', '-')} must be a positive integer, "
+                                 f"got {value}")
+        for name in self.NON_NEGATIVE:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"--{name.replace('_', '-')} must be an integer >= 0, "
                                  f"got {value}")
         level, _ = self.environment()
         if self.max_episode_steps is None:
@@ -529,9 +545,35 @@ def train(settings: TrainSettings, resume: str | Path | None = None) -> Path:
         if (run_dir / "best_model.zip").is_file():
             write_sidecar(run_dir / "best_model.zip", settings)
         plot_learning_curve(run_dir)
+        if settings.compare_episodes > 0:
+            compare(run_dir, settings)
     env.close()
     eval_env.close()
     return run_dir
+
+
+def compare(run_dir: Path, settings: TrainSettings) -> str:
+    """The selected model beside best-const and mpc on fresh episodes (`COMPARE_SEED`):
+    print the table, save ``comparison.md`` and ``comparison.json``; return the Markdown."""
+    from .evaluation import evaluate, markdown
+    from .policies import load_policy
+
+    _, config = settings.environment()
+    model = run_dir / "selected_model.zip"
+    if not model.is_file():
+        model = run_dir / "final_model.zip"
+    steps = int(settings.max_episode_steps or 500)
+    print(f"comparing {model.name} with best-const and mpc on {settings.compare_episodes} fresh "
+          f"episodes (seeds from {COMPARE_SEED:,}) ...", flush=True)
+    specs = [(str(model), load_policy(model, config)), "best-const", "mpc"]
+    table, _ = evaluate(specs, config, settings.compare_episodes, COMPARE_SEED,
+                        max_episode_steps=steps, examples=0, env_id=settings.env_id,
+                        progress=settings.progress_bar)
+    text = markdown(table)
+    (run_dir / "comparison.md").write_text(text)
+    (run_dir / "comparison.json").write_text(json.dumps(table, indent=1) + "\n")
+    print(text)
+    return text
 
 
 def plot_learning_curve(run_dir: Path) -> Path | None:
@@ -563,7 +605,7 @@ def plot_learning_curve(run_dir: Path) -> Path | None:
     return out
 
 
-__all__ = ["ALGO_NAMES", "VALIDATION_SEED", "TrainSettings", "check_dependencies",
-           "load_hyperparams", "make_vec_env", "parse_env_kwargs", "parse_policy_kwargs",
+__all__ = ["ALGO_NAMES", "MAIN_JOB_ENV_ID", "VALIDATION_SEED", "TrainSettings",
+           "check_dependencies", "compare", "load_hyperparams", "make_vec_env", "parse_env_kwargs", "parse_policy_kwargs",
            "plot_learning_curve", "save_model", "settings_for_resume", "train",
            "wrapper_settings", "write_sidecar"]

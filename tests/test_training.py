@@ -16,8 +16,11 @@ pytest.importorskip("stable_baselines3")
 from agents.training import parse_env_kwargs, parse_policy_kwargs  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-FAST = ["--eval-episodes", "2", "--eval-freq", "1000", "--save-freq", "1000",
-        "--no-progress-bar", "--max-episode-steps", "100"]
+# The calm level and no closing comparison: the tests check the machinery, not learning
+# (the main job's level warm-starts from a best-constant search and compares with mpc).
+FAST = ["--env", "SaddleTrap-v0", "--compare-episodes", "0", "--eval-episodes", "2",
+        "--eval-freq", "1000", "--save-freq", "1000", "--no-progress-bar",
+        "--max-episode-steps", "100"]
 
 
 def _train(tmp_path, *args, timeout=300):
@@ -147,3 +150,23 @@ def test_shipped_models_load_and_act_in_the_task_they_were_trained_on():
             assert env.observation_space.contains(obs)
             if term or trunc:
                 break
+
+
+def test_a_finished_run_compares_the_agent_with_best_const_and_mpc(tmp_path):
+    proc = _train(tmp_path, "--n-envs", "4", "--total-timesteps", "1024", "--run-name", "cmp",
+                  "--compare-episodes", "3")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    table = json.loads((tmp_path / "cmp" / "comparison.json").read_text())
+    assert [row["policy"].rsplit("/", 1)[-1] for row in table["policies"]] == \
+        ["selected_model.zip", "best-const", "mpc"]
+    assert table["seed"] == 3_000_000 and table["episodes"] == 3
+    assert table["env_id"] == "SaddleTrap-v0"
+    assert "best-const" in proc.stdout and "mpc" in proc.stdout  # printed, not only saved
+
+
+def test_the_main_job_trains_on_a_level_where_learning_shows():
+    from agents.training import MAIN_JOB_ENV_ID, TrainSettings, load_hyperparams
+
+    assert TrainSettings().env_id == MAIN_JOB_ENV_ID != "SaddleTrap-v0"
+    hyper = load_hyperparams("ppo", MAIN_JOB_ENV_ID)
+    assert hyper["warm_start"] == "best-const" and float(hyper["n_timesteps"]) <= 5e6
