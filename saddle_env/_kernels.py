@@ -82,7 +82,7 @@ def threads_usable() -> bool:
     except ValueError:  # no parallel region has run in this process (or its parent) yet
         return True
 
-from .scene import P_A, P_ALPHA, P_B, P_DRILL, P_G, P_R, ROLLING
+from .scene import ION_PAUL, ION_RRF, P_A, P_ALPHA, P_B, P_DRILL, P_G, P_R, ROLLING
 
 STATE_WIDTH = 5
 
@@ -253,6 +253,32 @@ def slipping_rates(a, b, R, g, Om, Omd, fx, fy, x, y, vx, vy):
     return vx, vy, ax, ay, -(nx * rx + ny * ry + nz * rz)
 
 
+# Layout of an ion's parameter row (saddle_env.iontrap.IonTrap.params); slot P_RIM (6) is
+# the escape radius, as for a ball, so the loop's escape event serves both.
+I_KQUAD, I_KDC, I_OMEGA_B, I_KSTATIC = range(4)
+
+
+@jit
+def ion_rates(model, p, prof, t, Om, Omd, x, y, vx, vy):
+    """Acceleration per unit mass of a charged particle in an ideal quadrupole trap.
+
+    ``ION_RRF``: the quadrupole -κ(x'² - y'²)/2 rotates at Ω(t); state in the frame rotating
+    with it, so ẍ = (Ω² - Ωω_B - κ + κ_t) x + Ω̇ y + (2Ω - ω_B) ẏ and
+    ÿ = (Ω² - Ωω_B + κ + κ_t) y - Ω̇ x - (2Ω - ω_B) ẋ (the paper's Eq. comp2).
+    ``ION_PAUL``: the quadrupole flaps, (κ_dc + κ cos θ(t))(x² - y²)/2 with θ = ∫Ω dt; state
+    in the laboratory. Both add the static term κ_t (x, y) and the Lorentz acceleration
+    ω_B k×v_lab. κ = p[I_KQUAD], κ_dc = p[I_KDC], ω_B = p[I_OMEGA_B], κ_t = p[I_KSTATIC].
+    """
+    kq, wB, kt = p[I_KQUAD], p[I_OMEGA_B], p[I_KSTATIC]
+    if model == ION_RRF:
+        cor = 2.0 * Om - wB
+        diag = Om * Om - Om * wB + kt
+        return ((diag - kq) * x + Omd * y + cor * vy,
+                (diag + kq) * y - Omd * x - cor * vx)
+    k = p[I_KDC] + kq * math.cos(angle_at(prof, t))
+    return (kt - k) * x - wB * vy, (kt + k) * y + wB * vx
+
+
 @jit
 def rhs(model, p, prof, t, y, dy, want_normal):
     """Write dy/dt into ``dy``; return N/m [m/s²] if ``want_normal`` else 0.
@@ -260,7 +286,8 @@ def rhs(model, p, prof, t, y, dy, want_normal):
     Parameters
     ----------
     model : int
-        ``ROLLING`` or ``SLIPPING`` (the point model is slipping with p[P_R] = 0).
+        ``ROLLING`` or ``SLIPPING`` (the point model is slipping with p[P_R] = 0), or
+        ``ION_RRF`` / ``ION_PAUL`` (state (x, y, vx, vy); no normal force: returns +inf).
     p : (7,) float64 — packed scene parameters (Scene.params()).
     prof : (8,) float64 — drive row (Ω profile, θ0, external force).
     t : float — time [s].
@@ -272,6 +299,11 @@ def rhs(model, p, prof, t, y, dy, want_normal):
         dy[0], dy[1], dy[2], dy[3], dy[4], normal = rolling_rates(
             p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], Om, Omd, fx, fy,
             y[0], y[1], y[2], y[3], y[4])
+    elif model >= ION_RRF:
+        dy[0], dy[1] = y[2], y[3]
+        dy[2], dy[3] = ion_rates(model, p, prof, t, Om, Omd, y[0], y[1], y[2], y[3])
+        dy[4] = 0.0
+        normal = np.inf
     else:
         dy[0], dy[1], dy[2], dy[3], normal = slipping_rates(
             p[P_A], p[P_B], p[P_R], p[P_G], Om, Omd, fx, fy, y[0], y[1], y[2], y[3])

@@ -79,7 +79,13 @@ def eigenfrequencies(scene: Scene, omega: float, spin_z: float = 0.0) -> np.ndar
 
     A negative imaginary part means growth, e^{|Im ϖ| t}: the paper's instability.
     """
-    P, Q = _biquadratic(abcd(scene, omega, spin_z))
+    return eigenfrequencies_of(abcd(scene, omega, spin_z))
+
+
+def eigenfrequencies_of(c: ABCD) -> np.ndarray:
+    """The four ϖ of ẍ = A x + B ẏ, ÿ = C y + D ẋ (any source of A, B, C, D, e.g. an ion
+    trap in saddle_env.iontrap), sorted by real part."""
+    P, Q = _biquadratic(c)
     disc = np.sqrt(complex(P * P - 4 * Q))
     roots = []
     for w2 in ((-P + disc) / 2, (-P - disc) / 2):
@@ -90,7 +96,12 @@ def eigenfrequencies(scene: Scene, omega: float, spin_z: float = 0.0) -> np.ndar
 
 def is_stable(scene: Scene, omega: float, spin_z: float = 0.0) -> bool:
     """Linear (marginal) stability: both roots ϖ² real and positive (paper Eq. Inequalities)."""
-    P, Q = _biquadratic(abcd(scene, omega, spin_z))
+    return is_stable_abcd(abcd(scene, omega, spin_z))
+
+
+def is_stable_abcd(c: ABCD) -> bool:
+    """`is_stable` for any coefficients A, B, C, D."""
+    P, Q = _biquadratic(c)
     return Q > 0 and P < 0 and P * P - 4 * Q >= 0
 
 

@@ -16,8 +16,10 @@ import numpy as np
 ContactModel = Literal["rolling", "slipping", "point"]
 CONTACT_MODELS: tuple[str, ...] = ("rolling", "slipping", "point")
 
-# Integer codes the compiled kernels switch on (kept in one place).
+# Integer codes the compiled kernels switch on (kept in one place). The ion codes select a
+# charged particle in a quadrupole trap (saddle_env.iontrap), integrated by the same loop.
 ROLLING, SLIPPING = 0, 1
+ION_RRF, ION_PAUL = 2, 3
 
 # Layout of the packed parameter vector read by the kernels (saddle_env._kernels).
 P_A, P_B, P_R, P_ALPHA, P_G, P_DRILL, P_RIM = range(7)
