@@ -40,6 +40,11 @@ CSV_COLUMNS = {
                  "fraction_detached"],
     "asymmetric": ["model", "R", "b_over_a", "omega_low", "omega_high"],
     "asymmetric_nonlinear": ["case", "omega", "stable_nonlinear"],
+    "analogy": ["omega", "growth_mass_point", "growth_rolling_R3cm", "growth_rrf_ion",
+                "growth_paul", "paul_floquet_abs_mu"],
+    "analogy_orbits": ["t", "ball_xc", "ball_yc", "best_ion_x", "best_ion_y", "paper_ion_x",
+                       "paper_ion_y", "mass_point_linear_x", "mass_point_linear_y",
+                       "mass_point_ion_x", "mass_point_ion_y"],
 }
 
 
@@ -112,6 +117,10 @@ def test_summary_numbers(quick_run):
     assert f35["convention"] == f45["convention"] == "rotating-rest"
     assert 0 < f45["value"] < f35["value"] < 0.1
     assert 0 < s["feasible_fraction_45_lab_rest"]["value"] < s["feasible_fraction_35_lab_rest"]["value"]
+    an = s["analogy"]
+    assert an["masspoint_rrf_max_rel_diff"] < 1e-8
+    assert an["rolling_eigenfrequency_mismatch"] > 0.05
+    assert an["paul_threshold"] == pytest.approx(1.4841 * an["omega_crt_mass_point"], rel=1e-4)
 
 
 def test_reruns_read_the_cache_and_rewrite_the_figure(quick_run):

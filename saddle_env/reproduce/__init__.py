@@ -9,6 +9,7 @@ convention it used. Modules:
 * `theory_figs` — eigen-frequency loci, Ω_crt vs R and a, the asymmetric saddle's band;
 * `dynamics_figs` — trajectories and precession, support force, feasible regions,
   trapping time;
+* `analogy_fig` — the ion-trap analogy: ball vs RRF ion, Paul trap vs rotating saddle;
 * `paper_eom` — the paper's approximate Eq. (EOM), for comparison only.
 
 Importing this package does not import matplotlib (figure functions import it).

@@ -1,0 +1,248 @@
+"""``analogy``: the paper's ion-trap analogy, run (its section "Electromagnetic Analogy").
+
+Four panels (saddle a = 0.159 m, g = 9.8 m/s², Ω = 30 s⁻¹ as in the paper's Fig. traj):
+
+(a) a rolling ball (R = 2 cm, exact nonlinear model) against the RRF ion `ball_to_ion`
+    maps it to and against the paper's own analogy ion, centre paths in the rotating frame;
+(b) the relative gap |Δr(t)| / max r of each pairing over 10 s, log scale — the linearised
+    mass point and its ion agree to integration accuracy;
+(c) the growth rate of the linearised motion against Ω: mass point, rolling ball (R = 3 cm),
+    the RRF ion mapped from the mass point, and the Paul trap with the same field strength
+    (Floquet multipliers from simulation), thresholds marked;
+(d) the flapping Paul trap against the rotating saddle (= RRF ion) at the same Ω: x(t) in the
+    laboratory.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..iontrap import (Q_MAX, PaulTrap, RRFTrap, ball_to_ion, eigenfrequency_mismatch,
+                       floquet_multipliers, lab_rest_state, max_rel_diff, paper_analogy_ion,
+                       simulate_ion)
+from ..linear import critical_omega, eigenfrequencies, linear_trajectory
+from ..scene import Scene
+from ..simulate import initial_state, simulate
+from .context import Context
+
+A_PAPER = 0.159
+OMEGA = 30.0           # [1/s] the paper's Fig. traj speed
+RELEASE = 0.001        # [m] contact point at x = y = 1 mm, placed at rest in the laboratory
+T_END = 10.0           # [s]
+DT_OUT = 0.002         # [s] output spacing (Ω = 30: ~100 samples per turn)
+SPIN = 5.0             # [rad/s] a relative spin about the vertical, for the p != q case
+CONVENTION = ("lab-rest (placed at rest in the laboratory, contact point at x = y = 1 mm, "
+              "as in the paper's Fig. traj)")
+
+
+def _start(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """The ball's lab-rest state and its centre's (x_c, y_c, ẋ_c, ẏ_c) in the rotating frame.
+
+    The centre velocity is, by the definition of the lab-rest start (`initial_state`), the
+    part of −Ω k × c tangent to the surface (normal n): exact, no linearisation."""
+    state = initial_state(scene, RELEASE, RELEASE, start="lab-rest", omega=OMEGA)
+    x = y = RELEASE
+    n = np.array([-2 * x / scene.a, 2 * y / scene.b, 1.0])
+    n /= np.linalg.norm(n)
+    c = np.array([x, y, 0.0]) + scene.radius * n
+    v = np.array([OMEGA * c[1], -OMEGA * c[0], 0.0])
+    v -= n * (n @ v)
+    return state, np.array([c[0], c[1], v[0], v[1]])
+
+
+def _growth(roots: np.ndarray) -> float:
+    """Growth rate [1/s] of the linear motion: the largest −Im ϖ (x ∝ e^{iϖt}), or 0."""
+    return max(0.0, float(-roots.imag.min()))
+
+
+def fig_analogy(ctx: Context) -> None:
+    import matplotlib.pyplot as plt
+
+    g = 9.8
+    point = Scene(a=A_PAPER, contact="point")
+    rolling = Scene(a=A_PAPER, R=0.02, contact="rolling")
+    t_end = 3.0 if ctx.quick else T_END
+
+    # --- mass point vs RRF ion without field: the same linear equations -------------------
+    s_mp, z_mp = _start(point)
+    mp_map = ball_to_ion(point, OMEGA)
+    ion_mp = simulate_ion(mp_map.trap, mp_map.ion_state(z_mp), t_end, dt_out=DT_OUT,
+                          escape=False)
+    lin_mp = linear_trajectory(point, OMEGA, z_mp, ion_mp.t)
+    d_mp = max_rel_diff(lin_mp[:, :2], ion_mp.state[:, :2])
+    nl_mp = simulate(point, s_mp, t_end, omega=OMEGA, dt_out=DT_OUT)
+    d_mp_nl = max_rel_diff(nl_mp.centre[:, :2], ion_mp.state[:, :2])
+
+    # --- rolling ball vs the best-matching ion and the paper's analogy ion ----------------
+    s_r, z_r = _start(rolling)
+    best = ball_to_ion(rolling, OMEGA)
+    paper = paper_analogy_ion(rolling, OMEGA)
+    ion_best = simulate_ion(best.trap, best.ion_state(z_r), t_end, dt_out=DT_OUT,
+                            escape=False)
+    ion_paper = simulate_ion(paper, z_r, t_end, dt_out=DT_OUT, escape=False)
+    ball = simulate(rolling, s_r, t_end, omega=OMEGA, dt_out=DT_OUT)
+    lin_r = linear_trajectory(rolling, OMEGA, z_r, ion_best.t)
+    c_ball = ball.centre[:, :2]
+    d_r_lin = max_rel_diff(lin_r[:, :2], ion_best.state[:, :2])
+    d_r_best = max_rel_diff(c_ball, ion_best.state[:, :2])
+    d_r_paper = max_rel_diff(c_ball, ion_paper.state[:, :2])
+    mis_paper = eigenfrequency_mismatch(rolling, OMEGA, paper)
+    mis_best = eigenfrequency_mismatch(rolling, OMEGA, best.trap)
+    # with a relative spin about the vertical: p != q
+    spun = ball_to_ion(rolling, OMEGA, SPIN)
+    mis_spun_best = eigenfrequency_mismatch(rolling, OMEGA, spun.trap, SPIN)
+    mis_spun_paper = eigenfrequency_mismatch(rolling, OMEGA, paper_analogy_ion(rolling, OMEGA,
+                                                                               SPIN), SPIN)
+    ion_spun = simulate_ion(spun.trap, spun.ion_state(z_r), t_end, dt_out=DT_OUT,
+                            escape=False)
+    lin_spun = linear_trajectory(rolling, OMEGA, z_r, ion_spun.t, SPIN)
+    d_spun_unstretched = max_rel_diff(lin_spun[:, :2], ion_spun.state[:, :2])
+    d_spun_stretched = max_rel_diff(lin_spun[:, :2], spun.ball_centre(ion_spun.state[:, :2]))
+
+    # --- thresholds against Ω ------------------------------------------------------------
+    kappa = 2 * g / A_PAPER
+    ball3 = Scene(a=A_PAPER, R=0.03, contact="rolling")
+    omegas = np.linspace(2.0, 25.0, 47 if ctx.quick else 231)
+    grow_mp = np.array([_growth(eigenfrequencies(point, w)) for w in omegas])
+    grow_r3 = np.array([_growth(eigenfrequencies(ball3, w)) for w in omegas])
+    grow_ion = np.array([_growth(RRFTrap(omega=w, kappa=kappa).eigenfrequencies())
+                         for w in omegas])
+    mu = np.array([floquet_multipliers(PaulTrap(omega=w, kappa=kappa)).max() for w in omegas])
+    grow_paul = np.log(np.maximum(mu, 1.0)) * omegas / (2 * math.pi)
+    # |μ| is 1 to integration accuracy where stable
+    grow_paul[np.abs(mu - 1.0) < 1e-6] = 0.0
+    wc_mp, wc_r3 = critical_omega(point), critical_omega(ball3)
+    wc_paul = PaulTrap(omega=1.0, kappa=kappa).critical_omega()
+    paul_sim = omegas[(grow_paul == 0) & (omegas > omegas[np.argmax(grow_paul > 0)])]
+    paul_first_stable = float(paul_sim.min()) if paul_sim.size else math.nan
+    ctx.write_csv("analogy", {"omega": omegas, "growth_mass_point": grow_mp,
+                              "growth_rolling_R3cm": grow_r3, "growth_rrf_ion": grow_ion,
+                              "growth_paul": grow_paul, "paul_floquet_abs_mu": mu}, [
+        "Growth rate [1/s] of the linear motion against Omega [1/s], a = 0.159 m, g = 9.8: "
+        "mass point and rolling ball R = 3 cm (Table I), the RRF ion with kappa = 2g/a and "
+        "no field (Eq. comp2), the Paul trap with kappa = 2g/a driven at Omega (Floquet "
+        "multipliers |mu| over one period, from simulate_ion: growth = ln|mu| Omega/2pi)",
+        f"thresholds: mass point = RRF ion {wc_mp:.6f}, rolling R=3cm {wc_r3:.6f}, Paul "
+        f"sqrt(2 kappa/q_max) {wc_paul:.6f} (q_max = {Q_MAX:.10f})"])
+
+    # --- Paul trap vs rotating saddle: motion -------------------------------------------
+    t_side = 3.0
+    rrf = RRFTrap(omega=OMEGA, kappa=kappa)
+    paul = PaulTrap(omega=OMEGA, kappa=kappa)
+    paul2 = PaulTrap(omega=2 * OMEGA, kappa=kappa)
+    side = {}
+    for name, trap in (("rrf", rrf), ("paul", paul), ("paul_2omega", paul2)):
+        tr = simulate_ion(trap, lab_rest_state(trap, RELEASE, 0.0), t_side, dt_out=0.002,
+                          escape=False)
+        side[name] = tr
+    ctx.write_csv("analogy_orbits", {
+        "t": ion_best.t, "ball_xc": c_ball[:, 0], "ball_yc": c_ball[:, 1],
+        "best_ion_x": ion_best.x, "best_ion_y": ion_best.y,
+        "paper_ion_x": ion_paper.x, "paper_ion_y": ion_paper.y,
+        "mass_point_linear_x": lin_mp[:, 0], "mass_point_linear_y": lin_mp[:, 1],
+        "mass_point_ion_x": ion_mp.x, "mass_point_ion_y": ion_mp.y}, [
+        f"Rotating-frame centre paths [m], Omega = {OMEGA:g}, a = 0.159, start {CONVENTION}: "
+        "rolling ball R = 2 cm (exact model), its best-matching RRF ion (ball_to_ion), the "
+        "paper's analogy ion (paper_analogy_ion); linearised mass point and its RRF ion"])
+
+    # --- figure ----------------------------------------------------------------------------
+    fig, ax = plt.subplots(2, 2, figsize=(12, 9.5))
+    n2 = int(np.searchsorted(ion_best.t, 2.0)) + 1
+    mm = 1e3
+    ax[0, 0].plot(c_ball[:n2, 0] * mm, c_ball[:n2, 1] * mm, lw=2.2, color="0.7",
+                  label="rolling ball (exact model)")
+    ax[0, 0].plot(ion_best.x[:n2] * mm, ion_best.y[:n2] * mm, lw=0.9, color="C0",
+                  label=f"best ion: ω_B = αΩ/(1+α) = {best.trap.omega_B:.3g} s⁻¹")
+    ax[0, 0].plot(ion_paper.x[:n2] * mm, ion_paper.y[:n2] * mm, lw=0.9, color="C3", ls="--",
+                  label="paper's analogy ion (ω_B = 0, Coriolis 2Ω)")
+    ax[0, 0].set(xlabel="x_c [mm]", ylabel="y_c [mm]", aspect="equal",
+                 title=f"(a) rolling ball R = 2 cm, Ω = {OMEGA:g} s⁻¹, first 2 s (rotating frame)")
+    ax[0, 0].legend(fontsize=7, loc="upper right")
+
+    def gap(a_, b_):
+        return np.linalg.norm(a_ - b_, axis=1) / np.linalg.norm(a_, axis=1).max()
+
+    floor = 1e-16
+    ax[0, 1].semilogy(ion_mp.t, gap(lin_mp[:, :2], ion_mp.state[:, :2]) + floor, lw=0.8,
+                      label=f"linearised mass point vs RRF ion (B = 0): max {d_mp:.1e}")
+    ax[0, 1].semilogy(ion_mp.t, gap(nl_mp.centre[:, :2], ion_mp.state[:, :2]) + floor, lw=0.8,
+                      label=f"exact mass point vs RRF ion: max {d_mp_nl:.1e}")
+    ax[0, 1].semilogy(ion_best.t, gap(lin_r[:, :2], ion_best.state[:, :2]) + floor, lw=0.8,
+                      label=f"linearised rolling ball vs best ion: max {d_r_lin:.1e}")
+    ax[0, 1].semilogy(ion_best.t, gap(c_ball, ion_best.state[:, :2]) + floor, lw=0.8,
+                      label=f"exact rolling ball vs best ion: max {d_r_best:.1e}")
+    ax[0, 1].semilogy(ion_best.t, gap(c_ball, ion_paper.state[:, :2]) + floor, lw=0.8,
+                      label=f"exact rolling ball vs paper's ion: max {d_r_paper:.2f}")
+    ax[0, 1].set(xlabel="t [s]", ylabel="|Δr(t)| / max r", ylim=(1e-16, 10),
+                 title="(b) how far apart, relative to the orbit size")
+    ax[0, 1].legend(fontsize=7, loc="lower right")
+
+    ax[1, 0].plot(omegas, grow_mp, lw=2.2, color="0.7", label="mass point (Table I)")
+    ax[1, 0].plot(omegas[::4], grow_ion[::4], "o", ms=3, color="C0",
+                  label="RRF ion κ = 2g/a, B = 0 (comp2)")
+    ax[1, 0].plot(omegas, grow_r3, lw=1.2, color="C2", label="rolling ball R = 3 cm")
+    ax[1, 0].plot(omegas, grow_paul, lw=1.2, color="C3",
+                  label="Paul trap κ = 2g/a, drive Ω (Floquet, simulated)")
+    top = ax[1, 0].get_ylim()[1]
+    for k, (w, c, lab) in enumerate(((wc_mp, "0.4", "Ω_crt point"), (wc_r3, "C2", "Ω_crt R=3cm"),
+                                     (wc_paul, "C3", "Paul q = q_max"))):
+        ax[1, 0].axvline(w, color=c, ls=":", lw=1)
+        ax[1, 0].text(w, top * (0.93 - 0.09 * k), f" {lab} {w:.2f}", fontsize=7, color=c)
+    ax[1, 0].set(xlabel="Ω [s⁻¹]", ylabel="growth rate [s⁻¹]",
+                 title="(c) instability against Ω: thresholds side by side")
+    ax[1, 0].legend(fontsize=7, loc="center right")
+
+    for name, c, lab in (("rrf", "0.5", f"rotating saddle = RRF ion, Ω = {OMEGA:g}"),
+                         ("paul", "C3", f"Paul trap, drive Ω = {OMEGA:g}"),
+                         ("paul_2omega", "C0", f"Paul trap, drive 2Ω = {2 * OMEGA:g}")):
+        tr = side[name]
+        ax[1, 1].plot(tr.t, tr.lab_xy()[:, 0] * mm, lw=0.8, color=c, label=lab)
+    ax[1, 1].set(xlabel="t [s]", ylabel="x (laboratory) [mm]",
+                 title="(d) same field strength κ = 2g/a, released at rest at x = 1 mm")
+    ax[1, 1].legend(fontsize=7, loc="lower right")
+    fig.suptitle("The ion-trap analogy: rotating saddle, RRF trap and Paul trap "
+                 "(a = 0.159 m, saddle_env.iontrap)", fontsize=10)
+    fig.tight_layout()
+    ctx.save_png(fig, "analogy")
+
+    ctx.update_summary({"analogy": {
+        "convention": CONVENTION,
+        "omega": OMEGA, "t_end_s": t_end,
+        "masspoint_rrf_max_rel_diff": d_mp,
+        "masspoint_rrf_note": "linearised mass point (matrix exponential) vs the RRF ion with "
+                              "kappa = 2g/a, omega_B = 0 simulated by simulate_ion (DOP853, "
+                              "rtol 1e-10): the same linear equations",
+        "masspoint_exact_vs_rrf_max_rel_diff": d_mp_nl,
+        "rolling_R": rolling.R,
+        "rolling_eigenfrequency_mismatch": mis_paper,
+        "rolling_eigenfrequency_mismatch_note": "max |varpi_ball - varpi_ion| / max |varpi_ball| "
+                                                "against the paper's analogy ion (Coriolis 2 "
+                                                "Omega instead of (2+alpha)/(1+alpha) Omega, "
+                                                "omega_B = q omega_z)",
+        "rolling_eigenfrequency_mismatch_best_ion": mis_best,
+        "rolling_best_ion": {"omega_B": best.trap.omega_B, "kappa": best.trap.kappa,
+                             "kappa_t": best.trap.kappa_t,
+                             "omega_B_over_omega": best.trap.omega_B / OMEGA},
+        "rolling_linear_vs_best_ion_max_rel_diff": d_r_lin,
+        "rolling_exact_vs_best_ion_max_rel_diff": d_r_best,
+        "rolling_exact_vs_paper_ion_max_rel_diff": d_r_paper,
+        "spin_z": SPIN,
+        "spin_stretch_lambda": spun.stretch,
+        "spin_eigenfrequency_mismatch_best_ion": mis_spun_best,
+        "spin_eigenfrequency_mismatch_paper_ion": mis_spun_paper,
+        "spin_linear_vs_ion_max_rel_diff_unstretched": d_spun_unstretched,
+        "spin_linear_vs_ion_max_rel_diff_stretched": d_spun_stretched,
+        "paul_threshold": wc_paul,
+        "paul_threshold_first_stable_on_grid": paul_first_stable,
+        "omega_crt_mass_point": wc_mp,
+        "omega_crt_rolling_R3cm": wc_r3,
+        "paul_over_omega_crt": wc_paul / wc_mp,
+        "paul_threshold_note": "Paul trap with the saddle's field strength kappa = 2g/a driven "
+                               "at angular frequency Omega: stable for q = 2 kappa/Omega^2 < "
+                               f"q_max = {Q_MAX:.6f}; the rotating saddle's quadrupole flaps "
+                               "at 2 Omega, so as a rotation rate the Paul threshold is half "
+                               "this",
+        "paul_threshold_as_rotation_rate": wc_paul / 2,
+        "unit": "1/s"}})
