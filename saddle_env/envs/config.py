@@ -9,6 +9,7 @@ from typing import Literal
 import numpy as np
 
 from ..integrators import METHODS
+from ..runner import check_rtol
 from ..scene import CONTACT_MODELS, Scene, _finite_number
 
 # The paper's three polyfoam balls [m].
@@ -177,10 +178,7 @@ class EnvConfig:
         elif not METHODS[self.method].adaptive:
             raise ValueError(f"method {self.method!r} is fixed-step: give substep [s]")
         if self.rtol is not None:
-            r = _finite_number("rtol", self.rtol)
-            if not 1e-15 <= r < 1:
-                raise ValueError(f"rtol must satisfy 1e-15 <= rtol < 1, got {r}")
-            set_("rtol", r)
+            set_("rtol", check_rtol(self.rtol))  # the simulator's own check
 
     @classmethod
     def from_kwargs(cls, **kwargs: object) -> EnvConfig:
