@@ -140,3 +140,23 @@ def test_commanded_speed_and_angle_columns():
     assert obs[5] == pytest.approx(info["omega"] / wmax, rel=1e-6)  # exact set-point
     assert abs(obs[4] * wmax - info["omega"]) > 1e-3                 # measured: ripple + noise
     assert obs[6] ** 2 + obs[7] ** 2 == pytest.approx(1.0, abs=1e-6)
+
+
+def test_every_scene_parameter_is_an_env_option_with_the_scenes_default_and_check():
+    from dataclasses import fields
+
+    from saddle_env.envs.config import PAPER_BALL_RADII, SCENE_FIELDS
+
+    options = {f.name: f.default for f in fields(EnvConfig)}
+    scene_defaults = {f.name: f.default for f in fields(se.Scene)}
+    assert set(SCENE_FIELDS) == set(scene_defaults) and set(SCENE_FIELDS) <= set(options)
+    for name in SCENE_FIELDS:
+        want = PAPER_BALL_RADII[1] if name == "R" else scene_defaults[name]
+        assert options[name] == want, name
+    # the check is the scene's: the same message for the same bad value
+    for name, bad in (("alpha", 1.5), ("a", -1.0), ("contact", "sticky")):
+        with pytest.raises(ValueError) as env_err:
+            EnvConfig(**{name: bad})
+        with pytest.raises(ValueError) as scene_err:
+            se.Scene(**{name: bad})
+        assert str(env_err.value) == str(scene_err.value)

@@ -14,6 +14,9 @@ from ..scene import CONTACT_MODELS, Scene, _finite_number
 
 # The paper's three polyfoam balls [m].
 PAPER_BALL_RADII = (0.0223, 0.0265, 0.0330)
+# Every physical parameter is a field of `Scene` and an option of the environment by the
+# same name; the scene validates them (tests/test_levels.py checks the two agree).
+SCENE_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Scene))
 
 ActionMode = Literal["acceleration", "target"]
 ObsFrame = Literal["rotating", "lab"]
@@ -75,14 +78,17 @@ class EnvConfig:
     methods or ``substep`` [s] for fixed steps.
     """
 
-    a: float = 0.159
-    b: float | None = None
-    R: float = 0.0265
-    alpha: float = 0.4
-    g: float = 9.8
-    contact: str = "rolling"
-    rim_radius: float = 0.1
-    drilling_friction: float = 0.0
+    # The scene's fields (`SCENE_FIELDS`), with the Scene's own defaults and checks (the
+    # checks run by building the nominal scene); only the ball differs: the environment's
+    # nominal ball is the paper's 2.65 cm one.
+    a: float = Scene.a
+    b: float | None = Scene.b
+    R: float = PAPER_BALL_RADII[1]
+    alpha: float = Scene.alpha
+    g: float = Scene.g
+    contact: str = Scene.contact
+    rim_radius: float = Scene.rim_radius
+    drilling_friction: float = Scene.drilling_friction
     control_period: float = 0.02
     max_accel: float = 20.0
     omega_max: float = 45.0
@@ -193,8 +199,7 @@ class EnvConfig:
 
     def scene(self, **changes: object) -> Scene:
         """The nominal scene (or one with randomised parameters changed)."""
-        kw = dict(a=self.a, b=self.b, R=self.R, alpha=self.alpha, g=self.g, contact=self.contact,
-                  rim_radius=self.rim_radius, drilling_friction=self.drilling_friction)
+        kw = {name: getattr(self, name) for name in SCENE_FIELDS}
         kw.update(changes)
         return Scene(**kw)  # type: ignore[arg-type]
 
