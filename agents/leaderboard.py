@@ -8,13 +8,15 @@ PNGs) by one command::
 The test seeds (``TEST_SEED`` onwards) are used by nothing else: training runs use seeds
 0-99 (each run's balls are seeded from its own seed), the best-constant search 12,345
 onwards, model selection during training ``VALIDATION_SEED`` onwards. Results are written
-level by level as they finish (``leaderboard.json``), so an interrupted run keeps the levels
-it finished and ``--resume`` does only the rest.
+policy by policy as they finish (``leaderboard.json``, with every episode's trapping time),
+so an interrupted run keeps what finished and ``--resume`` does only the rest; a shipped
+model is keyed by a digest of its file, so a retrained one is evaluated afresh.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import signal
 import sys
@@ -50,23 +52,35 @@ def shipped_agents(env_id: str, models_dir: Path = MODELS_DIR) -> list[Path]:
     return out
 
 
-def evaluate_level(env_id: str, episodes: int, seed: int, policies: Sequence[str] | None = None,
-                   progress: bool = True) -> tuple[dict[str, Any], dict[str, Any]]:
-    """(table, per-episode details) of every baseline and shipped agent on ``env_id``."""
+def policy_specs(env_id: str) -> list[str]:
+    """What the leaderboard runs on ``env_id``: every baseline, then the shipped agents."""
+    return list(BASELINE_POLICIES) + [str(p) for p in shipped_agents(env_id)]
+
+
+def policy_key(spec: str) -> str:
+    """A baseline's name, or a model file's name with a digest of its bytes (a retrained
+    model is a new entry, not a stale one)."""
+    path = Path(spec)
+    if spec.endswith(".zip") and path.is_file():
+        return f"{path.name}@{hashlib.sha256(path.read_bytes()).hexdigest()[:12]}"
+    return spec
+
+
+def evaluate_policy(env_id: str, spec: str, episodes: int, seed: int,
+                    progress: bool = True) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """(table row, per-episode results) of one policy on level ``env_id``'s test episodes."""
     from .evaluation import evaluate
 
     level = get_level(env_id)
-    specs = list(policies) if policies is not None else \
-        list(BASELINE_POLICIES) + [str(p) for p in shipped_agents(env_id)]
-    table, details = evaluate(specs, level.config(), episodes, seed,
+    table, details = evaluate([spec], level.config(), episodes, seed,
                               max_episode_steps=level.max_episode_steps, progress=progress,
-                              examples=0)
-    table["env_id"] = env_id
-    return table, details
+                              examples=0, env_id=env_id)
+    return table["policies"][0], details[table["policies"][0]["policy"]]
 
 
 def survival_plot(env_id: str, details: dict[str, Any], horizon: float, path: Path) -> None:
-    """Fraction of balls still trapped against time, one curve per policy."""
+    """Fraction of balls still trapped against time, one curve per policy (``details``:
+    label -> {"time": trapping times [s], "kept": whether kept})."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -75,7 +89,7 @@ def survival_plot(env_id: str, details: dict[str, Any], horizon: float, path: Pa
     fig, ax = plt.subplots(figsize=(7, 4.2))
     grid = np.linspace(0.0, horizon, 501)
     for label, res in details.items():
-        t = np.sort(res["time"])
+        t = np.sort(np.asarray(res["time"], dtype=float))
         alive = 1.0 - np.searchsorted(t, grid, side="right") / len(t)
         alive[-1] = float(np.mean(res["kept"]))
         ax.step(grid, alive, where="post", label=Path(label).stem if label.endswith(".zip")
@@ -177,7 +191,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default=str(DOCS), metavar="DIR",
                    help="where leaderboard.md, leaderboard.json and figures/ go (default docs/)")
     p.add_argument("--resume", action="store_true",
-                   help="keep the levels already in DIR/leaderboard.json with the same settings")
+                   help="keep the results already in DIR/leaderboard.json with the same "
+                        "episodes and seed (per level and policy)")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--levels-doc", action="store_true",
                    help="only (re)write DIR/levels.md from the registry, evaluating nothing")
@@ -209,41 +224,63 @@ def main(argv: Sequence[str] | None = None) -> int:
     results: dict[str, Any] = {"episodes": args.episodes, "seed": args.seed, "order": ids,
                                "date": time.strftime("%Y-%m-%d"),
                                "machine": f"{platform.machine()}, {_cores()} cores",
-                               "levels": {}}
+                               "levels": {}, "episode_results": {}}
+    done: dict[str, dict[str, Any]] = {}   # level -> policy key -> (row, episodes)
     if args.resume and json_path.is_file():
         old = json.loads(json_path.read_text())
         if old.get("episodes") == args.episodes and old.get("seed") == args.seed:
-            results["levels"] = {k: v for k, v in old.get("levels", {}).items() if k in ids}
+            for lid, table in old.get("levels", {}).items():
+                eps = old.get("episode_results", {}).get(lid, {})
+                done[lid] = {row["key"]: (row, eps[row["key"]]) for row in table["policies"]
+                             if row.get("key") in eps}
     command = "python -m agents.leaderboard" + (
         "" if argv is None and len(sys.argv) <= 1 else " " + " ".join(argv or sys.argv[1:]))
-    figures: dict[str, str] = {lid: f"figures/leaderboard_{lid}.png" for lid in results["levels"]}
+    figures: dict[str, str] = {}
 
-    def stop(signum, frame):  # SIGTERM: finish like Ctrl-C, keeping the finished levels
+    def stop(signum, frame):  # SIGTERM: finish like Ctrl-C, keeping what finished
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, stop)
     import torch
 
     torch.set_num_threads(1)  # the same actions on any machine
+    computed = 0
     try:
         for lid in ids:
-            if lid in results["levels"]:
-                continue
-            print(f"{lid}: {args.episodes} episodes per policy", file=sys.stderr, flush=True)
-            table, details = evaluate_level(lid, args.episodes, args.seed,
-                                            progress=not args.no_progress)
+            level = get_level(lid)
+            table = {"env_id": lid, "episodes": args.episodes, "seed": args.seed,
+                     "episode_length_s": round(level.max_episode_steps
+                                               * level.config().control_period, 9),
+                     "policies": []}
+            episodes = results["episode_results"].setdefault(lid, {})
             results["levels"][lid] = table
+            for spec in policy_specs(lid):
+                key = policy_key(spec)
+                if key in done.get(lid, {}):
+                    row, eps = done[lid][key]
+                else:
+                    print(f"{lid}: {spec}, {args.episodes} episodes", file=sys.stderr, flush=True)
+                    row, res = evaluate_policy(lid, spec, args.episodes, args.seed,
+                                               progress=not args.no_progress)
+                    row = {**row, "key": key}
+                    eps = {"time": np.round(np.asarray(res["time"], float), 6).tolist(),
+                           "kept": np.asarray(res["kept"], bool).tolist()}
+                    computed += 1
+                table["policies"].append(row)
+                episodes[key] = eps
+                json_path.write_text(json.dumps(results, indent=1) + "\n")  # as it comes
             fig = figs / f"leaderboard_{lid}.png"
-            survival_plot(lid, details, table["episode_length_s"], fig)
+            survival_plot(lid, {row["policy"]: episodes[row["key"]] for row in table["policies"]},
+                          table["episode_length_s"], fig)
             figures[lid] = f"figures/{fig.name}"
-            json_path.write_text(json.dumps(results, indent=1) + "\n")
             write_markdown(results, out / "leaderboard.md", figures, command)
     except KeyboardInterrupt:
-        print(f"interrupted: kept {len(results['levels'])} finished level(s) in {json_path}",
+        print(f"interrupted: {json_path} keeps every policy that finished; --resume goes on",
               file=sys.stderr)
         return 130
     write_markdown(results, out / "leaderboard.md", figures, command)
-    print(f"wrote {out / 'leaderboard.md'}, {json_path} and {len(figures)} figure(s)")
+    print(f"wrote {out / 'leaderboard.md'}, {json_path} and {len(figures)} figure(s) "
+          f"({computed} policy-level evaluation(s) run)")
     return 0
 
 

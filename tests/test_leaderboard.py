@@ -39,33 +39,45 @@ def test_a_small_leaderboard_has_every_baseline_with_intervals(tmp_path):
     assert png.is_file() and png.read_bytes()[:4] == b"\x89PNG"
 
 
-def test_resume_keeps_finished_levels_and_an_interrupt_keeps_what_finished(tmp_path,
-                                                                           monkeypatch):
+def test_resume_keeps_finished_policies_and_an_interrupt_keeps_what_finished(tmp_path,
+                                                                             monkeypatch):
+    import numpy as np
+
     first, second = LEVELS[1].id, LEVELS[2].id
     calls = []
 
-    def fake(env_id, episodes, seed, policies=None, progress=True):
-        calls.append(env_id)
-        if env_id == second:
+    def fake(env_id, spec, episodes, seed, progress=True):
+        calls.append((env_id, spec))
+        if env_id == second and spec == "const-1.0":
             raise KeyboardInterrupt
-        row = {"policy": "zero", "kind": "baseline", "omega": 1.0,
-               **{k: {"mean": 0.5, "low": 0.4, "high": 0.6}
-                  for k in ("trapping_time", "kept", "detach", "escape", "mean_distance_mm",
-                            "effort", "return")}}
-        table = {"env_id": env_id, "episodes": episodes, "seed": seed,
-                 "episode_length_s": 10.0, "policies": [row]}
-        res = {"time": [1.0, 2.0], "kept": [False, False]}
-        return table, {"zero": {k: __import__("numpy").asarray(v) for k, v in res.items()}}
+        cell = {"mean": 0.5, "low": 0.4, "high": 0.6}
+        row = {"policy": spec, "kind": "baseline",
+               **{k: cell for k in ("trapping_time", "kept", "detach", "escape",
+                                    "mean_distance_mm", "effort", "return")}}
+        return row, {"time": np.array([1.0, 10.0]), "kept": np.array([False, True])}
 
-    monkeypatch.setattr(lb, "evaluate_level", fake)
+    monkeypatch.setattr(lb, "evaluate_policy", fake)
+    monkeypatch.setattr(lb, "shipped_agents", lambda env_id: [])
     args = ["--episodes", "2", "--levels", first, second, "--out", str(tmp_path),
             "--no-progress"]
     assert lb.main(args) == 130
     data = json.loads((tmp_path / "leaderboard.json").read_text())
-    assert list(data["levels"]) == [first]
+    assert [r["policy"] for r in data["levels"][first]["policies"]] == list(lb.BASELINE_POLICIES)
+    assert [r["policy"] for r in data["levels"][second]["policies"]] == ["zero", "random"]
+    assert data["episode_results"][first]["mpc"]["time"] == [1.0, 10.0]
     calls.clear()
     assert lb.main(args + ["--resume"]) == 130
-    assert calls == [second]  # the finished level was kept, not recomputed
+    assert calls == [(second, "const-1.0")]  # everything that finished was kept
+    assert (tmp_path / "figures" / f"leaderboard_{first}.png").is_file()
+
+
+def test_a_retrained_model_is_a_new_entry(tmp_path):
+    model = tmp_path / "m.zip"
+    model.write_bytes(b"one")
+    key = lb.policy_key(str(model))
+    model.write_bytes(b"two")
+    assert lb.policy_key(str(model)) != key and key.startswith("m.zip@")
+    assert lb.policy_key("mpc") == "mpc"
 
 
 def test_shipped_agents_are_found_by_their_sidecar(tmp_path):
