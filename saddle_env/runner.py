@@ -25,7 +25,7 @@ from .integrators import (EVENT_DETACH, EVENT_ESCAPE, EVENT_KINDS, METHODS, STAT
 from .omega import OmegaProfile
 from .scene import Scene, _finite_number
 
-# Default accuracy: DOP853 at this tolerance (see README, "Accuracy and speed").
+# Default accuracy: DOP853 at this tolerance (see docs/accuracy.md).
 DEFAULT_METHOD = "dop853"
 DEFAULT_RTOL = 1e-10
 DEFAULT_FIXED_DT = 1e-3

@@ -1,6 +1,6 @@
 """Self-checks of the lab-frame reference model (tests/reference_lab_frame.py).
 
-Run:  /work/venv/bin/python -m pytest -q -s tests/test_reference_lab_frame_selfcheck.py
+Run:  python -m pytest -q -s tests/test_reference_lab_frame_selfcheck.py
 (-s shows the measured numbers.)
 """
 
