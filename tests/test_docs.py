@@ -327,7 +327,8 @@ def _small(tool: str, args: list[str], tmp: Path) -> list[str]:
     elif tool == "train.py":
         for flag, value in (("--n-envs", "2"), ("--total-timesteps", "512"),
                             ("--eval-freq", "512"), ("--eval-episodes", "1"),
-                            ("--save-freq", "512"), ("--log-dir", str(tmp / "runs"))):
+                            ("--save-freq", "512"), ("--compare-episodes", "2"),
+                            ("--log-dir", str(tmp / "runs"))):
             setting(flag, value)
         args.append("--no-progress-bar")
     elif tool == "saddle-bench" and "--replot" not in args:
