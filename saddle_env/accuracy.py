@@ -228,7 +228,12 @@ def _choose(simulate, scenes, states, t_end, tol, omegas, dt_out, events, force)
                          f"(the pilot's reference is DOP853 at rtol {REFERENCE_RTOL:g}); "
                          "ask for a larger tol")
     kw = best[1]
-    return Choice(method=str(kw["method"]), rtol=kw.get("rtol"), dt=kw.get("dt"),  # type: ignore[arg-type]
+    dt = kw.get("dt")
+    if dt is not None and dt_out is not None:
+        # The run lands on every output, so a larger step would run at dt_out anyway (as in
+        # the pilot); saying so keeps choice.kwargs() valid for simulate(..., dt_out=dt_out).
+        dt = min(float(dt), float(dt_out))  # type: ignore[arg-type]
+    return Choice(method=str(kw["method"]), rtol=kw.get("rtol"), dt=dt,  # type: ignore[arg-type]
                   max_step=kw.get("max_step"), tol=tol, predicted_error=best[2],  # type: ignore[arg-type]
                   pilot_t=t_p, t_end=t_end, candidates_tried=tried,
                   pilot_rhs_evaluations=total_evals)

@@ -187,6 +187,20 @@ def test_batch_tol_and_choose_directly():
     assert pick.predicted_error <= 1e-7
 
 
+def test_a_choice_runs_as_is_on_the_output_grid_it_was_chosen_for():
+    """choose() may prefer a fixed step longer than the output spacing (rk4 at a loose tol);
+    the run lands on every output, so the choice reports the step it really takes and its
+    kwargs() pass straight to simulate on that grid (a larger dt would be a ValueError)."""
+    sc = Scene()
+    s0 = initial_state(sc, 0.005, 0.0025, start="lab-rest", omega=20.0)
+    for dt_out in (0.01, 0.003):
+        pick = choose(sc, [s0], 2.0, 1e-3, omegas=[OmegaProfile(20.0)], dt_out=dt_out)
+        if pick.dt is not None:
+            assert pick.dt <= dt_out
+        tr = simulate(sc, s0, 2.0, omega=20.0, dt_out=dt_out, **pick.kwargs())
+        assert tr.t[-1] == pytest.approx(2.0)
+
+
 def test_too_large_fixed_step_is_reported():
     sc = Scene()
     s0 = initial_state(sc, 0.005, 0.0025, start="lab-rest", omega=20.0)
