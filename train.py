@@ -5,6 +5,7 @@
     python train.py --env SaddleTrap-Gusty-v0        # a registered level (saddle_env.LEVELS)
     python train.py --algo sac --env-kwargs air_force=0.1 ball_radii=[0.0223,0.0265,0.033]
     python train.py --resume runs/<run>/checkpoints/interrupted_123456_steps.zip
+    python train.py --backend rllib --env SaddleTrap-v0 --num-env-runners 2   # Ray RLlib
 
 Ctrl-C saves a checkpoint that --resume continues from. Results go to --log-dir/<run>/.
 This file only parses arguments: defaults, checks and the work live in agents/.
@@ -23,7 +24,9 @@ def build_parser() -> argparse.ArgumentParser:
     from saddle_env.envs import LEVEL_IDS
 
     d = TrainSettings()
-    ap = argparse.ArgumentParser(description="Train an SB3 agent on a SaddleTrap task level.",
+    ap = argparse.ArgumentParser(description="Train an agent on a SaddleTrap task level: "
+                                             "Stable-Baselines3 in this process, or Ray RLlib "
+                                             "(--backend rllib).",
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("--algo", choices=ALGO_NAMES, default=d.algo)
     ap.add_argument("--env", default=d.env_id, metavar="ID",
@@ -53,14 +56,77 @@ def build_parser() -> argparse.ArgumentParser:
                     help="fresh episodes on which the trained agent is compared with best-const "
                          "and mpc at the end (0: skip)")
     ap.add_argument("--no-progress-bar", action="store_true")
-    ap.add_argument("--resume", default=None, metavar="CHECKPOINT.zip",
-                    help="continue a run from a checkpoint (its config.json supplies the rest)")
+    ap.add_argument("--resume", default=None, metavar="CHECKPOINT",
+                    help="continue a run from a checkpoint (its config.json supplies the rest): "
+                         "a .zip (sb3) or an RLlib checkpoint directory (rllib)")
+    rl = ap.add_argument_group("Ray RLlib (--backend rllib; docs/scaling.md)")
+    rl.add_argument("--backend", choices=("sb3", "rllib"), default="sb3",
+                    help="sb3: Stable-Baselines3 in this process; rllib: Ray RLlib, on a local "
+                         "Ray or a cluster (--address); needs the [rllib] extra")
+    rl.add_argument("--num-env-runners", type=int, default=None, metavar="N",
+                    help="RLlib env runners (N >= 1; default 2), each stepping --n-envs balls "
+                         "through the native vector env")
+    rl.add_argument("--address", default=None, metavar="HOST:PORT",
+                    help="join a running Ray cluster (the `ray start --head` address, or auto); "
+                         "default: start a local Ray")
+    rl.add_argument("--num-cpus", type=int, default=None,
+                    help="CPUs of the local Ray (default: the machine's cores)")
     return ap
+
+
+def _main_rllib(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    """train.py --backend rllib (or --resume of an RLlib checkpoint): all Ray code is in
+    agents/rllib_backend.py."""
+    from agents import rllib_backend as rb
+    from agents.cli_args import MissingExtra, parse_env_kwargs
+
+    try:
+        if args.num_env_runners is not None and args.num_env_runners < 1:
+            raise ValueError(f"--num-env-runners must be >= 1, got {args.num_env_runners}")
+        if not args.resume and args.algo not in rb.RLLIB_ALGOS:
+            raise ValueError(f"--algo {args.algo} is not available with --backend rllib "
+                             f"(choose from {', '.join(rb.RLLIB_ALGOS)})")
+        if args.address is not None:
+            rb.check_reachable(args.address)   # a one-line error within seconds, not a hang
+        rb.check_dependencies()
+        if args.resume:
+            settings = rb.settings_for_resume(
+                args.resume, args.total_timesteps, not args.no_progress_bar,
+                num_env_runners=args.num_env_runners, address=args.address,
+                num_cpus=args.num_cpus)
+        else:
+            settings = rb.RllibSettings(
+                algo=args.algo, env_id=args.env, env_kwargs=parse_env_kwargs(args.env_kwargs),
+                seed=args.seed, n_envs=args.n_envs, total_timesteps=args.total_timesteps,
+                hyperparams=args.hyperparams, log_dir=args.log_dir, run_name=args.run_name,
+                save_freq=args.save_freq, max_episode_steps=args.max_episode_steps,
+                progress_bar=not args.no_progress_bar, torch_threads=args.torch_threads,
+                num_env_runners=(rb.DEFAULT_ENV_RUNNERS if args.num_env_runners is None
+                                 else args.num_env_runners),
+                address=args.address, num_cpus=args.num_cpus).validate()
+        start = time.time()
+        run_dir = rb.train(settings, resume=args.resume)
+    except MissingExtra as exc:
+        parser.exit(2, f"{parser.prog}: error: {exc}\n")
+    except ValueError as exc:
+        parser.error(str(exc))
+    print(f"run folder: {run_dir}  ({time.time() - start:.0f} s)")
+    return 0
+
+
+def _is_rllib_checkpoint(path: str) -> bool:
+    from agents.rllib_backend import is_checkpoint
+
+    return is_checkpoint(path)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.backend == "rllib" or (args.resume and _is_rllib_checkpoint(args.resume)):
+        return _main_rllib(parser, args)
+    if args.num_env_runners is not None or args.address is not None:
+        parser.error("--num-env-runners and --address need --backend rllib")
     from agents.cli_args import MissingExtra, parse_env_kwargs
     from agents.training import TrainSettings, check_dependencies, settings_for_resume, train
 

@@ -3,6 +3,7 @@ same seeded episodes of a task level and tabulate how long they keep the ball.
 
 ```
 saddle-eval --policy const-1.2 --policy mpc --policy runs/ppo/model.zip \\
+            --policy runs/ppo_rllib_seed0_<date>/final \\
             --episodes 200 --seed 0 [--env ID] [--env-kwargs R=0.033 air_force=0.3]
             [--json] [--out DIR]
 ```
@@ -58,7 +59,7 @@ from .cli_args import (
     parse_env_kwargs,
     resolve_env,
 )
-from .policies import load_policy, model_sidecar
+from .policies import load_policy, model_sidecar, policy_sidecar  # noqa: F401
 from .rollout import CHUNK, Actor, PolicyActor, policy_actor, run_episodes  # noqa: F401
 
 N_EXAMPLES = 3       # episodes whose Ω(t), r(t) are recorded for the plots
@@ -180,7 +181,7 @@ def _check_compatible(policy: Any, config: EnvConfig, spec: str) -> None:
 
 
 def _warn_if_trained_elsewhere(spec: str, env_id: str, config: EnvConfig) -> None:
-    side = model_sidecar(spec if spec.endswith(".zip") else spec + ".zip")
+    side = policy_sidecar(spec)
     if not side:
         return
     try:
@@ -305,7 +306,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "plots, or with --json print the table and write nothing.")
     p.add_argument("--policy", action="append", required=True, metavar="NAME_OR_PATH",
                    help="a baseline (const-1.0, const-1.2, const-<K>, masspoint, best-const, mpc, "
-                        "zero, random) or a model file; repeat for several")
+                        "zero, random), a model file or an RLlib checkpoint directory; repeat "
+                        "for several")
     p.add_argument("--env", default=None, metavar="ID",
                    help=f"task level ({', '.join(LEVEL_IDS)}); default: the level a model "
                         f"file's sidecar names, else {ENV_ID}")
@@ -331,7 +333,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _default_env_id(specs: Sequence[str]) -> str:
     """The level of the first model file whose sidecar names one, else the calm level."""
     for spec in specs:
-        side = model_sidecar(spec if spec.endswith(".zip") else spec + ".zip")
+        side = policy_sidecar(spec)
         if side and side.get("env_id"):
             return str(side["env_id"])
     return ENV_ID

@@ -59,6 +59,18 @@ def model_sidecar(path: str | os.PathLike) -> dict[str, Any] | None:
     return data if isinstance(data, dict) else None
 
 
+def policy_sidecar(spec: str | os.PathLike) -> dict[str, Any] | None:
+    """The sidecar of a ``--policy`` argument: a model file's (``X.zip`` or ``X``), or the
+    ``saddle_env.json`` of an RLlib checkpoint directory (a run folder: its latest)."""
+    if Path(spec).is_dir():
+        from .rllib_backend import checkpoint_sidecar, latest_checkpoint
+
+        ckpt = latest_checkpoint(spec)
+        return checkpoint_sidecar(ckpt) if ckpt is not None else None
+    text = str(spec)
+    return model_sidecar(text if text.endswith(".zip") else text + ".zip")
+
+
 def vecnormalize_path(model_path: str | os.PathLike) -> Path:
     """Where the observation-normalisation statistics of a model file are kept."""
     p = Path(model_path)
@@ -164,6 +176,11 @@ def load_policy(name_or_path: str | os.PathLike, config: EnvConfig | None = None
     const = parse_constant(name)
     if const is not None:
         return const(config)
+    if Path(name).is_dir():      # an RLlib checkpoint directory (or an RLlib run folder)
+        from .rllib_backend import latest_checkpoint, load_policy as load_rllib_policy
+
+        if latest_checkpoint(name) is not None:
+            return load_rllib_policy(name)
     path = Path(name if name.endswith(".zip") or Path(name).exists() else name + ".zip")
     if path.is_file():
         return _load_with_pipeline(path, config)
@@ -195,4 +212,4 @@ def _load_with_pipeline(path: Path, config: EnvConfig) -> Any:
 
 
 __all__ = ["BASELINES", "SB3_ALGOS", "WrappedModel", "load_model", "load_policy",
-           "model_sidecar", "sb3_algorithm", "vecnormalize_path"]
+           "model_sidecar", "policy_sidecar", "sb3_algorithm", "vecnormalize_path"]

@@ -93,6 +93,10 @@ def _tool(argv: list[str]) -> tuple[str, list[str]]:
             return "pytest", argv[3:]
         if argv[1:3] == ["-m", "saddle_env.envs.benchmark"]:
             return "env-benchmark", argv[3:]
+        if argv[1:3] == ["-m", "agents.rllib_benchmark"]:
+            return "rllib-benchmark", argv[3:]
+    if argv[0] == "ray" and argv[1:2] in (["start"], ["stop"], ["status"]):
+        return "ray", argv[1:]          # Ray's own CLI (docs/scaling.md): not run by the tests
     if argv[:2] == ["pip", "install"]:
         return "pip", argv[2:]
     return "", argv
@@ -124,6 +128,8 @@ def _parser(tool: str) -> argparse.ArgumentParser | None:
             from train import build_parser
         finally:
             sys.path.remove(str(ROOT))
+    elif tool == "rllib-benchmark":
+        from agents.rllib_benchmark import build_parser
     else:
         return None
     return build_parser()
@@ -173,6 +179,8 @@ def test_the_docs_have_commands():
 def test_documented_command_is_accepted(page, block, argv):
     tool, args = _tool(argv)
     assert tool, f"{page}: unknown command {' '.join(argv)!r}: teach tests/test_docs.py about it"
+    if tool == "ray":
+        return
     if tool == "pip":
         extras = _extras()
         for arg in args:
@@ -335,6 +343,11 @@ def _small(tool: str, args: list[str], tmp: Path) -> list[str]:
         args.extend(["--quick", "--quiet", "--no-figures", "--jacobi-periods", "20"])
     elif tool == "saddle-reproduce":
         args.extend(["--quick", "--no-progress"])
+    elif tool == "rllib-benchmark":
+        for flag, value in (("--seconds", "0.2"), ("--runners", "1"), ("--n-envs", "4"),
+                            ("--out", str(tmp / "rllib"))):
+            setting(flag, value)
+        args.extend(["--no-sync", "--no-figure"])
     elif tool == "env-benchmark":
         for flag, value in (("--seconds", "0.02"), ("--num-envs", "16"), ("--sizes", "16"),
                             ("--out", str(tmp / "env"))):
@@ -354,6 +367,8 @@ def _main(tool: str):
         from saddle_env.reproduce.cli import main
     elif tool == "env-benchmark":
         from saddle_env.envs.benchmark import main
+    elif tool == "rllib-benchmark":
+        from agents.rllib_benchmark import main
     else:
         sys.path.insert(0, str(ROOT))
         try:
@@ -394,9 +409,14 @@ BLOCKS = [(_rel(page), k, block) for page in PAGES for k, block in enumerate(_ba
 def test_documented_commands_run(page, k, block, tmp_path, monkeypatch, capsys):
     """Every command of a block, in order, in one temporary folder (a later command may
     read what an earlier one wrote, as in the docs)."""
+    commands = _commands(block)
+    if any(_tool(a)[0] == "ray" or "--address" in a for a in commands):
+        pytest.skip("a Ray cluster's commands (ray start, --address) are not run here")
+    if any(_tool(a)[0] == "rllib-benchmark" or "rllib" in a for a in commands):
+        pytest.importorskip("ray")
     monkeypatch.chdir(tmp_path)
     _keep_caches_out_of_the_repository(tmp_path, monkeypatch)
-    for argv in _commands(block):
+    for argv in commands:
         tool, args = _tool(argv)
         if tool in ("pip", "pytest"):
             continue
