@@ -325,7 +325,13 @@ class ModelPredictiveController(Controller):
         self._high = np.minimum(self._ref + band, c.omega_max)
         # Recurrent state per ball: [has previous, previous observation, previous action],
         # then per candidate radius a block (force x, force y, fit score, spin about normal).
-        self.state_size = self.obs_dim + 2 + 4 * len(self.radii)
+        # With the commanded speed in the observation the estimators and the plan ramp the
+        # motor from it, not from the measured speed: in target mode the motor moves from its
+        # set-point, and the measured speed's ripple and noise (1 rad/s on the gusty levels)
+        # would otherwise read as a ±20 rad/s² ramp that never happened.
+        self._cmd = self.layout.command
+        self._d = self.obs_dim + (self._cmd is not None)   # columns kept per observation
+        self.state_size = self._d + 2 + 4 * len(self.radii)
 
     # -- estimation ----------------------------------------------------------------------
     def states(self, obs: np.ndarray, radius: int | None = None,
@@ -343,7 +349,7 @@ class ModelPredictiveController(Controller):
         return Y, omega
 
     def _block(self, j: int) -> int:
-        return 2 + self.obs_dim + 4 * j
+        return 2 + self._d + 4 * j
 
     def _update(self, obs: np.ndarray, state: np.ndarray) -> np.ndarray:
         """Advance the estimators of the rows that have a previous observation: predict the
@@ -351,7 +357,7 @@ class ModelPredictiveController(Controller):
         hidden spin about the normal over from the prediction; correct the force estimate
         with the error of the predicted centre velocity; accumulate the fit score."""
         c = self.config
-        d, nR = self.obs_dim, len(self.radii)
+        d, nR = self._d, len(self.radii)
         new = state.copy()
         rows = np.flatnonzero(state[:, 0] > 0)
         if len(rows) == 0:
@@ -365,7 +371,7 @@ class ModelPredictiveController(Controller):
             o = self._block(j)
             f0, spin0 = state[rows, o:o + 2], state[rows, o + 3]
             Yp, wp = self.states(prev, j, spin0)
-            rate = self.motor_rate(wp, action)
+            rate = self.motor_rate(self._motor_speed(prev, wp), action)
             Ypred = np.empty_like(Yp)
             _advance(self._model, np.repeat(self._P[j][None], n, 0),
                      np.repeat(self._scales[j][None], n, 0), Yp, wp, rate,
@@ -381,6 +387,18 @@ class ModelPredictiveController(Controller):
             new[rows, o + 2] = decay * state[rows, o + 2] + np.sum(dv * dv, 1)
             new[rows, o + 3] = spin1
         return new
+
+    def _batch(self, observation: Any) -> tuple[np.ndarray, bool]:
+        """The controllers' columns, plus the commanded speed last when it is observed."""
+        base, single = super()._batch(observation)
+        if self._cmd is None:
+            return base, single
+        full = np.asarray(observation, dtype=np.float64).reshape(len(base), -1)
+        return np.hstack([base, full[:, self._cmd:self._cmd + 1]]), single
+
+    def _motor_speed(self, batch: np.ndarray, measured: np.ndarray) -> np.ndarray:
+        """The speed the motor ramps from: its set-point when observed, else the measured."""
+        return batch[:, -1] * self.config.omega_max if self._cmd is not None else measured
 
     def _observed_velocity(self, obs: np.ndarray) -> np.ndarray:
         """Centre velocity (n, 2) in the saddle's axes [m/s] from observations."""
@@ -430,8 +448,9 @@ class ModelPredictiveController(Controller):
                             key=lambda k: (status[i, k] != 0, -normal[i, k], abs(self.levels[k])))
         rate = self.levels[choice] * c.max_accel
         j = plan["radius"]
-        target = np.clip(plan["omega"] + rate * c.control_period, self._low[j], self._high[j])
-        return self.speed_action(plan["omega"], target)
+        start = plan.get("command", plan["omega"])   # the set-point the motor ramps from
+        target = np.clip(start + rate * c.control_period, self._low[j], self._high[j])
+        return self.speed_action(start, target)
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -453,13 +472,14 @@ class ModelPredictiveController(Controller):
         force = mine[:, :2] if self.estimate_force else None
         # Outside the window around the reference speed: approach it as fast as the motor
         # allows (the base policy); inside: plan.
-        omega = batch[:, -1] * self.config.omega_max
+        omega = self._motor_speed(batch, batch[:, self.obs_dim - 1] * self.config.omega_max)
         act = self.speed_action(omega, self._ref[radius])
         near = np.flatnonzero((omega >= self._low[radius] - 1e-9) &
                               (omega <= self._high[radius] + 1e-9))
         if len(near):
             plan = self.plan(batch[near], None if force is None else force[near], radius[near],
                              mine[near, 3])
+            plan["command"] = omega[near]
             act[near] = self.choose(plan)
         act = np.clip(act, -1.0, 1.0)
         act = act.astype(np.float32).astype(np.float64)   # what the environment receives

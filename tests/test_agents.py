@@ -320,3 +320,24 @@ def test_saddle_eval_bad_arguments_exit_2(tmp_path, capsys, argv, message):
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
+
+
+def test_mpc_ramps_the_motor_from_its_set_point_when_the_set_point_is_observed():
+    """With ripple, the measured speed is off the motor's set-point; in target mode the motor
+    ramps from the set-point, so the mpc's target must lie within one step's ramp of it."""
+    import saddle_env  # noqa: F401
+    from saddle_env.envs import level_config
+
+    config = level_config("SaddleTrap-Gusty-v0", ball_radii=None)
+    policy = _mpc(config, omega_ref=15.0)   # a reference speed without the search
+    env = gym.make("SaddleTrap-Gusty-v0", ball_radii=None)
+    lay = policy.layout
+    step = config.max_accel * config.control_period
+    for seed in range(4):
+        obs, info = env.reset(seed=seed, options={"omega": float(policy._ref[0])})
+        obs = obs.copy()
+        for offset in (-1.0, 1.0):   # a ripple of ±1 rad/s on the measured speed
+            obs[lay.omega] = (info["omega"] + offset) / config.omega_max
+            action, _ = policy.predict(obs)
+            target = (float(action[0]) + 1.0) / 2.0 * config.omega_max
+            assert abs(target - info["omega"]) <= step + 1e-4, (seed, offset, target)
