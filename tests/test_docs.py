@@ -25,10 +25,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
-# Pages the docs link to that another change writes (issue 10: the task levels and their
-# leaderboard). Links to them are checked once they exist; `test_pending_pages_exist`
-# says when they still do not.
-PENDING = {"docs/levels.md", "docs/leaderboard.md"}
+PENDING: set[str] = set()  # pages another change still has to write (none now)
 TOOLS = ("saddle-sim", "saddle-eval", "saddle-bench", "saddle-reproduce")
 
 
@@ -271,13 +268,6 @@ def test_local_link_resolves(page, target):
     assert dest.exists(), f"{_rel(page)}: link {target} points at nothing"
     if anchor and dest.suffix == ".md":
         assert anchor in _anchors(dest), f"{_rel(page)}: link {target}: no such heading in {rel}"
-
-
-@pytest.mark.xfail(reason="docs/levels.md and docs/leaderboard.md are written by another "
-                          "change of issue 10; drop them from PENDING once they exist",
-                   strict=False)
-def test_pending_pages_exist():
-    assert all((ROOT / p).exists() for p in PENDING)
 
 
 def test_every_docs_page_is_linked_from_the_readme():
