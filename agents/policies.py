@@ -63,7 +63,7 @@ def policy_sidecar(spec: str | os.PathLike) -> dict[str, Any] | None:
     """The sidecar of a ``--policy`` argument: a model file's (``X.zip`` or ``X``), or the
     ``saddle_env.json`` of an RLlib checkpoint directory (a run folder: its latest)."""
     if Path(spec).is_dir():
-        from .rllib_backend import checkpoint_sidecar, latest_checkpoint
+        from .rllib_policy import checkpoint_sidecar, latest_checkpoint
 
         ckpt = latest_checkpoint(spec)
         return checkpoint_sidecar(ckpt) if ckpt is not None else None
@@ -177,7 +177,7 @@ def load_policy(name_or_path: str | os.PathLike, config: EnvConfig | None = None
     if const is not None:
         return const(config)
     if Path(name).is_dir():      # an RLlib checkpoint directory (or an RLlib run folder)
-        from .rllib_backend import latest_checkpoint, load_policy as load_rllib_policy
+        from .rllib_policy import latest_checkpoint, load_policy as load_rllib_policy
 
         if latest_checkpoint(name) is not None:
             return load_rllib_policy(name)

@@ -53,13 +53,20 @@ import numpy as np
 from saddle_env.envs.vector import SaddleTrapVectorEnv
 
 from .cli_args import MissingExtra, install_hint, level_overrides, missing, resolve_env
+from .rllib_policy import (  # noqa: F401  (the checkpoint side, importable without training)
+    CHECKPOINT_MARKER,
+    MODULE_PATH,
+    SIDECAR,
+    RllibPolicy,
+    checkpoint_sidecar,
+    is_checkpoint,
+    latest_checkpoint,
+    load_policy,
+)
 
 RLLIB_ALGOS = ("ppo", "sac")
 RLLIB_MODULES = ("ray", "torch", "yaml")
 ENV_NAME = "saddle_env_vector"       # the name of `make_env` in Ray's registry
-SIDECAR = "saddle_env.json"          # in every checkpoint directory this backend writes
-CHECKPOINT_MARKER = "rllib_checkpoint.json"  # RLlib writes it in every checkpoint directory
-MODULE_PATH = ("learner_group", "learner", "rl_module", "default_policy")
 DEFAULT_ENV_RUNNERS = 2
 LOCAL_OBJECT_STORE = 300 * 1024 ** 2   # bytes: the payloads are small
 CONNECT_TIMEOUT_S = 3.0
@@ -177,34 +184,6 @@ def check_dependencies() -> None:
     if lacking:
         raise MissingExtra(f"--backend rllib needs {', '.join(lacking)}, not installed: "
                            f"{install_hint('rllib')} (torch==2.13.0 CPU first)")
-
-
-def is_checkpoint(path: str | os.PathLike) -> bool:
-    """Whether ``path`` is an RLlib checkpoint directory (no ray import)."""
-    p = Path(path)
-    return p.is_dir() and (p / CHECKPOINT_MARKER).is_file()
-
-
-def latest_checkpoint(path: str | os.PathLike) -> Path | None:
-    """``path`` if it is a checkpoint; for a run folder its ``final/`` checkpoint, else the
-    checkpoint with the most steps in ``checkpoints/``; None if there is none."""
-    p = Path(path)
-    if is_checkpoint(p):
-        return p
-    if is_checkpoint(p / "final"):
-        return p / "final"
-    found = [c for c in (p / "checkpoints").glob("*") if is_checkpoint(c)]
-    if not found:
-        return None
-    return max(found, key=lambda c: (checkpoint_sidecar(c) or {}).get("steps", -1))
-
-
-def checkpoint_sidecar(path: str | os.PathLike) -> dict[str, Any] | None:
-    try:
-        data = json.loads((Path(path) / SIDECAR).read_text())
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None
 
 
 def settings_for_resume(checkpoint: str | os.PathLike, total_timesteps: int | None = None,
@@ -574,64 +553,6 @@ def _progress_bar(settings: RllibSettings, done: int):
         return None
     return tqdm(total=settings.total_timesteps, initial=done, unit="step", unit_scale=True,
                 dynamic_ncols=True)
-
-
-# ---------------------------------------------------------------------------------------
-# the policy network alone, for saddle-eval
-# ---------------------------------------------------------------------------------------
-class RllibPolicy:
-    """A checkpoint's policy network (RLModule) acting deterministically, with SB3's
-    ``predict`` signature, as `agents.rollout` expects. Needs ray (and torch) installed,
-    not a running Ray: only the module is loaded, not the algorithm."""
-
-    row_independent = False
-
-    def __init__(self, path: str | os.PathLike):
-        import gymnasium as gym
-        import torch
-        from ray.rllib.core.rl_module.rl_module import RLModule
-
-        self.path = Path(path)
-        module_dir = self.path.joinpath(*MODULE_PATH)
-        if not module_dir.is_dir():
-            raise ValueError(f"{path}: no policy module in this RLlib checkpoint "
-                             f"(expected {'/'.join(MODULE_PATH)})")
-        self.module = RLModule.from_checkpoint(str(module_dir))
-        self.module.eval()
-        self._torch = torch
-        self.sidecar = checkpoint_sidecar(self.path) or {}
-        self.algo_name = f"RLlib {str(self.sidecar.get('algo', '')).upper()}".strip()
-        self.observation_space = self.module.observation_space
-        self.action_space = self.module.action_space or gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
-        self._dist = self.module.get_inference_action_dist_cls()
-
-    def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
-                deterministic: bool = True) -> tuple[np.ndarray, Any]:
-        torch = self._torch
-        obs = np.asarray(observation, dtype=np.float32)
-        single = obs.ndim == 1
-        batch = torch.from_numpy(obs.reshape(1, -1) if single else obs)
-        with torch.no_grad():
-            out = self.module.forward_inference({"obs": batch})
-            dist = self._dist.from_logits(out["action_dist_inputs"])
-            if deterministic:
-                dist = dist.to_deterministic()
-            actions = dist.sample().numpy()
-        low, high = self.action_space.low, self.action_space.high
-        actions = np.clip(actions, low, high).astype(np.float32)   # as RLlib's env runner
-        return (actions[0] if single else actions), state
-
-
-def load_policy(path: str | os.PathLike) -> RllibPolicy:
-    """The policy of an RLlib checkpoint directory (or of a run folder's latest one)."""
-    ckpt = latest_checkpoint(path)
-    if ckpt is None:
-        raise ValueError(f"{path}: not an RLlib checkpoint directory or run folder")
-    lacking = missing(("ray", "torch"))
-    if lacking:
-        raise MissingExtra(f"evaluating an RLlib checkpoint needs {', '.join(lacking)}, not "
-                           f"installed: {install_hint('rllib')}")
-    return RllibPolicy(ckpt)
 
 
 __all__ = ["CHECKPOINT_MARKER", "ENV_NAME", "RLLIB_ALGOS", "RllibPolicy", "RllibSettings",

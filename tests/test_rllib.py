@@ -51,7 +51,7 @@ def _free_port() -> int:
 # -- without ray ---------------------------------------------------------------------------
 def test_importing_the_project_never_imports_ray():
     code = ("import sys, saddle_env, agents, agents.training, agents.evaluation, "
-            "agents.policies, agents.rllib_backend\n"
+            "agents.policies, agents.rllib_backend, agents.rllib_policy\n"
             "import gymnasium as gym\n"
             "gym.make_vec('SaddleTrap-v0', num_envs=2).reset(seed=0)\n"
             "assert 'ray' not in sys.modules, sorted(m for m in sys.modules if 'ray' in m)\n")
