@@ -233,6 +233,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 eps = old.get("episode_results", {}).get(lid, {})
                 done[lid] = {row["key"]: (row, eps[row["key"]]) for row in table["policies"]
                              if row.get("key") in eps}
+                if lid in ids:  # kept as they were until this run reaches the level again
+                    results["levels"][lid] = table
+                    results["episode_results"][lid] = eps
     command = "python -m agents.leaderboard" + (
         "" if argv is None and len(sys.argv) <= 1 else " " + " ".join(argv or sys.argv[1:]))
     figures: dict[str, str] = {}
@@ -252,7 +255,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                      "episode_length_s": round(level.max_episode_steps
                                                * level.config().control_period, 9),
                      "policies": []}
-            episodes = results["episode_results"].setdefault(lid, {})
+            episodes = dict(results["episode_results"].get(lid, {}))
+            results["episode_results"][lid] = episodes
             results["levels"][lid] = table
             for spec in policy_specs(lid):
                 key = policy_key(spec)

@@ -69,6 +69,16 @@ def test_resume_keeps_finished_policies_and_an_interrupt_keeps_what_finished(tmp
     assert lb.main(args + ["--resume"]) == 130
     assert calls == [(second, "const-1.0")]  # everything that finished was kept
     assert (tmp_path / "figures" / f"leaderboard_{first}.png").is_file()
+    # interrupted again, before it reaches the second level: that level's finished
+    # policies stay in the file for the next resume
+    monkeypatch.setattr(lb, "evaluate_policy", lambda *a, **k: (_ for _ in ()).throw(
+        KeyboardInterrupt))
+    data = json.loads((tmp_path / "leaderboard.json").read_text())
+    data["levels"][first]["policies"].pop()            # first level now has work to do
+    (tmp_path / "leaderboard.json").write_text(json.dumps(data))
+    assert lb.main(args + ["--resume"]) == 130
+    data = json.loads((tmp_path / "leaderboard.json").read_text())
+    assert [r["policy"] for r in data["levels"][second]["policies"]] == ["zero", "random"]
 
 
 def test_a_retrained_model_is_a_new_entry(tmp_path):
