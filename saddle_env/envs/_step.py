@@ -75,8 +75,11 @@ def observe_one(model, p, y, ball, cfg, noise, obs):
         omega += cfg[C_RIPPLE_AMP] * math.sin(ball[B_PHASE])
     L = cfg[C_POS_SCALE]
     V = cfg[C_VEL_SCALE]
-    th = ball[B_THETA]
-    ct, st = math.cos(th), math.sin(th)
+    k_cos = int(cfg[C_OBS_COS])
+    ct, st = 1.0, 0.0
+    if k_cos >= 0:  # the angle is observed (always in the lab frame): pay for the trig then
+        th = ball[B_THETA]
+        ct, st = math.cos(th), math.sin(th)
     if cfg[C_LAB_FRAME] != 0.0:
         # lab velocity of the centre: ċ + Ω k×c, turned by θ
         ux = vcx - omega * cy
@@ -84,7 +87,6 @@ def observe_one(model, p, y, ball, cfg, noise, obs):
         vals = (ct * cx - st * cy, st * cx + ct * cy, ct * ux - st * uy, st * ux + ct * uy)
     else:
         vals = (cx, cy, vcx, vcy)
-    k_cos = int(cfg[C_OBS_COS])
     if k_cos >= 0:
         obs[k_cos] = min(1.0, max(-1.0, ct + noise[k_cos]))
         obs[k_cos + 1] = min(1.0, max(-1.0, st + noise[k_cos + 1]))
