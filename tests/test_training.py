@@ -135,14 +135,16 @@ def test_shipped_models_load_and_act_in_the_task_they_were_trained_on():
 
     import saddle_env  # noqa: F401
     from agents.policies import load_policy
-    from saddle_env.envs import EnvConfig
+    from saddle_env.envs import level_config
     models = sorted((ROOT / "agents" / "models").glob("*.zip"))
-    assert {m.stem for m in models} >= {"ppo_default", "sac_default", "ppo_hard", "sac_hard"}
+    assert {m.stem for m in models} >= {"ppo_default", "sac_default", "ppo_gusty",
+                                        "ppo_capture", "ppo_storm"}
     for path in models:
         side = json.loads(path.with_suffix(".json").read_text())
+        env_id = side.get("env_id", "SaddleTrap-v0")
         kwargs = {k: tuple(v) if isinstance(v, list) else v for k, v in side["env_kwargs"].items()}
-        policy = load_policy(str(path), EnvConfig.from_kwargs(**kwargs))
-        env = gym.make("SaddleTrap-v0", **kwargs)
+        policy = load_policy(str(path), level_config(env_id, **kwargs))
+        env = gym.make(env_id, **kwargs)
         obs, _ = env.reset(seed=0)
         for _ in range(20):
             action, _ = policy.predict(obs, deterministic=True)
