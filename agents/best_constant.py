@@ -36,9 +36,13 @@ _NOT_IN_KEY = ("action_mode", "loss_penalty", "distance_cost", "effort_cost")
 
 
 def _search_key(config: EnvConfig, episodes: int, seed: int, max_episode_steps: int) -> str:
-    d = {k: v for k, v in config.as_dict().items() if k not in _NOT_IN_KEY}
+    # Only the options away from their defaults: a new option (at its default) leaves every
+    # cached search valid instead of silently orphaning it.
+    default = EnvConfig()
+    d = {k: v for k, v in config.as_dict().items()
+         if k not in _NOT_IN_KEY and v != getattr(default, k)}
     if config.position_noise == config.velocity_noise == config.omega_noise == 0:
-        del d["obs_frame"]  # the frame matters only through the noise draws
+        d.pop("obs_frame", None)  # the frame matters only through the noise draws
     d.update(episodes=episodes, seed=seed, steps=max_episode_steps, grid=SEARCH_STEP)
     text = json.dumps(d, sort_keys=True, default=list)
     return hashlib.sha256(text.encode()).hexdigest()[:16]

@@ -47,3 +47,29 @@ def test_warm_start_refuses_what_it_cannot_do():
         import torch
         ws.apply_warm_start(SimpleNamespace(policy=SimpleNamespace(
             action_net=torch.nn.Linear(2, 1))), 1.5)
+
+
+def test_every_level_has_its_best_constant_cached_in_the_repository():
+    """No user (nor the main job's warm start) pays the search for a registered level."""
+    import json
+
+    from agents import best_constant as bc
+    from saddle_env.envs import LEVELS
+
+    cached = json.loads(bc.CACHE_FILE.read_text())
+    for level in LEVELS:
+        key = bc._search_key(level.config(), bc.SEARCH_EPISODES, bc.SEARCH_SEED,
+                             level.max_episode_steps)
+        assert key in cached, level.id
+
+
+def test_the_cache_key_ignores_options_at_their_defaults():
+    from agents import best_constant as bc
+    from saddle_env.envs import EnvConfig
+
+    def key(**kw):
+        return bc._search_key(EnvConfig(**kw), 64, 1, 500)
+
+    assert key() == key(observe_command=False, obs_history=1)   # defaults spelled out
+    assert key() != key(air_force=0.1)
+    assert key(action_mode="target") == key()                  # irrelevant to a constant
