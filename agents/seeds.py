@@ -3,7 +3,8 @@ training or model selection.
 
 | range | used by |
 |---|---|
-| ``s .. s + n_envs − 1`` (s = ``--seed``, 0-99) | a training run's balls (each ball's generator carries on across its resets) |
+| ``s .. s + n_envs − 1`` (s = ``--seed``, 0-99) | a training run's balls (each ball's |
+| | generator carries on across its resets) |
 | ``SEARCH_SEED ..`` (64 episodes) | the best-constant search, also the warm start's target |
 | ``VALIDATION_SEED + s ..`` | model selection during training run s |
 | ``TEST_SEED ..`` | the leaderboard's frozen test set, nothing else |

@@ -51,9 +51,6 @@ import numpy as np
 
 from saddle_env.envs import ENV_ID, EnvConfig, Level
 
-MAIN_JOB_ENV_ID = "SaddleTrap-Capture-v0"
-
-from .seeds import COMPARE_SEED, VALIDATION_SEED
 from .cli_args import (  # noqa: F401
     MissingExtra,
     install_hint,
@@ -62,7 +59,10 @@ from .cli_args import (  # noqa: F401
     parse_env_kwargs,
     resolve_env,
 )
+from .seeds import COMPARE_SEED, VALIDATION_SEED
 
+# The main job (`python train.py`): a level where learning shows within minutes.
+MAIN_JOB_ENV_ID = "SaddleTrap-Capture-v0"
 HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
 ALGO_NAMES = ("ppo", "sac", "td3", "a2c")
 # Keys of the zoo format that are not constructor arguments of the algorithm.
