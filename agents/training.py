@@ -606,6 +606,6 @@ def plot_learning_curve(run_dir: Path) -> Path | None:
 
 
 __all__ = ["ALGO_NAMES", "MAIN_JOB_ENV_ID", "VALIDATION_SEED", "TrainSettings",
-           "check_dependencies", "compare", "load_hyperparams", "make_vec_env", "parse_env_kwargs", "parse_policy_kwargs",
-           "plot_learning_curve", "save_model", "settings_for_resume", "train",
-           "wrapper_settings", "write_sidecar"]
+           "check_dependencies", "compare", "load_hyperparams", "make_vec_env",
+           "parse_env_kwargs", "parse_policy_kwargs", "plot_learning_curve", "save_model",
+           "settings_for_resume", "train", "wrapper_settings", "write_sidecar"]
