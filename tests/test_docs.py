@@ -415,8 +415,10 @@ def test_documented_commands_run(page, k, block, tmp_path, monkeypatch, capsys):
                 _main(tool)(args)
             assert exc.value.code == 0
             continue
-        small = _small(tool, [str(ROOT / a) if a.startswith("agents/") else a for a in args],
-                       tmp_path)
+        # /tmp paths of the docs move into tmp_path first; then repository paths become
+        # absolute (the clone itself may live under /tmp, as CI's does)
+        small = [str(ROOT / a) if a.startswith("agents/") else a
+                 for a in _small(tool, args, tmp_path)]
         code = _main(tool)(small)
         assert code in (0, None), f"{page}: {' '.join(argv)} exited with {code}"
     capsys.readouterr()
