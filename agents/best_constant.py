@@ -28,6 +28,7 @@ from .seeds import SEARCH_SEED
 CACHE_FILE = Path(__file__).with_name("best_const.json")
 USER_CACHE_FILE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / \
     "saddle-env" / "best_const.json"
+CACHE_ENV_VAR = "SADDLE_ENV_BEST_CONST_CACHE"   # a file: where new searches are written
 SEARCH_EPISODES = 64
 SEARCH_STEP = 1.0         # coarse grid [rad/s], then refined by SEARCH_STEP / 4 around the best
 TIME_TIE = 0.01           # mean trapping times within this fraction of the episode tie
@@ -112,10 +113,12 @@ def _read_cache(path: Path) -> dict[str, Any]:
 def best_constant(config: EnvConfig, episodes: int = SEARCH_EPISODES, seed: int = SEARCH_SEED,
                   max_episode_steps: int = DEFAULT_EPISODE_STEPS, recompute: bool = False) -> dict[str, Any]:
     """`search_best_constant`, cached by config in ``agents/best_const.json`` (or, if that
-    is not writable, in ``~/.cache/saddle-env/best_const.json``)."""
+    is not writable, in ``~/.cache/saddle-env/best_const.json``; new searches go only to the
+    file named by ``$SADDLE_ENV_BEST_CONST_CACHE`` when it is set)."""
     key = _search_key(config, episodes, seed, max_episode_steps)
     if not recompute:
-        for path in (CACHE_FILE, USER_CACHE_FILE):
+        override = os.environ.get(CACHE_ENV_VAR)
+        for path in (CACHE_FILE, USER_CACHE_FILE, *((Path(override),) if override else ())):
             hit = _read_cache(path).get(key)
             if hit is not None:
                 return hit
@@ -125,7 +128,10 @@ def best_constant(config: EnvConfig, episodes: int = SEARCH_EPISODES, seed: int 
     entry["config"] = {k: v for k, v in config.as_dict().items()
                        if k not in _NOT_IN_KEY and v != getattr(default, k)}
     entry = json.loads(json.dumps(entry))  # as it reads back from the cache
-    for path in (CACHE_FILE, USER_CACHE_FILE):
+    # SADDLE_ENV_BEST_CONST_CACHE names the one file new searches go to (the test suite
+    # points it at a temporary file, so that tests never edit the shipped cache).
+    override = os.environ.get(CACHE_ENV_VAR)
+    for path in (Path(override),) if override else (CACHE_FILE, USER_CACHE_FILE):
         try:
             data = _read_cache(path)
             data[key] = entry
@@ -147,5 +153,5 @@ def best_const(config: EnvConfig,
     return ConstantSpeed(config, omega, "best-const")
 
 
-__all__ = ["CACHE_FILE", "SEARCH_EPISODES", "SEARCH_SEED", "USER_CACHE_FILE", "best_const",
+__all__ = ["CACHE_ENV_VAR", "CACHE_FILE", "SEARCH_EPISODES", "SEARCH_SEED", "USER_CACHE_FILE", "best_const",
            "best_constant", "search_best_constant"]

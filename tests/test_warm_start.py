@@ -32,6 +32,8 @@ def test_untrained_policy_starts_at_the_best_constant_speed(monkeypatch):
 
 def test_warm_start_refuses_what_it_cannot_do():
     with pytest.raises(ValueError, match="warm_start must be one of"):
+        ws.warm_start_action(level_config("SaddleTrap-Capture-v0"), "imitate", 500)
+    with pytest.raises(ValueError, match="does not set a constant action"):
         ws.warm_start_action(level_config("SaddleTrap-Capture-v0"), "mpc", 500)
     with pytest.raises(ValueError, match="action_mode='target'"):
         ws.warm_start_action(level_config("SaddleTrap-v0"), "best-const", 500)
@@ -73,3 +75,19 @@ def test_the_cache_key_ignores_options_at_their_defaults():
     assert key() == key(observe_command=False, obs_history=1)   # defaults spelled out
     assert key() != key(air_force=0.1)
     assert key(action_mode="target") == key()                  # irrelevant to a constant
+
+
+def test_new_searches_go_to_the_cache_the_environment_names(tmp_path, monkeypatch):
+    from agents import best_constant as bc
+    from saddle_env.envs import EnvConfig
+
+    shipped = bc.CACHE_FILE.read_bytes()
+    target = tmp_path / "cache.json"
+    monkeypatch.setenv(bc.CACHE_ENV_VAR, str(target))
+    monkeypatch.setattr(bc, "search_best_constant",
+                        lambda c, e, s, m: {"omega": 17.0, "grid": [], "mean_time": 1.0})
+    config = EnvConfig(R=0.0201)                 # a task no cache has
+    assert bc.best_constant(config, max_episode_steps=7)["omega"] == 17.0
+    assert bc.CACHE_FILE.read_bytes() == shipped
+    monkeypatch.setattr(bc, "search_best_constant", None)   # now it must come from the file
+    assert bc.best_constant(config, max_episode_steps=7)["omega"] == 17.0
