@@ -489,5 +489,13 @@ class ModelPredictiveController(Controller):
         out = act.astype(np.float32).reshape(-1, 1)
         return (out[0] if single else out), state
 
+    def executed(self, state: np.ndarray, actions: Any) -> np.ndarray:
+        """``state`` (from `predict`) told that the environment received ``actions`` (n,)
+        instead of the ones this controller chose: when another policy drives and mpc only
+        watches (imitation labels), its estimators must predict the step the motor took."""
+        state = np.array(state, dtype=np.float64)
+        state[:, 1 + self._d] = np.asarray(actions, dtype=np.float32).astype(np.float64).reshape(-1)
+        return state
+
 
 __all__ = ["ModelPredictiveController"]

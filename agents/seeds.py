@@ -9,11 +9,13 @@ training or model selection.
 | ``VALIDATION_SEED + s ..`` | model selection during training run s |
 | ``TEST_SEED ..`` | the leaderboard's frozen test set, nothing else |
 | ``COMPARE_SEED ..`` | the comparison ``train.py`` prints at the end of a run |
+| ``IMITATION_SEED + s·k ..`` | run s's imitation warm start (k = its episodes, `agents.imitation`) |
 """
 
 SEARCH_SEED = 12_345
 VALIDATION_SEED = 1_000_000
 TEST_SEED = 2_000_000
 COMPARE_SEED = 3_000_000
+IMITATION_SEED = 4_000_000
 
-__all__ = ["COMPARE_SEED", "SEARCH_SEED", "TEST_SEED", "VALIDATION_SEED"]
+__all__ = ["COMPARE_SEED", "IMITATION_SEED", "SEARCH_SEED", "TEST_SEED", "VALIDATION_SEED"]

@@ -9,7 +9,8 @@ Zoo keys honoured besides the algorithm's own arguments: ``n_envs``, ``n_timeste
 ``policy``, ``noise_type``/``noise_std`` (off-policy action noise), ``normalize`` (``true`` or
 ``"dict(norm_obs=True, norm_reward=False)"``: VecNormalize, its statistics saved next to
 every model as ``<model>.vecnormalize.pkl``), ``frame_stack`` (VecFrameStack with that many
-frames) and ``warm_start`` (`agents.warm_start`). ``env_wrapper`` and ``callback`` are
+frames), ``warm_start`` (`agents.warm_start`) and ``imitation`` (its settings for
+``warm_start: mpc``, `agents.imitation`). ``env_wrapper`` and ``callback`` are
 rejected with an error (no wrapper or callback classes are importable by name here).
 Evaluation (`agents.policies.load_policy`) applies the same normalisation and stacking from
 the sidecar.
@@ -67,7 +68,7 @@ HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
 ALGO_NAMES = ("ppo", "sac", "td3", "a2c")
 # Keys of the zoo format that are not constructor arguments of the algorithm.
 ZOO_ONLY_KEYS = {"n_envs", "n_timesteps", "policy", "noise_type", "noise_std", "normalize",
-                 "env_wrapper", "frame_stack", "callback", "warm_start"}
+                 "env_wrapper", "frame_stack", "callback", "warm_start", "imitation"}
 # Zoo keys this trainer cannot honour: an error, never silently dropped.
 REJECTED_KEYS = {"env_wrapper": "environment wrappers by class name are not supported; wrap "
                                 "in code (agents.training.make_vec_env) instead",
@@ -201,6 +202,8 @@ def load_hyperparams(algo: str, env_id: str = ENV_ID, path: str | Path | None = 
     for key, why in REJECTED_KEYS.items():
         if hyper.get(key) is not None:
             raise ValueError(f"{file}: {key}: {why}")
+    if hyper.get("imitation") is not None and hyper.get("warm_start") != "mpc":
+        raise ValueError(f"{file}: imitation: only used with warm_start: mpc")
     return hyper
 
 
@@ -506,10 +509,12 @@ def train(settings: TrainSettings, resume: str | Path | None = None) -> Path:
         model = cls(hyper.get("policy", "MlpPolicy"), env, seed=settings.seed,
                     device=settings.device, verbose=0, **kwargs)
         if hyper.get("warm_start"):
-            from .warm_start import apply_warm_start, warm_start_action
+            from .warm_start import warm_start
 
             _, config = settings.environment()
-            apply_warm_start(model, warm_start_action(config, hyper["warm_start"], steps))
+            done = warm_start(model, config, hyper["warm_start"], steps, settings.seed,
+                              hyper.get("imitation"))
+            (run_dir / "warm_start.json").write_text(json.dumps(done, indent=2))
     eval_env = wrap_env(eval_env, norm_kw, frame_stack, training=False)
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
     selector = _selection_callback(eval_env, settings, run_dir, n_envs)
@@ -527,6 +532,12 @@ def train(settings: TrainSettings, resume: str | Path | None = None) -> Path:
     previous = signal.signal(signal.SIGTERM, on_sigterm)
     remaining = total - model.num_timesteps
     interrupted = False
+    if resume is None and hyper.get("warm_start") == "mpc":
+        # The imitating network is a candidate too: RL fine-tuning may not improve on it.
+        # (Only here: an extra evaluation moves later validation episodes along their
+        # seeds' streams, and the other recipes' runs stay as they were.)
+        selector.init_callback(model)
+        selector.evaluate_now()
     try:
         if remaining > 0:
             model.learn(remaining, callback=CallbackList(callbacks),

@@ -5,8 +5,12 @@ that, before any update, the mean action is the level's best constant speed (tar
 action mode: a constant action is a constant speed). The untrained network's other weights
 are small (SB3 initialises the action head with gain 0.01), so the starting policy is the
 best constant plus exploration noise, and learning starts from the baseline it has to beat
-rather than from a random speed that loses most balls. At evaluation time the policy is the
-network alone: the warm start only chooses where training begins.
+rather than from a random speed that loses most balls.
+
+``warm_start: mpc`` first teaches the network to do what ``mpc`` does, by imitation
+(`agents.imitation`; its settings under the recipe's ``imitation`` key), so that learning
+starts from the strongest baseline. At evaluation time the policy is the network alone
+either way: the warm start only chooses where training begins.
 """
 
 from __future__ import annotations
@@ -16,13 +20,35 @@ from typing import Any
 
 from saddle_env.envs import EnvConfig
 
-WARM_STARTS = ("best-const",)
+WARM_STARTS = ("best-const", "mpc")
+
+
+def check_warm_start(how: Any) -> str:
+    """``how`` if it names a warm start; a ValueError listing them otherwise."""
+    if how not in WARM_STARTS:
+        raise ValueError(f"warm_start must be one of {list(WARM_STARTS)}, got {how!r}")
+    return how
+
+
+def warm_start(model: Any, config: EnvConfig, how: str, max_episode_steps: int, seed: int,
+               imitation: Any = None) -> dict[str, Any]:
+    """Apply the warm start ``how`` to the new SB3 ``model``; returns what was done (the
+    best-const action, or the imitation rounds) for the run folder."""
+    if check_warm_start(how) == "mpc":
+        from .imitation import ImitationSettings, imitate
+
+        settings = ImitationSettings.from_hyper(imitation)
+        return {"warm_start": how, "imitation": vars(settings),
+                "rounds": imitate(model, config, max_episode_steps, seed, settings)}
+    action = warm_start_action(config, how, max_episode_steps)
+    apply_warm_start(model, action)
+    return {"warm_start": how, "action": action}
 
 
 def warm_start_action(config: EnvConfig, how: str, max_episode_steps: int) -> float:
-    """The action the warm start ``how`` makes the untrained policy's mean."""
-    if how not in WARM_STARTS:
-        raise ValueError(f"warm_start must be one of {list(WARM_STARTS)}, got {how!r}")
+    """The action the warm start ``how`` (best-const) makes the untrained policy's mean."""
+    if check_warm_start(how) != "best-const":
+        raise ValueError(f"warm_start {how!r} does not set a constant action")
     if config.action_mode != "target":
         raise ValueError("warm_start 'best-const' needs action_mode='target' (in acceleration "
                          "mode a constant action is a constant acceleration, not a speed)")
