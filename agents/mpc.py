@@ -23,6 +23,7 @@ from saddle_env.integrators import (
     METHODS,
     integrate_h,
     state_scale,
+    step_control,
     workspace,
 )
 from saddle_env.linear import abcd, critical_omega, is_stable
@@ -119,11 +120,10 @@ def _orbit_size(model, p, y, w, grid_lo, grid_step, modes):
 
 
 @nb.njit(cache=True)
-def _advance(model, P, scales, Y, omega0, rate, force, T, C, A, B, E, E3, err_kind, err_order,
-             rtol, max_step, Y_end):
+def _advance(model, P, scales, Y, omega0, rate, force, T, tab, ctl, Y_end):
     """Each ball i over ``T`` seconds from ``Y[i]`` with Ω ramping from ``omega0[i]`` at
     ``rate[i]`` and the lab-fixed force ``force[i]`` (saddle axes at t = 0), no events."""
-    work = workspace(B)
+    work = workspace(tab)
     for i in range(Y.shape[0]):
         prof = np.zeros(Kn.DRIVE_WIDTH)
         prof[0], prof[1] = omega0[i], rate[i]
@@ -132,16 +132,15 @@ def _advance(model, P, scales, Y, omega0, rate, force, T, C, A, B, E, E3, err_ki
         t_out = np.array([T])
         Y_out = np.empty((1, Kn.STATE_WIDTH))
         stats = np.zeros(4, dtype=np.int64)
-        hio = np.zeros(2)
-        integrate_h(model, P[i], prof, y, 0.0, t_out, C, A, B, E, E3, err_kind, err_order, 0.0,
-                    rtol, rtol, scales[i], max_step, 0, 100000, Y_out, stats, hio, work)
+        integrate_h(model, P[i], prof, y, 0.0, t_out, tab, ctl, scales[i], Y_out, stats, 0.0,
+                    work)
         Y_end[i] = y
 
 
 @nb.njit(cache=True, parallel=True)
 def _predict(model, P, scales, table, Y0, omega0, force, omega_ref, low, high, rates, ramps,
-             amax, t_hold, sample, C, A, B, E, E3, err_kind, err_order, rtol, max_step, grid_lo,
-             grid_step, modes, cost, min_normal, status_out):
+             amax, t_hold, sample, tab, ctl, grid_lo, grid_step, modes, cost, min_normal,
+             status_out):
     """For every ball i and candidate k, predict with the exact model (detachment and
     escape events on): ramp Ω at ``rates[k]`` for ``ramps[k]`` s (kept within
     [``low[i]``, ``high[i]``]), then back to ``omega_ref[i]`` at ``amax``, then hold it for
@@ -163,8 +162,8 @@ def _predict(model, P, scales, table, Y0, omega0, force, omega_ref, low, high, r
         w1 = min(high[i], max(low[i], omega0[i] + rates[k] * t_ramp))
         t_back = abs(w_ref - w1) / amax
         stats = np.zeros(4, dtype=np.int64)
-        hio = np.zeros(2)
-        work = workspace(B)
+        h = 0.0
+        work = workspace(tab)
         dy = np.empty(Kn.STATE_WIDTH)
         lowest = np.inf
         acc = 0.0
@@ -185,9 +184,9 @@ def _predict(model, P, scales, table, Y0, omega0, force, omega_ref, low, high, r
             m = max(1, int(math.ceil(T / sample - 1e-9)))
             t_out = np.arange(1, m + 1) * (T / m)
             Y_out = np.full((m, Kn.STATE_WIDTH), np.nan)
-            st, _ = integrate_h(model, p, prof, y, 0.0, t_out, C, A, B, E, E3, err_kind,
-                                 err_order, 0.0, rtol, rtol, scales[i], max_step,
-                                 EVENT_DETACH | EVENT_ESCAPE, 100000, Y_out, stats, hio, work)
+            res = integrate_h(model, p, prof, y, 0.0, t_out, tab, ctl, scales[i], Y_out, stats,
+                              h, work)
+            st, h = res.status, res.h_next
             for r in range(m):
                 if not math.isfinite(Y_out[r, 0]):
                     break
@@ -305,9 +304,12 @@ class ModelPredictiveController(Controller):
         self._P = np.array([s.params() for s in self.scenes])
         self._scales = np.array([state_scale(p, self._model) for p in self._P])
         self._alpha = c.alpha if self.scenes[0].rolling else 0.0
-        m = METHODS["dop853"]
-        self._method = (m.C, m.A, m.B, m.E, m.E3, m.err_kind, m.error_order)
-        self._max_step = math.pi / (2.0 * c.omega_max)
+        self._tableau = METHODS["dop853"].tableau
+        max_step = math.pi / (2.0 * c.omega_max)
+        # The estimators' one-step predictions run without events; the plans with both.
+        self._free = step_control(0.0, rtol, rtol, max_step, 0, 100000)
+        self._watched = step_control(0.0, rtol, rtol, max_step, EVENT_DETACH | EVENT_ESCAPE,
+                                     100000)
         self.omega_crt = np.array([critical_omega(s) for s in self.scenes])
         self._grid_step = 0.01
         self._grid_lo = 0.5 * float(np.nanmin(self.omega_crt))
@@ -375,7 +377,7 @@ class ModelPredictiveController(Controller):
             Ypred = np.empty_like(Yp)
             _advance(self._model, np.repeat(self._P[j][None], n, 0),
                      np.repeat(self._scales[j][None], n, 0), Yp, wp, rate,
-                     np.ascontiguousarray(f0), dt, *self._method, self.rtol, self._max_step, Ypred)
+                     np.ascontiguousarray(f0), dt, self._tableau, self._free, Ypred)
             vp, spin1 = np.empty((n, 2)), np.empty(n)
             _centre_velocities(self._model, self._P[j], Ypred, vp, spin1)
             vobs = self._observed_velocity(obs[rows])
@@ -431,7 +433,7 @@ class ModelPredictiveController(Controller):
         predict(self._model, self._P[radius], self._scales[radius], radius, Y, omega, force,
                 self._ref[radius], self._low[radius], self._high[radius],
                 self.levels * c.max_accel, self.ramps, c.max_accel, self.hold, self.sample,
-                *self._method, self.rtol, self._max_step, self._grid_lo, self._grid_step,
+                self._tableau, self._watched, self._grid_lo, self._grid_step,
                 self._modes, cost, normal, status)
         return {"cost": cost, "min_normal": normal, "status": status, "omega": omega,
                 "radius": radius}

@@ -106,13 +106,15 @@ def _combine(m, d, h, w, count, K, Y0, acc, Yout):
 
 
 @jit
-def rk_step_block(model, m, h, C, A, B, E, E3, err_kind, adaptive, rtol, atol, ws):
-    """Take one step of size ``h`` from t = 0 for lanes 0..m-1 of the block ``ws``.
+def rk_step_block(model, m, h, tab, ctl, ws):
+    """Take one step of size ``h`` from t = 0 for lanes 0..m-1 of the block ``ws`` with
+    the method ``tab`` (`integrators.Tableau`) and the settings ``ctl`` (`StepControl`).
 
     The caller has filled P, D (drive rows), Y0 and Sc. Fills the stages, Ynew, the normal
     forces and (adaptive) the error norms, exactly as `integrators.integrate_h` computes
     them for its first step."""
     P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3 = ws
+    C, A, B = tab.C, tab.A, tab.B
     s = B.shape[0]
     d = 5 if model == ROLLING else 4
     # Drive terms at the stage times (trigonometry only with ripple or an external force).
@@ -132,14 +134,15 @@ def rk_step_block(model, m, h, C, A, B, E, E3, err_kind, adaptive, rtol, atol, w
                 Nmin[q] = Nstage[q]
     _combine(m, d, h, B, s, K, Y0, acc, Ynew)
     _rates(model, m, P, Fr[s], Ynew, K[s], Nend)
-    if adaptive:
-        _error_norms(m, d, h, err_kind, E, E3, rtol, atol, ws)
+    if ctl.dt <= 0.0:  # adaptive
+        _error_norms(m, d, h, tab, ctl.rtol, ctl.atol, ws)
 
 
 @jit
-def _error_norms(m, d, h, err_kind, E, E3, rtol, atol, ws):
+def _error_norms(m, d, h, tab, rtol, atol, ws):
     """`integrators._error_norm` for every lane (same operations, same order)."""
     P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3 = ws
+    E, E3, err_kind = tab.E, tab.E3, tab.err_kind
     s1 = K.shape[0]
     # Sc holds the state scales; the error scale of component j is built per lane.
     for q in range(m):
