@@ -62,8 +62,8 @@ def _states_from_obs(model, p, lab, L, V, omega_max, obs, spin, Y, omega):
         x, y = cx / (1.0 - 2.0 * R / a), cy / (1.0 + 2.0 * R / b)
         for _ in range(30):
             g = Kn.geometry(a, b, R, x, y)
-            rx, ry = g[4] - cx, g[5] - cy
-            J1x, J1y, J2x, J2y = g[7], g[8], g[10], g[11]
+            rx, ry = g.cx - cx, g.cy - cy
+            J1x, J1y, J2x, J2y = g.J1x, g.J1y, g.J2x, g.J2y
             det = J1x * J2y - J2x * J1y
             dx = (J2y * rx - J2x * ry) / det
             dy = (-J1y * rx + J1x * ry) / det
@@ -72,7 +72,7 @@ def _states_from_obs(model, p, lab, L, V, omega_max, obs, spin, Y, omega):
             if abs(dx) + abs(dy) < 1e-15:
                 break
         g = Kn.geometry(a, b, R, x, y)
-        J1x, J1y, J2x, J2y = g[7], g[8], g[10], g[11]
+        J1x, J1y, J2x, J2y = g.J1x, g.J1y, g.J2x, g.J2y
         det = J1x * J2y - J2x * J1y
         vx = (J2y * vcx - J2x * vcy) / det
         vy = (-J1y * vcx + J1x * vcy) / det
@@ -84,7 +84,7 @@ def _centre_velocity(model, p, y):
     """Horizontal velocity of the ball's centre (rotating frame) [m/s]."""
     g = Kn.geometry(p[P_A], p[P_B], p[P_R], y[0], y[1])
     vx, vy = Kn.contact_velocity(model, p, y)
-    return g[7] * vx + g[10] * vy, g[8] * vx + g[11] * vy
+    return g.J1x * vx + g.J2x * vy, g.J1y * vx + g.J2y * vy
 
 
 @nb.njit(cache=True)
@@ -94,7 +94,7 @@ def _centre_velocities(model, p, Y, out, spin):
         out[i, 0], out[i, 1] = _centre_velocity(model, p, Y[i])
         if model == ROLLING:
             g = Kn.geometry(p[P_A], p[P_B], p[P_R], Y[i, 0], Y[i, 1])
-            spin[i] = g[1] * Y[i, 2] + g[2] * Y[i, 3] + g[3] * Y[i, 4]
+            spin[i] = g.nx * Y[i, 2] + g.ny * Y[i, 3] + g.nz * Y[i, 4]
         else:
             spin[i] = 0.0
 
@@ -109,7 +109,7 @@ def _orbit_size(model, p, y, w, grid_lo, grid_step, modes):
     if j < 0 or j >= modes.shape[0] or not math.isfinite(modes[j, 0, 0]):
         return np.inf
     g = Kn.geometry(p[P_A], p[P_B], p[P_R], y[0], y[1])
-    z0, z1 = g[4], g[5]
+    z0, z1 = g.cx, g.cy
     z2, z3 = _centre_velocity(model, p, y)
     size = 0.0
     for m in range(2):
@@ -126,7 +126,7 @@ def _advance(model, P, scales, Y, omega0, rate, force, T, tab, ctl, Y_end):
     work = workspace(tab)
     for i in range(Y.shape[0]):
         prof = np.zeros(Kn.DRIVE_WIDTH)
-        prof[0], prof[1] = omega0[i], rate[i]
+        prof[Kn.DRIVE_W0], prof[Kn.DRIVE_RATE] = omega0[i], rate[i]
         prof[Kn.DRIVE_FX], prof[Kn.DRIVE_FY] = force[i, 0], force[i, 1]
         y = Y[i].copy()
         t_out = np.array([T])

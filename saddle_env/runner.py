@@ -103,7 +103,13 @@ def _check_force(force: object) -> tuple[float, float]:
 def drive_row(profile: OmegaProfile, force: tuple[float, float] = (0.0, 0.0),
               theta0: float = 0.0) -> np.ndarray:
     """The kernels' drive row: Ω profile, saddle angle at t = 0, lab-frame force per unit mass."""
-    return np.concatenate([profile.array(), [theta0, force[0], force[1]]])
+    row = np.zeros(K.DRIVE_WIDTH)
+    row[K.DRIVE_W0], row[K.DRIVE_RATE] = profile.w0, profile.rate
+    row[K.DRIVE_AMP], row[K.DRIVE_FREQ] = profile.amp, profile.freq
+    row[K.DRIVE_PHASE] = profile.phase
+    row[K.DRIVE_THETA0] = theta0
+    row[K.DRIVE_FX], row[K.DRIVE_FY] = force
+    return row
 
 
 def _check_state(scene: Scene, state: object, name: str = "state") -> np.ndarray:
