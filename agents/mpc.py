@@ -16,7 +16,7 @@ import numpy as np
 
 from saddle_env import _kernels as Kn
 from saddle_env.envs import EnvConfig
-from saddle_env.envs.engine import VELOCITY_SCALE  # [m/s] observation scale of velocities
+from saddle_env.envs.observation import states_from_observations
 from saddle_env.integrators import state_scale
 from saddle_env.linear import abcd, critical_omega, is_stable
 from saddle_env.prediction import predict_batch
@@ -27,54 +27,6 @@ from .controllers import Controller
 
 RAMP, BACK, HOLD = range(3)  # the segments of a candidate's prediction
 METHOD = "dop853"            # the integrator of every prediction
-
-
-@nb.njit(cache=True)
-def _states_from_obs(model, p, lab, L, V, omega_max, obs, cols, spin, Y, omega):
-    """Physics states (rotating frame) of balls seen in ``obs``: the contact point from the
-    centre (Newton on c(q) = observed centre), its velocity from the centre's
-    (ċ = J q̇, horizontal rows), and for a rolling ball the spin of rolling plus ``spin[i]``
-    about the normal (the component a camera cannot see). ``cols``: the columns of x, y, vx,
-    vy, cos θ (sin θ after it; read in the lab frame only) and the measured Ω
-    (`observation.layout`)."""
-    a, b, R = p[P_A], p[P_B], p[P_R]
-    kx, ky, kvx, kvy, kcos, komega = cols
-    for i in range(obs.shape[0]):
-        W = obs[i, komega] * omega_max
-        if lab:
-            ct, st = obs[i, kcos], obs[i, kcos + 1]
-            nrm = math.hypot(ct, st)
-            if nrm > 0:
-                ct, st = ct / nrm, st / nrm
-            else:
-                ct, st = 1.0, 0.0
-            X, Yl = obs[i, kx] * L, obs[i, ky] * L
-            UX, UY = obs[i, kvx] * V, obs[i, kvy] * V
-            cx, cy = ct * X + st * Yl, -st * X + ct * Yl
-            ux, uy = ct * UX + st * UY, -st * UX + ct * UY
-            vcx, vcy = ux + W * cy, uy - W * cx      # ċ = u − Ω k×c
-        else:
-            cx, cy = obs[i, kx] * L, obs[i, ky] * L
-            vcx, vcy = obs[i, kvx] * V, obs[i, kvy] * V
-        omega[i] = W
-        x, y = cx / (1.0 - 2.0 * R / a), cy / (1.0 + 2.0 * R / b)
-        for _ in range(30):
-            g = Kn.geometry(a, b, R, x, y)
-            rx, ry = g.cx - cx, g.cy - cy
-            J1x, J1y, J2x, J2y = g.J1x, g.J1y, g.J2x, g.J2y
-            det = J1x * J2y - J2x * J1y
-            dx = (J2y * rx - J2x * ry) / det
-            dy = (-J1y * rx + J1x * ry) / det
-            x -= dx
-            y -= dy
-            if abs(dx) + abs(dy) < 1e-15:
-                break
-        g = Kn.geometry(a, b, R, x, y)
-        J1x, J1y, J2x, J2y = g.J1x, g.J1y, g.J2x, g.J2y
-        det = J1x * J2y - J2x * J1y
-        vx = (J2y * vcx - J2x * vcy) / det
-        vy = (-J1y * vcx + J1x * vcy) / det
-        Kn.state_from_velocity(model, p, x, y, vx, vy, spin[i], Y[i])
 
 
 @nb.njit(cache=True)
@@ -300,16 +252,8 @@ class ModelPredictiveController(Controller):
         """(n, 5) physics states and (n,) speeds estimated from a float64 batch of
         observations, for the candidate radius ``radius`` (default: the nominal one) and
         spins about the normal ``spin`` (n,) [rad/s] (default 0, as at a reset)."""
-        c = self.config
         j = self.nominal if radius is None else radius
-        Y = np.zeros((len(obs), Kn.STATE_WIDTH))
-        omega = np.zeros(len(obs))
-        spin = np.zeros(len(obs)) if spin is None else np.ascontiguousarray(spin, float)
-        lay = self.layout
-        cols = (lay.x, lay.y, lay.vx, lay.vy, -1 if lay.cos is None else lay.cos, lay.omega)
-        _states_from_obs(self._model, self._P[j], lay.lab_frame, c.rim_radius, VELOCITY_SCALE,
-                         c.omega_max, np.ascontiguousarray(obs), cols, spin, Y, omega)
-        return Y, omega
+        return states_from_observations(self.config, self._model, self._P[j], obs, spin)
 
     def _block(self, j: int) -> int:
         return 2 + self._d + 4 * j

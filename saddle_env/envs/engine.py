@@ -29,10 +29,9 @@ from ..scene import N_PARAMS, Scene
 from ..simulate import SimulationError, default_max_step
 from . import _step as S
 from .config import EnvConfig
-from .observation import layout
+from .observation import VELOCITY_SCALE, layout
 
 RESET_OPTION_KEYS = ("x", "y", "vx", "vy", "omega", "R", "a", "contact", "start", "spin_normal")
-VELOCITY_SCALE = 1.0  # [m/s] observation scale of velocities
 MAX_STEPS_PER_CONTROL_STEP = 100_000  # integrator steps before a control step counts as failed
 
 
