@@ -18,6 +18,7 @@ the operations and their order are the same, and no fused multiply-adds are allo
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 
@@ -28,6 +29,9 @@ from .scene import N_PARAMS, P_A, P_ALPHA, P_B, P_DRILL, P_G, P_R, P_RIM, ROLLIN
 LANES = 64  # balls per block: the stage arrays of a block stay in the L1 cache
 PARAM_WIDTH = N_PARAMS
 FRAME_WIDTH = 4  # Ω, Ω̇, fx, fy (saddle axes) at one stage time
+
+# A block's arrays, carved from scratch memory by `carve_block` (see there).
+Block = namedtuple("Block", "P D Y0 Ynew Ytmp Sc K Fr Nstart Nstage Nmin Nend Err acc a5 a3")
 
 
 @jit
@@ -45,8 +49,8 @@ def take(buf, o, n):
 
 @jit
 def carve_block(buf, stages):
-    """Views into ``buf`` (at least `block_size` floats) for one block of `LANES` lanes:
-    ``(P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3)`` —
+    """Views into ``buf`` (at least `block_size` floats) for one block of `LANES` lanes, a
+    `Block` ``(P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3)``:
     parameters (7, L), drive rows (L, 8), start / end / stage states and state scales
     (5, L), stages (s + 1, 5, L), frame terms (s + 1, 4, L), N/m at the start, at the current
     stage, the smallest over the stages and at the end, error norms, and three accumulators
@@ -66,8 +70,8 @@ def carve_block(buf, stages):
     Ytmp, Sc = Ytmp.reshape((STATE_WIDTH, L)), Sc.reshape((STATE_WIDTH, L))
     K = K.reshape((stages + 1, STATE_WIDTH, L))
     Fr = Fr.reshape((stages + 1, FRAME_WIDTH, L))
-    return (P, D, Y0, Ynew, Ytmp, Sc, K, Fr, vec[0], vec[1], vec[2], vec[3], vec[4], vec[5],
-            vec[6], vec[7])
+    return Block(P, D, Y0, Ynew, Ytmp, Sc, K, Fr, vec[0], vec[1], vec[2], vec[3], vec[4], vec[5],
+                 vec[6], vec[7])
 
 
 @jit

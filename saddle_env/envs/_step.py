@@ -43,6 +43,7 @@ travel as the records `integrators.Tableau` and `integrators.StepControl`):
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numba as nb
 import numpy as np
@@ -70,6 +71,10 @@ OUT_WIDTH = 5
 CFG_WIDTH = 16
 
 MIN_BLOCK = 4  # fewest balls worth a SIMD block (measured crossover: 4-8 balls)
+
+# The scalar path's scratch (`_carve`): its one output time (the control period) and state
+# row, the integrator's counters, a derivative, the integrator's workspace and a drive row.
+ScalarScratch = namedtuple("ScalarScratch", "t_out Y_out stats dy work drive")
 
 
 @jit
@@ -182,9 +187,8 @@ def _integrate(model, p, scale, y, ball, drive, tab, ctl, sc):
     """The scalar path: `integrate_h` over one control period; returns the status, the end
     time and N/m at the final state. The step size carries over from the last control step
     in ball[B_H]."""
-    t_out, Y_out, stats, dy, work, _ = sc
-    res = integrate_h(model, p, drive, y, 0.0, t_out, tab, ctl, scale, Y_out, stats, ball[B_H],
-                      work)
+    res = integrate_h(model, p, drive, y, 0.0, sc.t_out, tab, ctl, scale, sc.Y_out, sc.stats,
+                      ball[B_H], sc.work)
     ball[B_H] = res.h_next
     return res.status, res.t_final, res.normal
 
@@ -214,7 +218,7 @@ def scratch_size(stages):
 @jit
 def _carve(buf, ibuf, stages, dt):
     """Views into the caller's scratch buffers (floats: `scratch_size`; ints: 4 + LANES):
-    the scalar path's ``(t_out, Y_out, stats, dy, work, drive)``, the ball record (see
+    the scalar path's `ScalarScratch`, the ball record (see
     `_load`), the lane block, the lanes' Ω̇ and their ball indices."""
     t_out, o = take(buf, 0, 1)
     t_out[0] = dt
@@ -234,7 +238,8 @@ def _carve(buf, ibuf, stages, dt):
     work = work.reshape((stages + 5, STATE_WIDTH))
     ws = carve_block(buf[o:], stages)
     record = (p, scale, y, ball, noise, obs, out)
-    return (t_out, Y_out, ibuf[:4], dy, work, drive), record, ws, rates, ibuf[4:4 + LANES]
+    sc = ScalarScratch(t_out, Y_out, ibuf[:4], dy, work, drive)
+    return sc, record, ws, rates, ibuf[4:4 + LANES]
 
 
 @jit
@@ -282,7 +287,7 @@ def _step_block(model, m, lanes, rates, ws, sc, record, P, scales, Y, balls, cfg
     use_block = m >= MIN_BLOCK
     if use_block:
         rk_step_block(model, m, dt, tab, ctl, ws)
-    D, Ynew, Nend = ws[1], ws[3], ws[11]
+    D, Ynew, Nend = ws.D, ws.Ynew, ws.Nend
     p, scale, y, ball, nz, ob, o = record
     failed = 0
     for q in range(m):
@@ -298,7 +303,7 @@ def _step_block(model, m, lanes, rates, ws, sc, record, P, scales, Y, balls, cfg
         else:
             status, t_end, normal = _integrate(model, p, scale, y, ball, D[q], tab, ctl, sc)
         _finish(model, p, y, ball, cfg, events, actions[i], D[q], rates[q], status, t_end,
-                normal, nz, ob, o, sc[3])
+                normal, nz, ob, o, sc.dy)
         _store(i, Y, balls, obs, out, record)
         if status < 0:
             failed += 1
@@ -317,7 +322,7 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
     dt = cfg[C_DT]
     sc, record, ws, rates, lanes = _carve(buf, ibuf, stages, dt)
     p, scale, y, ball, nz, ob, o = record
-    Pl, D, Y0, Sc = ws[0], ws[1], ws[2], ws[5]
+    Pl, D, Y0, Sc = ws.P, ws.D, ws.Y0, ws.Sc
     lockstep = cfg[C_LOCKSTEP] != 0.0
     failed = 0
     for model in (ROLLING, SLIPPING):
@@ -340,11 +345,11 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
                                           balls, cfg, actions, tab, ctl, noise, obs, out)
                     m = 0
             else:
-                drive = sc[5]
+                drive = sc.drive
                 rate = _drive(ball, cfg, actions[i], drive)
                 status, t_end, normal = _integrate(model, p, scale, y, ball, drive, tab, ctl, sc)
                 _finish(model, p, y, ball, cfg, ctl.events, actions[i], drive, rate, status,
-                        t_end, normal, nz, ob, o, sc[3])
+                        t_end, normal, nz, ob, o, sc.dy)
                 _store(i, Y, balls, obs, out, record)
                 if status < 0:
                     failed += 1
