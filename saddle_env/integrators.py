@@ -63,8 +63,8 @@ which fixes the field types (one compiled specialisation for every caller)."""
 
 Outcome = namedtuple("Outcome", "status t_final h_next normal")
 Outcome.__doc__ = """What `integrate_h` returns: the STATUS_* code; the time of the final state
-(the event time if an event fired); the step the controller would take next (adaptive, run
-completed; otherwise the starting step passed in); N/m [m/s²] at the last accepted state —
+(the event time if an event fired); the step the controller would take next when the run
+completed (otherwise the starting step passed in); N/m [m/s²] at the last accepted state —
 the final state when the run completed — if detachment events are on, else NaN."""
 
 

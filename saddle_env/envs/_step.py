@@ -18,12 +18,12 @@ travel as the records `integrators.Tableau` and `integrators.StepControl`):
 
 | array | slot | holds |
 |---|---|---|
-| ``balls`` (n, BALL_WIDTH) | ``B_OMEGA`` | commanded saddle speed Ω at the step's start [rad/s] |
+| ``balls`` (n, BALL_WIDTH) | ``B_OMEGA`` | the motor's commanded speed Ω now (no ripple) [rad/s] |
 | | ``B_THETA`` | saddle angle θ [rad] |
 | | ``B_TIME`` | episode clock [s] |
 | | ``B_PHASE`` | phase of the motor's ripple [rad] |
 | | ``B_FX``, ``B_FY`` | lab-fixed force per unit mass (air current) [m/s²] |
-| | ``B_H`` | the integrator's step to continue with (`Outcome.h_next`) [s]; 0: let it choose |
+| | ``B_H`` | the step the integrator continues with (`Outcome.h_next`) [s]; 0: it chooses |
 | ``out`` (n, OUT_WIDTH) | ``O_STATUS`` | the step's STATUS_* code (> 0 an event, < 0 a failure) |
 | | ``O_TIME`` | time the step covered (the event time if one fired) [s] |
 | | ``O_NORMAL`` | N/(mg) at the step's end (0 at a detachment; NaN with detachment off) |
