@@ -64,6 +64,8 @@ class TrapEngine:
         self.method = METHODS[config.method]
         self.tableau = self.method.tableau
         self.control = self._build_control(config)
+        # what the compiled step takes for the two records (see `_step.step_serial`)
+        self._record_fields = (tuple(self.tableau), tuple(self.control))
         self.cfg = self._build_cfg(config)
         self.models = np.zeros(self.n, dtype=np.int64)
         self.P = np.zeros((self.n, N_PARAMS))
@@ -258,7 +260,7 @@ class TrapEngine:
         if self._noise_scale is not None:
             self._draw_noise(rngs, active)
         args = (self.models, self.P, self.scales, self.Y, self.balls, self.cfg, actions, active,
-                self.tableau, self.control, self.noise, self.frame, self.out)
+                *self._record_fields, self.noise, self.frame, self.out)
         if self.parallel and K.threads_usable():
             chunks = self._chunks()
             if self._chunk_scratch[0].shape[0] != chunks:  # the thread count was changed
