@@ -49,7 +49,8 @@ class Prediction:
 
 @nb.njit(cache=True)
 def samples_in(duration, sample):
-    """Samples of a segment of ``duration`` seconds at spacing at most ``sample``."""
+    """Samples of a segment of ``duration`` seconds at spacing at most ``sample`` (a duration
+    a rounding error past a multiple of ``sample`` gets no extra sample)."""
     return max(1, int(math.ceil(duration / sample - 1e-9)))
 
 
