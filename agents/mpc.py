@@ -16,66 +16,17 @@ import numpy as np
 
 from saddle_env import _kernels as Kn
 from saddle_env.envs import EnvConfig
-from saddle_env.envs.engine import VELOCITY_SCALE  # [m/s] observation scale of velocities
-from saddle_env.integrators import (
-    EVENT_DETACH,
-    EVENT_ESCAPE,
-    METHODS,
-    integrate_h,
-    state_scale,
-    workspace,
-)
+from saddle_env.envs.observation import states_from_observations
+from saddle_env.integrators import state_scale
 from saddle_env.linear import abcd, critical_omega, is_stable
+from saddle_env.prediction import predict_batch
 from saddle_env.scene import P_A, P_B, P_G, P_R, ROLLING
 
 from .best_constant import best_constant
 from .controllers import Controller
 
-
-@nb.njit(cache=True)
-def _states_from_obs(model, p, lab, L, V, omega_max, obs, spin, Y, omega):
-    """Physics states (rotating frame) of balls seen in ``obs``: the contact point from the
-    centre (Newton on c(q) = observed centre), its velocity from the centre's
-    (ċ = J q̇, horizontal rows), and for a rolling ball the spin of rolling plus ``spin[i]``
-    about the normal (the component a camera cannot see)."""
-    a, b, R = p[P_A], p[P_B], p[P_R]
-    for i in range(obs.shape[0]):
-        if lab:
-            ct, st = obs[i, 4], obs[i, 5]
-            nrm = math.hypot(ct, st)
-            if nrm > 0:
-                ct, st = ct / nrm, st / nrm
-            else:
-                ct, st = 1.0, 0.0
-            W = obs[i, 6] * omega_max
-            X, Yl = obs[i, 0] * L, obs[i, 1] * L
-            UX, UY = obs[i, 2] * V, obs[i, 3] * V
-            cx, cy = ct * X + st * Yl, -st * X + ct * Yl
-            ux, uy = ct * UX + st * UY, -st * UX + ct * UY
-            vcx, vcy = ux + W * cy, uy - W * cx      # ċ = u − Ω k×c
-        else:
-            cx, cy = obs[i, 0] * L, obs[i, 1] * L
-            vcx, vcy = obs[i, 2] * V, obs[i, 3] * V
-            W = obs[i, 4] * omega_max
-        omega[i] = W
-        x, y = cx / (1.0 - 2.0 * R / a), cy / (1.0 + 2.0 * R / b)
-        for _ in range(30):
-            g = Kn.geometry(a, b, R, x, y)
-            rx, ry = g[4] - cx, g[5] - cy
-            J1x, J1y, J2x, J2y = g[7], g[8], g[10], g[11]
-            det = J1x * J2y - J2x * J1y
-            dx = (J2y * rx - J2x * ry) / det
-            dy = (-J1y * rx + J1x * ry) / det
-            x -= dx
-            y -= dy
-            if abs(dx) + abs(dy) < 1e-15:
-                break
-        g = Kn.geometry(a, b, R, x, y)
-        J1x, J1y, J2x, J2y = g[7], g[8], g[10], g[11]
-        det = J1x * J2y - J2x * J1y
-        vx = (J2y * vcx - J2x * vcy) / det
-        vy = (-J1y * vcx + J1x * vcy) / det
-        Kn.state_from_velocity(model, p, x, y, vx, vy, spin[i], Y[i])
+RAMP, BACK, HOLD = range(3)  # the segments of a candidate's prediction
+METHOD = "dop853"            # the integrator of every prediction
 
 
 @nb.njit(cache=True)
@@ -83,7 +34,7 @@ def _centre_velocity(model, p, y):
     """Horizontal velocity of the ball's centre (rotating frame) [m/s]."""
     g = Kn.geometry(p[P_A], p[P_B], p[P_R], y[0], y[1])
     vx, vy = Kn.contact_velocity(model, p, y)
-    return g[7] * vx + g[10] * vy, g[8] * vx + g[11] * vy
+    return g.J1x * vx + g.J2x * vy, g.J1y * vx + g.J2y * vy
 
 
 @nb.njit(cache=True)
@@ -93,7 +44,7 @@ def _centre_velocities(model, p, Y, out, spin):
         out[i, 0], out[i, 1] = _centre_velocity(model, p, Y[i])
         if model == ROLLING:
             g = Kn.geometry(p[P_A], p[P_B], p[P_R], Y[i, 0], Y[i, 1])
-            spin[i] = g[1] * Y[i, 2] + g[2] * Y[i, 3] + g[3] * Y[i, 4]
+            spin[i] = g.nx * Y[i, 2] + g.ny * Y[i, 3] + g.nz * Y[i, 4]
         else:
             spin[i] = 0.0
 
@@ -108,7 +59,7 @@ def _orbit_size(model, p, y, w, grid_lo, grid_step, modes):
     if j < 0 or j >= modes.shape[0] or not math.isfinite(modes[j, 0, 0]):
         return np.inf
     g = Kn.geometry(p[P_A], p[P_B], p[P_R], y[0], y[1])
-    z0, z1 = g[4], g[5]
+    z0, z1 = g.cx, g.cy
     z2, z3 = _centre_velocity(model, p, y)
     size = 0.0
     for m in range(2):
@@ -119,93 +70,57 @@ def _orbit_size(model, p, y, w, grid_lo, grid_step, modes):
 
 
 @nb.njit(cache=True)
-def _advance(model, P, scales, Y, omega0, rate, force, T, C, A, B, E, E3, err_kind, err_order,
-             rtol, max_step, Y_end):
-    """Each ball i over ``T`` seconds from ``Y[i]`` with Ω ramping from ``omega0[i]`` at
-    ``rate[i]`` and the lab-fixed force ``force[i]`` (saddle axes at t = 0), no events."""
-    work = workspace(B)
-    for i in range(Y.shape[0]):
-        prof = np.zeros(Kn.DRIVE_WIDTH)
-        prof[0], prof[1] = omega0[i], rate[i]
-        prof[Kn.DRIVE_FX], prof[Kn.DRIVE_FY] = force[i, 0], force[i, 1]
-        y = Y[i].copy()
-        t_out = np.array([T])
-        Y_out = np.empty((1, Kn.STATE_WIDTH))
-        stats = np.zeros(4, dtype=np.int64)
-        hio = np.zeros(2)
-        integrate_h(model, P[i], prof, y, 0.0, t_out, C, A, B, E, E3, err_kind, err_order, 0.0,
-                    rtol, rtol, scales[i], max_step, 0, 100000, Y_out, stats, hio, work)
-        Y_end[i] = y
-
-
-@nb.njit(cache=True, parallel=True)
-def _predict(model, P, scales, table, Y0, omega0, force, omega_ref, low, high, rates, ramps,
-             amax, t_hold, sample, C, A, B, E, E3, err_kind, err_order, rtol, max_step, grid_lo,
-             grid_step, modes, cost, min_normal, status_out):
-    """For every ball i and candidate k, predict with the exact model (detachment and
-    escape events on): ramp Ω at ``rates[k]`` for ``ramps[k]`` s (kept within
-    [``low[i]``, ``high[i]``]), then back to ``omega_ref[i]`` at ``amax``, then hold it for
-    ``t_hold``; ball i has the
-    parameters ``P[i]``, the mode table ``modes[table[i]]`` and the lab-fixed force
-    ``force[i]`` (saddle axes now). Writes the predicted orbit size at ``omega_ref[i]``
-    averaged over the hold samples (``cost``), the smallest N/mg at the samples (every
-    ``sample`` seconds, ``min_normal``) and the event status (``status_out``)."""
-    n, K = Y0.shape[0], rates.shape[0]
-    for q in nb.prange(n * K):
+def _candidate_drives(omega0, force, omega_ref, low, high, rates, ramps, amax, t_hold, drives,
+                      durations):
+    """The three drive segments of ball i's candidate k (run i·K + k): ramp Ω at ``rates[k]``
+    for ``ramps[k]`` s (kept within [``low[i]``, ``high[i]``]), then back to ``omega_ref[i]``
+    at ``amax``, then hold it for ``t_hold``; the lab-fixed force ``force[i]`` (saddle axes
+    now) throughout. Fills ``drives`` (n·K, 3, DRIVE_WIDTH) and ``durations`` (n·K, 3)."""
+    n, K = omega0.shape[0], rates.shape[0]
+    for q in range(n * K):
         i, k = q // K, q % K
-        p = P[i]
-        g = p[P_G]
         w_ref = omega_ref[i]
-        y = Y0[i].copy()
-        prof = np.zeros(Kn.DRIVE_WIDTH)
-        prof[Kn.DRIVE_FX], prof[Kn.DRIVE_FY] = force[i, 0], force[i, 1]
         t_ramp = ramps[k]
         w1 = min(high[i], max(low[i], omega0[i] + rates[k] * t_ramp))
         t_back = abs(w_ref - w1) / amax
-        stats = np.zeros(4, dtype=np.int64)
-        hio = np.zeros(2)
-        work = workspace(B)
-        dy = np.empty(Kn.STATE_WIDTH)
+        for seg in range(3):
+            drives[q, seg, :] = 0.0
+            drives[q, seg, Kn.DRIVE_FX], drives[q, seg, Kn.DRIVE_FY] = force[i, 0], force[i, 1]
+        drives[q, RAMP, Kn.DRIVE_W0] = omega0[i]
+        drives[q, RAMP, Kn.DRIVE_RATE] = (w1 - omega0[i]) / t_ramp
+        drives[q, BACK, Kn.DRIVE_W0] = w1
+        drives[q, BACK, Kn.DRIVE_RATE] = (w_ref - w1) / t_back if t_back > 0 else 0.0
+        drives[q, HOLD, Kn.DRIVE_W0] = w_ref
+        durations[q, RAMP], durations[q, BACK], durations[q, HOLD] = t_ramp, t_back, t_hold
+
+
+@nb.njit(cache=True)
+def _score(model, P, table, omega_ref, grid_lo, grid_step, modes, state, normal, status, cost,
+           min_normal):
+    """Cost and smallest N/mg of every run of a plan (run q = i·K + k, K = ``cost.shape[1]``)
+    from its samples: the orbit size at ``omega_ref[i]`` averaged over the hold samples
+    (inf after a predicted loss) and the smallest N/mg over all samples (0 after a loss)."""
+    K = cost.shape[1]
+    for q in range(state.shape[0]):
+        i, k = q // K, q % K
+        p = P[i]
+        g = p[P_G]
         lowest = np.inf
         acc = 0.0
         count = 0
-        st = 0
-        theta = 0.0
-        for seg in range(3):
-            if seg == 0:
-                T, prof[0], prof[1] = t_ramp, omega0[i], (w1 - omega0[i]) / t_ramp
-            elif seg == 1:
-                T, prof[0], prof[1] = t_back, w1, (w_ref - w1) / t_back if t_back > 0 else 0.0
-            else:
-                T, prof[0], prof[1] = t_hold, w_ref, 0.0
-            if T <= 0.0:
-                continue
-            prof[Kn.DRIVE_THETA0] = theta          # where the previous segment ended
-            theta = Kn.angle_at(prof, T)
-            m = max(1, int(math.ceil(T / sample - 1e-9)))
-            t_out = np.arange(1, m + 1) * (T / m)
-            Y_out = np.full((m, Kn.STATE_WIDTH), np.nan)
-            st, _ = integrate_h(model, p, prof, y, 0.0, t_out, C, A, B, E, E3, err_kind,
-                                 err_order, 0.0, rtol, rtol, scales[i], max_step,
-                                 EVENT_DETACH | EVENT_ESCAPE, 100000, Y_out, stats, hio, work)
-            for r in range(m):
-                if not math.isfinite(Y_out[r, 0]):
+        for seg in range(state.shape[1]):
+            for r in range(state.shape[2]):
+                if not math.isfinite(state[q, seg, r, 0]):
                     break
-                lowest = min(lowest, Kn.rhs(model, p, prof, t_out[r], Y_out[r], dy, True) / g)
-                if seg == 2:
-                    acc += _orbit_size(model, p, Y_out[r], w_ref, grid_lo, grid_step,
-                                       modes[table[i]])
+                lowest = min(lowest, normal[q, seg, r] / g)
+                if seg == HOLD:
+                    acc += _orbit_size(model, p, state[q, seg, r], omega_ref[i], grid_lo,
+                                       grid_step, modes[table[i]])
                     count += 1
-            if st != 0:
-                lowest = min(lowest, 0.0)
-                break
-        status_out[i, k] = st
+        if status[q] != 0:
+            lowest = min(lowest, 0.0)
         min_normal[i, k] = lowest
-        cost[i, k] = acc / count if count > 0 and st == 0 else np.inf
-
-
-# The same prediction on one thread (a forked child cannot reuse the parent's OpenMP threads).
-_predict_serial = Kn.serial_twin(_predict)
+        cost[i, k] = acc / count if count > 0 and status[q] == 0 else np.inf
 
 
 def _mode_table(scene, lo: float, hi: float, step: float) -> np.ndarray:
@@ -247,8 +162,8 @@ class ModelPredictiveController(Controller):
        a rolling ball's spin is that of rolling plus a spin about the normal, which the
        camera cannot see: 0 at a reset (as the environment places balls), afterwards
        carried over from the previous step's prediction.
-    2. **Prediction** with the exact model (`saddle_env.integrators.integrate_h`, the
-       kernel `simulate` and the environment use), for each candidate: Ω̇ = level ×
+    2. **Prediction** with the exact model (`saddle_env.prediction.predict_batch`, the
+       integrator `simulate` and the environment use), for each candidate: Ω̇ = level ×
        ``max_accel`` for ``ramps`` control periods (the level is the coming step's
        action; Ω kept within ``band`` of the reference), then back to the reference as
        fast as the motor allows, then ``hold`` seconds there; detachment and escape events
@@ -305,8 +220,6 @@ class ModelPredictiveController(Controller):
         self._P = np.array([s.params() for s in self.scenes])
         self._scales = np.array([state_scale(p, self._model) for p in self._P])
         self._alpha = c.alpha if self.scenes[0].rolling else 0.0
-        m = METHODS["dop853"]
-        self._method = (m.C, m.A, m.B, m.E, m.E3, m.err_kind, m.error_order)
         self._max_step = math.pi / (2.0 * c.omega_max)
         self.omega_crt = np.array([critical_omega(s) for s in self.scenes])
         self._grid_step = 0.01
@@ -339,14 +252,8 @@ class ModelPredictiveController(Controller):
         """(n, 5) physics states and (n,) speeds estimated from a float64 batch of
         observations, for the candidate radius ``radius`` (default: the nominal one) and
         spins about the normal ``spin`` (n,) [rad/s] (default 0, as at a reset)."""
-        c = self.config
         j = self.nominal if radius is None else radius
-        Y = np.zeros((len(obs), Kn.STATE_WIDTH))
-        omega = np.zeros(len(obs))
-        spin = np.zeros(len(obs)) if spin is None else np.ascontiguousarray(spin, float)
-        _states_from_obs(self._model, self._P[j], c.obs_frame == "lab", c.rim_radius,
-                         VELOCITY_SCALE, c.omega_max, np.ascontiguousarray(obs), spin, Y, omega)
-        return Y, omega
+        return states_from_observations(self.config, self._model, self._P[j], obs, spin)
 
     def _block(self, j: int) -> int:
         return 2 + self._d + 4 * j
@@ -372,10 +279,13 @@ class ModelPredictiveController(Controller):
             f0, spin0 = state[rows, o:o + 2], state[rows, o + 3]
             Yp, wp = self.states(prev, j, spin0)
             rate = self.motor_rate(self._motor_speed(prev, wp), action)
-            Ypred = np.empty_like(Yp)
-            _advance(self._model, np.repeat(self._P[j][None], n, 0),
-                     np.repeat(self._scales[j][None], n, 0), Yp, wp, rate,
-                     np.ascontiguousarray(f0), dt, *self._method, self.rtol, self._max_step, Ypred)
+            drives = np.zeros((n, 1, Kn.DRIVE_WIDTH))
+            drives[:, 0, Kn.DRIVE_W0], drives[:, 0, Kn.DRIVE_RATE] = wp, rate
+            drives[:, 0, Kn.DRIVE_FX], drives[:, 0, Kn.DRIVE_FY] = f0[:, 0], f0[:, 1]
+            Ypred = predict_batch(self._model, np.repeat(self._P[j][None], n, 0), Yp, drives,
+                                  np.full((n, 1), dt), dt, method=METHOD, rtol=self.rtol,
+                                  events=(), max_step=self._max_step,
+                                  scales=np.repeat(self._scales[j][None], n, 0)).final_state
             vp, spin1 = np.empty((n, 2)), np.empty(n)
             _centre_velocities(self._model, self._P[j], Ypred, vp, spin1)
             vobs = self._observed_velocity(obs[rows])
@@ -425,16 +335,18 @@ class ModelPredictiveController(Controller):
             sel = radius == j
             Y[sel], omega[sel] = self.states(obs[sel], int(j), spin[sel])
         force = np.zeros((n, 2)) if force is None else np.ascontiguousarray(force, float)
+        drives, durations = np.empty((n * K, 3, Kn.DRIVE_WIDTH)), np.empty((n * K, 3))
+        _candidate_drives(omega, force, self._ref[radius], self._low[radius], self._high[radius],
+                          self.levels * c.max_accel, self.ramps, c.max_accel, self.hold, drives,
+                          durations)
+        pred = predict_batch(self._model, np.repeat(self._P[radius], K, 0), np.repeat(Y, K, 0),
+                             drives, durations, self.sample, method=METHOD, rtol=self.rtol,
+                             max_step=self._max_step, scales=np.repeat(self._scales[radius], K, 0))
         cost, normal = np.zeros((n, K)), np.zeros((n, K))
-        status = np.zeros((n, K), dtype=np.int64)
-        predict = _predict if Kn.threads_usable() else _predict_serial
-        predict(self._model, self._P[radius], self._scales[radius], radius, Y, omega, force,
-                self._ref[radius], self._low[radius], self._high[radius],
-                self.levels * c.max_accel, self.ramps, c.max_accel, self.hold, self.sample,
-                *self._method, self.rtol, self._max_step, self._grid_lo, self._grid_step,
-                self._modes, cost, normal, status)
-        return {"cost": cost, "min_normal": normal, "status": status, "omega": omega,
-                "radius": radius}
+        _score(self._model, self._P[radius], radius, self._ref[radius], self._grid_lo,
+               self._grid_step, self._modes, pred.state, pred.normal, pred.status, cost, normal)
+        return {"cost": cost, "min_normal": normal, "status": pred.status.reshape(n, K),
+                "omega": omega, "radius": radius}
 
     def choose(self, plan: dict[str, np.ndarray]) -> np.ndarray:
         """Actions from a `plan`."""

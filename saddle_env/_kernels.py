@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import os
 import types
+from collections import namedtuple
 
 import numba as nb
 import numpy as np
@@ -104,27 +105,35 @@ inline = nb.njit(cache=True, fastmath=False, error_model="numpy", forceinline=Tr
 @jit
 def omega_at(prof, t):
     """Saddle speed Ω(t) [rad/s] and its rate Ω̇(t) [rad/s²] from a profile row."""
-    if prof[2] == 0.0:  # no ripple: skip the trigonometry (most calls)
-        return prof[0] + prof[1] * t, prof[1]
-    phase = prof[3] * t + prof[4]
-    return (prof[0] + prof[1] * t + prof[2] * math.sin(phase),
-            prof[1] + prof[2] * prof[3] * math.cos(phase))
+    w0, rate, amp = prof[DRIVE_W0], prof[DRIVE_RATE], prof[DRIVE_AMP]
+    if amp == 0.0:  # no ripple: skip the trigonometry (most calls)
+        return w0 + rate * t, rate
+    freq = prof[DRIVE_FREQ]
+    phase = freq * t + prof[DRIVE_PHASE]
+    return w0 + rate * t + amp * math.sin(phase), rate + amp * freq * math.cos(phase)
 
 
 @jit
 def angle_at(prof, t):
     """Saddle angle θ(t) = θ0 + ∫₀ᵗ Ω dt' [rad]."""
-    theta = prof[5] + prof[0] * t + 0.5 * prof[1] * t * t
-    if prof[3] != 0.0:
-        return theta + prof[2] / prof[3] * (math.cos(prof[4]) - math.cos(prof[3] * t + prof[4]))
-    return theta + prof[2] * math.sin(prof[4]) * t
+    amp, freq, phase = prof[DRIVE_AMP], prof[DRIVE_FREQ], prof[DRIVE_PHASE]
+    theta = prof[DRIVE_THETA0] + prof[DRIVE_W0] * t + 0.5 * prof[DRIVE_RATE] * t * t
+    if freq != 0.0:
+        return theta + amp / freq * (math.cos(phase) - math.cos(freq * t + phase))
+    return theta + amp * math.sin(phase) * t
+
+
+# What `geometry` returns, by name (a namedtuple of floats compiles to the same registers as
+# a plain tuple): s = |m|, the unit normal n, the ball's centre c and the columns
+# J1 = dc/dx, J2 = dc/dy of its Jacobian.
+Geometry = namedtuple("Geometry", "s nx ny nz cx cy cz J1x J1y J1z J2x J2y J2z")
 
 
 @jit
 def geometry(a, b, R, x, y):
     """Normal, centre and the two columns of J = dc/dq at contact point (x, y).
 
-    Returns ``(s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z)``.
+    Returns a `Geometry` ``(s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z)``.
     """
     # Reciprocals once: divisions dominate the cost of the right-hand side.
     ia, ib = 1.0 / a, 1.0 / b
@@ -145,7 +154,7 @@ def geometry(a, b, R, x, y):
     J2x = -k2 * nx * ny
     J2y = 1.0 + k2 * (1.0 - ny * ny)
     J2z = fy - k2 * nz * ny
-    return s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z
+    return Geometry(s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z)
 
 
 @jit
@@ -354,9 +363,9 @@ def observables(model, p, prof, T, Y, want_normal, out):
         out[i, OBS_N] = rhs(model, p, prof, T[i], y, dy, True) if want_normal else np.nan
         out[i, OBS_H] = jacobi(model, p, prof, T[i], y)
         geo = geometry(p[P_A], p[P_B], p[P_R], y[0], y[1])
-        out[i, OBS_CX] = geo[4]
-        out[i, OBS_CY] = geo[5]
-        out[i, OBS_CZ] = geo[6]
+        out[i, OBS_CX] = geo.cx
+        out[i, OBS_CY] = geo.cy
+        out[i, OBS_CZ] = geo.cz
         out[i, OBS_OMEGA] = omega_at(prof, T[i])[0]
 
 

@@ -21,6 +21,7 @@ dependency), so no coefficient is transcribed by hand.
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 from dataclasses import dataclass
 
 import numba as nb
@@ -44,6 +45,34 @@ ERR_NONE, ERR_EMBEDDED, ERR_DOP853 = 0, 1, 2
 
 # Step-size controller constants (as in Hairer's codes and scipy).
 SAFETY, MIN_FACTOR, MAX_FACTOR = 0.9, 0.2, 10.0
+
+# The compiled loop's inputs and result travel as named records (namedtuples, which numba
+# passes and caches like the plain arrays and numbers they hold) rather than long positional
+# lists: which array is which, and which number is a tolerance, is then read off by name.
+Tableau = namedtuple("Tableau", "C A B E E3 err_kind err_order")
+Tableau.__doc__ = """A method as the compiled loop sees it (`Method.tableau`): nodes C (s,),
+coefficients A (s, s), weights B (s,), error weights E and E3 (s + 1,), the error-estimate
+kind (ERR_*) and the estimator's order (sets the controller exponent)."""
+
+StepControl = namedtuple("StepControl", "dt rtol atol max_step events max_steps")
+StepControl.__doc__ = """How the loop steps: ``dt`` [s] a fixed step (0: adaptive); ``rtol``,
+``atol`` the tolerances (component j's error is measured against ``atol·scale[j] +
+rtol·|y_j|``); ``max_step`` [s] the largest step; ``events`` the EVENT_* bit mask;
+``max_steps`` give up (STATUS_MAX_STEPS) after this many steps. Build it with `step_control`,
+which fixes the field types (one compiled specialisation for every caller)."""
+
+Outcome = namedtuple("Outcome", "status t_final h_next normal")
+Outcome.__doc__ = """What `integrate_h` returns: the STATUS_* code; the time of the final state
+(the event time if an event fired); the step the controller would take next when the run
+completed (otherwise the starting step passed in); N/m [m/s²] at the last accepted state —
+the final state when the run completed — if detachment events are on, else NaN."""
+
+
+def step_control(dt: float, rtol: float, atol: float, max_step: float, events: int,
+                 max_steps: int) -> StepControl:
+    """A `StepControl` with float and int fields as the compiled loop expects them."""
+    return StepControl(float(dt), float(rtol), float(atol), float(max_step), int(events),
+                       int(max_steps))
 
 
 @dataclass(frozen=True)
@@ -80,6 +109,12 @@ class Method:
     @property
     def stages(self) -> int:
         return len(self.B)
+
+    @property
+    def tableau(self) -> Tableau:
+        """The record the compiled loop takes."""
+        return Tableau(self.C, self.A, self.B, self.E, self.E3, int(self.err_kind),
+                       int(self.error_order))
 
 
 def _rk4() -> Method:
@@ -124,10 +159,11 @@ def step_factor(err, exponent):
 
 
 @jit
-def _stages(model, p, prof, t, y, h, d, C, A, K, ytmp, ynew, B, want_normal=False):
+def _stages(model, p, prof, t, y, h, d, tab, K, ytmp, ynew, want_normal=False):
     """Stages 2..s of one explicit RK step from (t, y) with K[0] = f(t, y) given; the
     new point goes to ``ynew``. Returns the smallest normal force per unit mass seen at the
     stage points (a by-product of the right-hand side) if ``want_normal``, else +inf."""
+    C, A, B = tab.C, tab.A, tab.B
     s = B.shape[0]
     lowest = np.inf
     for i in range(1, s):
@@ -152,10 +188,11 @@ def _stages(model, p, prof, t, y, h, d, C, A, K, ytmp, ynew, B, want_normal=Fals
 
 
 @jit
-def _error_norm(err_kind, h, d, K, E, E3, sc):
+def _error_norm(tab, h, d, K, sc):
     """Scaled error norm of the step just taken (≤ 1 means accept)."""
+    E, E3 = tab.E, tab.E3
     s1 = K.shape[0]
-    if err_kind == ERR_EMBEDDED:
+    if tab.err_kind == ERR_EMBEDDED:
         acc = 0.0
         for j in range(d):
             e = 0.0
@@ -200,21 +237,21 @@ def _fired(events, model, p, prof, t, y, dy, normal):
 
 
 @jit
-def _probe_dip(model, p, prof, t, y, hstep, d, C, A, B, K, ytmp, yout, dy):
+def _probe_dip(model, p, prof, t, y, hstep, d, tab, K, ytmp, yout, dy):
     """First stage time τ = c_i·h at which a true partial step has N < 0, or 0 if none."""
-    s = B.shape[0]
+    s = tab.B.shape[0]
     for i in range(1, s):
-        tau = C[i] * hstep
+        tau = tab.C[i] * hstep
         if tau <= 0.0 or tau >= hstep:
             continue
-        _stages(model, p, prof, t, y, tau, d, C, A, K, ytmp, yout, B)
+        _stages(model, p, prof, t, y, tau, d, tab, K, ytmp, yout)
         if rhs(model, p, prof, t + tau, yout, dy, True) < 0.0:
             return tau
     return 0.0
 
 
 @jit
-def _locate(kind, model, p, prof, t, y, hstep, d, C, A, B, K, ytmp, yout, dy):
+def _locate(kind, model, p, prof, t, y, hstep, d, tab, K, ytmp, yout, dy):
     """Smallest τ in (0, hstep] with event function < 0 at RK-step(y, τ).
 
     Illinois regula falsi with a bisection fall-back, on the partial step from (t, y);
@@ -222,7 +259,7 @@ def _locate(kind, model, p, prof, t, y, hstep, d, C, A, B, K, ytmp, yout, dy):
     """
     lo, hi = 0.0, hstep
     flo = _event_value(kind, model, p, prof, t, y, dy)
-    _stages(model, p, prof, t, y, hi, d, C, A, K, ytmp, yout, B)
+    _stages(model, p, prof, t, y, hi, d, tab, K, ytmp, yout)
     fhi = _event_value(kind, model, p, prof, t + hi, yout, dy)
     side = 0
     width = hi - lo
@@ -234,7 +271,7 @@ def _locate(kind, model, p, prof, t, y, hstep, d, C, A, B, K, ytmp, yout, dy):
         if not (lo < tm < hi) or (side != 0 and hi - lo > 0.5 * width):
             tm = 0.5 * (lo + hi)
             width = hi - lo
-        _stages(model, p, prof, t, y, tm, d, C, A, K, ytmp, yout, B)
+        _stages(model, p, prof, t, y, tm, d, tab, K, ytmp, yout)
         fm = _event_value(kind, model, p, prof, t + tm, yout, dy)
         if fm < 0.0:
             hi, fhi = tm, fm
@@ -246,7 +283,7 @@ def _locate(kind, model, p, prof, t, y, hstep, d, C, A, B, K, ytmp, yout, dy):
             if side == 1:
                 fhi *= 0.5
             side = 1
-    _stages(model, p, prof, t, y, hi, d, C, A, K, ytmp, yout, B)
+    _stages(model, p, prof, t, y, hi, d, tab, K, ytmp, yout)
     return hi
 
 
@@ -277,54 +314,52 @@ def _initial_step(model, p, prof, t, y, f0, d, sc, order, ytmp, f1, hmax):
 
 
 @jit
-def workspace(B):
-    """Scratch memory for `integrate_h` with a method of ``B.shape[0]`` stages."""
-    return np.empty((B.shape[0] + 5, STATE_WIDTH))
+def workspace(tab):
+    """Scratch memory for `integrate_h` with the method ``tab`` (a `Tableau`)."""
+    return np.empty((tab.B.shape[0] + 5, STATE_WIDTH))
 
 
 @jit
-def integrate(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order, dt,
-              rtol, atol, scale, max_step, events, max_steps, Y_out, stats):
-    """Advance ``y`` (in place) from ``t0`` through the output times ``t_out``.
+def integrate(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats):
+    """Advance ``y`` (in place) from ``t0`` through the output times ``t_out``; return
+    ``(status, t_final)``.
 
     See `integrate_h`, which this calls with no step-size hint and fresh scratch memory."""
-    hio = np.zeros(2)
-    return integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order, dt,
-                       rtol, atol, scale, max_step, events, max_steps, Y_out, stats, hio,
-                       workspace(B))
+    res = integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, 0.0,
+                      workspace(tab))
+    return res.status, res.t_final
 
 
 @jit
-def integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_order, dt,
-                rtol, atol, scale, max_step, events, max_steps, Y_out, stats, hio, work):
+def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_start, work):
     """Advance ``y`` (in place) from ``t0`` through the output times ``t_out``.
 
     Parameters
     ----------
     model : int — ROLLING or SLIPPING.
-    p : (7,) — packed scene parameters.  prof : (8,) — drive row (see _kernels).
+    p : (7,) — packed scene parameters.  prof : (8,) — drive row (DRIVE_* in _kernels).
     y : (5,) — state at t0; on return, the state at the final time (or at the event).
     t0 : float.  t_out : (m,) ascending output times, all ≥ t0.
-    C, A, B, E, E3, err_kind, err_order : the method (see `Method`).
-    dt : float — fixed step [s]; 0 selects adaptive steps.
-    rtol, atol : float — tolerances; the error of component j is measured against
-        ``atol·scale[j] + rtol·|y_j|``.  scale : (5,) characteristic size of each component.
-    max_step : float — largest step [s].  events : int — EVENT_* bit mask.
-    max_steps : int — give up (STATUS_MAX_STEPS) after this many steps.
+    tab : Tableau — the method (`Method.tableau`).
+    ctl : StepControl — fixed step or tolerances, largest step, events, step limit.
+    scale : (5,) characteristic size of each state component (`state_scale`).
     Y_out : (m, 5) — written with the state at each output time reached.
     stats : (4,) int64 — incremented: steps accepted, steps rejected, f evaluations, outputs written.
-    hio : (2,) float — hio[0], adaptive only: the starting step if > 0 (a caller continuing
-        a run, e.g. the environment's next control step, passes the last one back); on
-        return, the step the controller would take next. hio[1] on return: the normal force
-        per unit mass at the final state when detachment events are on (else NaN).
-    work : scratch memory from `workspace(B)`; a caller stepping many short intervals (the
+    h_start : float — adaptive only: the starting step if > 0 (a caller continuing a run,
+        e.g. the environment's next control step, passes the last ``h_next`` back); 0 lets
+        the starting-step heuristic choose.
+    work : scratch memory from `workspace(tab)`; a caller stepping many short intervals (the
         environment) passes the same one every time instead of allocating per call.
 
     Returns
     -------
-    status : int — STATUS_DONE, STATUS_DETACH, STATUS_ESCAPE, STATUS_FAILED or STATUS_MAX_STEPS.
-    t_final : float — time of the final state (the event time if an event fired).
+    Outcome — ``(status, t_final, h_next, normal)``: STATUS_DONE, STATUS_DETACH,
+    STATUS_ESCAPE, STATUS_FAILED or STATUS_MAX_STEPS; the time of the final state (the event
+    time if an event fired); the step to continue with; N/m at the last accepted state.
     """
+    B, err_order = tab.B, tab.err_order
+    dt, rtol, atol, max_step = ctl.dt, ctl.rtol, ctl.atol, ctl.max_step
+    events = ctl.events
     d = 5 if model == ROLLING else 4
     s = B.shape[0]
     K = work[:s + 1]
@@ -339,18 +374,18 @@ def integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_orde
     t = t0
     normal = rhs(model, p, prof, t, y, K[0], want_normal)
     stats[2] += 1
-    hio[1] = normal if want_normal else np.nan
+    accepted_normal = normal if want_normal else np.nan  # N/m at the last accepted state
     fired = _fired(events, model, p, prof, t, y, dy, normal)
     if fired:
-        return fired, t
+        return Outcome(fired, t, h_start, accepted_normal)
     while k < m and t_out[k] <= t:
         Y_out[k, :] = y
         k += 1
     stats[3] += k
     if k == m:
-        return STATUS_DONE, t
-    if adaptive and hio[0] > 0.0:
-        h = min(hio[0], max_step)
+        return Outcome(STATUS_DONE, t, h_start, accepted_normal)
+    if adaptive and h_start > 0.0:
+        h = min(h_start, max_step)
     elif adaptive:
         for j in range(d):
             sc[j] = atol * scale[j] + rtol * abs(y[j])
@@ -360,8 +395,8 @@ def integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_orde
     exponent = -1.0 / (err_order + 1.0) if adaptive else 0.0
     n_steps = 0
     while k < m:
-        if n_steps >= max_steps:
-            return STATUS_MAX_STEPS, t
+        if n_steps >= ctl.max_steps:
+            return Outcome(STATUS_MAX_STEPS, t, h_start, accepted_normal)
         target = t_out[k]
         hstep = h
         clipped = False
@@ -369,9 +404,8 @@ def integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_orde
             hstep = target - t
             clipped = True
         if not (hstep > 1e-14 * max(1.0, abs(t))):
-            return STATUS_FAILED, t
-        stage_normal = _stages(model, p, prof, t, y, hstep, d, C, A, K, ytmp, ynew, B,
-                               want_normal)
+            return Outcome(STATUS_FAILED, t, h_start, accepted_normal)
+        stage_normal = _stages(model, p, prof, t, y, hstep, d, tab, K, ytmp, ynew, want_normal)
         normal = rhs(model, p, prof, t + hstep, ynew, K[s], want_normal)
         stats[2] += s
         finite = True
@@ -381,7 +415,7 @@ def integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_orde
         if adaptive:
             for j in range(d):
                 sc[j] = atol * scale[j] + rtol * max(abs(y[j]), abs(ynew[j]))
-            err = _error_norm(err_kind, hstep, d, K, E, E3, sc) if finite else np.inf
+            err = _error_norm(tab, hstep, d, K, sc) if finite else np.inf
             if not err <= 1.0:
                 # Rejected: shrink and retry (an infinite/NaN error shrinks by the maximum).
                 factor = MIN_FACTOR if not math.isfinite(err) else max(
@@ -390,7 +424,7 @@ def integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_orde
                 stats[1] += 1
                 continue
         elif not finite:
-            return STATUS_FAILED, t
+            return Outcome(STATUS_FAILED, t, h_start, accepted_normal)
         n_steps += 1
         stats[0] += 1
         fired = _fired(events, model, p, prof, t + hstep, ynew, dy, normal) if events else 0
@@ -398,15 +432,15 @@ def integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_orde
             # N is positive at both ends but a stage point saw it negative: a brief dip
             # inside the step. Probe with true partial steps at the stage times; the first
             # negative one brackets a crossing, located as usual.
-            tau_dip = _probe_dip(model, p, prof, t, y, hstep, d, C, A, B, K, ytmp, ynew, dy)
+            tau_dip = _probe_dip(model, p, prof, t, y, hstep, d, tab, K, ytmp, ynew, dy)
             if tau_dip > 0.0:
-                tau = _locate(STATUS_DETACH, model, p, prof, t, y, tau_dip, d, C, A, B, K,
+                tau = _locate(STATUS_DETACH, model, p, prof, t, y, tau_dip, d, tab, K,
                               ytmp, ynew, dy)
                 y[:] = ynew
                 stats[2] += 1
-                return STATUS_DETACH, t + tau
+                return Outcome(STATUS_DETACH, t + tau, h_start, accepted_normal)
             # a false alarm: the stage values are low-order estimates; redo the full step
-            _stages(model, p, prof, t, y, hstep, d, C, A, K, ytmp, ynew, B)
+            _stages(model, p, prof, t, y, hstep, d, tab, K, ytmp, ynew)
             rhs(model, p, prof, t + hstep, ynew, K[s], False)
         if fired:
             # The state at t is still in y and f(t, y) in K[0]: locate on the partial step.
@@ -417,17 +451,17 @@ def integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_orde
             best_kind = 0
             for kind in (STATUS_DETACH, STATUS_ESCAPE):
                 if _fired(events & kind, model, p, prof, t + hstep, yend, dy, normal) == kind:
-                    tau = _locate(kind, model, p, prof, t, y, hstep, d, C, A, B, K,
-                                  ytmp, ynew, dy)
+                    tau = _locate(kind, model, p, prof, t, y, hstep, d, tab, K, ytmp, ynew,
+                                  dy)
                     if best_kind == 0 or tau < best_tau:
                         best_tau, best_kind = tau, kind
                         ybest[:] = ynew
             y[:] = ybest
             stats[2] += 1
-            return best_kind, t + best_tau
+            return Outcome(best_kind, t + best_tau, h_start, accepted_normal)
         t = target if clipped else t + hstep
         if want_normal:
-            hio[1] = normal
+            accepted_normal = normal
         for j in range(STATE_WIDTH):
             y[j] = ynew[j]
             K[0, j] = K[s, j]
@@ -439,28 +473,27 @@ def integrate_h(model, p, prof, y, t0, t_out, C, A, B, E, E3, err_kind, err_orde
             hnew = hstep * step_factor(err, exponent)
             # A step shortened to hit an output says nothing against the natural step.
             h = min(max(hnew, h) if clipped else hnew, max_step)
-    hio[0] = h
-    return STATUS_DONE, t
+    return Outcome(STATUS_DONE, t, h, accepted_normal)
 
 
 @nb.njit(cache=True, parallel=True)
-def integrate_batch(models, P, profiles, Y, t0, t_out, C, A, B, E, E3, err_kind, err_order,
-                    dt, rtol, atol, scales, max_step, events, max_steps, active, Y_out,
-                    status, t_final, stats):
+def integrate_batch(models, P, profiles, Y, t0, t_out, tab, ctl, scales, max_step, active,
+                    Y_out, status, t_final, stats):
     """`integrate` for many balls at once, each with its own scene row, Ω profile and state.
 
-    All balls start at ``t0`` and share the output times. Balls with ``active[i] == False``
-    are not touched. Arrays are indexed by ball first:
-    models (n,), P (n, 7), profiles (n, 8) drive rows, Y (n, 5), scales (n, 5),
-    max_step (n,), Y_out (n, m, 5), status (n,), t_final (n,), stats (n, 4).
+    All balls start at ``t0`` and share the output times and ``ctl``, except that ball i's
+    largest step is ``max_step[i]``. Balls with ``active[i] == False`` are not touched.
+    Arrays are indexed by ball first: models (n,), P (n, 7), profiles (n, 8) drive rows,
+    Y (n, 5), scales (n, 5), max_step (n,), Y_out (n, m, 5), status (n,), t_final (n,),
+    stats (n, 4).
     """
     n = Y.shape[0]
     for i in nb.prange(n):
         if active[i]:
-            status[i], t_final[i] = integrate(
-                models[i], P[i], profiles[i], Y[i], t0, t_out, C, A, B, E, E3, err_kind,
-                err_order, dt, rtol, atol, scales[i], max_step[i], events, max_steps,
-                Y_out[i], stats[i])
+            own = StepControl(ctl.dt, ctl.rtol, ctl.atol, max_step[i], ctl.events,
+                              ctl.max_steps)
+            status[i], t_final[i] = integrate(models[i], P[i], profiles[i], Y[i], t0, t_out,
+                                              tab, own, scales[i], Y_out[i], stats[i])
 
 
 # The same loop on one thread, for processes where numba's threads cannot run

@@ -413,8 +413,7 @@ def simulate_ion(trap: RRFTrap | PaulTrap, state: Sequence[float] | np.ndarray, 
     stats = np.zeros(4, dtype=np.int64)
     status, t_final = integrate(
         trap.model_code, trap.params(), drive_row(prof, theta0=theta0), y, 0.0, t_out,
-        m.C, m.A, m.B, m.E, m.E3, m.err_kind, m.error_order, settings.dt, settings.rtol,
-        settings.atol, scale, hmax, settings.events, settings.max_steps, Y_out, stats)
+        m.tableau, settings.control(hmax), scale, Y_out, stats)
     if status == STATUS_FAILED:
         raise SimulationError(f"ion integration failed at t = {t_final:.9g} s (non-finite "
                               "state or step-size underflow: an unstable trap with no r0?)")

@@ -18,6 +18,7 @@ the operations and their order are the same, and no fused multiply-adds are allo
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 
@@ -28,6 +29,9 @@ from .scene import N_PARAMS, P_A, P_ALPHA, P_B, P_DRILL, P_G, P_R, P_RIM, ROLLIN
 LANES = 64  # balls per block: the stage arrays of a block stay in the L1 cache
 PARAM_WIDTH = N_PARAMS
 FRAME_WIDTH = 4  # Ω, Ω̇, fx, fy (saddle axes) at one stage time
+
+# A block's arrays, carved from scratch memory by `carve_block` (see there).
+Block = namedtuple("Block", "P D Y0 Ynew Ytmp Sc K Fr Nstart Nstage Nmin Nend Err acc a5 a3")
 
 
 @jit
@@ -45,8 +49,8 @@ def take(buf, o, n):
 
 @jit
 def carve_block(buf, stages):
-    """Views into ``buf`` (at least `block_size` floats) for one block of `LANES` lanes:
-    ``(P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3)`` —
+    """Views into ``buf`` (at least `block_size` floats) for one block of `LANES` lanes, a
+    `Block` ``(P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3)``:
     parameters (7, L), drive rows (L, 8), start / end / stage states and state scales
     (5, L), stages (s + 1, 5, L), frame terms (s + 1, 4, L), N/m at the start, at the current
     stage, the smallest over the stages and at the end, error norms, and three accumulators
@@ -66,8 +70,8 @@ def carve_block(buf, stages):
     Ytmp, Sc = Ytmp.reshape((STATE_WIDTH, L)), Sc.reshape((STATE_WIDTH, L))
     K = K.reshape((stages + 1, STATE_WIDTH, L))
     Fr = Fr.reshape((stages + 1, FRAME_WIDTH, L))
-    return (P, D, Y0, Ynew, Ytmp, Sc, K, Fr, vec[0], vec[1], vec[2], vec[3], vec[4], vec[5],
-            vec[6], vec[7])
+    return Block(P, D, Y0, Ynew, Ytmp, Sc, K, Fr, vec[0], vec[1], vec[2], vec[3], vec[4], vec[5],
+                 vec[6], vec[7])
 
 
 @jit
@@ -106,13 +110,15 @@ def _combine(m, d, h, w, count, K, Y0, acc, Yout):
 
 
 @jit
-def rk_step_block(model, m, h, C, A, B, E, E3, err_kind, adaptive, rtol, atol, ws):
-    """Take one step of size ``h`` from t = 0 for lanes 0..m-1 of the block ``ws``.
+def rk_step_block(model, m, h, tab, ctl, ws):
+    """Take one step of size ``h`` from t = 0 for lanes 0..m-1 of the block ``ws`` with
+    the method ``tab`` (`integrators.Tableau`) and the settings ``ctl`` (`StepControl`).
 
     The caller has filled P, D (drive rows), Y0 and Sc. Fills the stages, Ynew, the normal
     forces and (adaptive) the error norms, exactly as `integrators.integrate_h` computes
     them for its first step."""
     P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3 = ws
+    C, A, B = tab.C, tab.A, tab.B
     s = B.shape[0]
     d = 5 if model == ROLLING else 4
     # Drive terms at the stage times (trigonometry only with ripple or an external force).
@@ -132,14 +138,15 @@ def rk_step_block(model, m, h, C, A, B, E, E3, err_kind, adaptive, rtol, atol, w
                 Nmin[q] = Nstage[q]
     _combine(m, d, h, B, s, K, Y0, acc, Ynew)
     _rates(model, m, P, Fr[s], Ynew, K[s], Nend)
-    if adaptive:
-        _error_norms(m, d, h, err_kind, E, E3, rtol, atol, ws)
+    if ctl.dt <= 0.0:  # adaptive
+        _error_norms(m, d, h, tab, ctl.rtol, ctl.atol, ws)
 
 
 @jit
-def _error_norms(m, d, h, err_kind, E, E3, rtol, atol, ws):
+def _error_norms(m, d, h, tab, rtol, atol, ws):
     """`integrators._error_norm` for every lane (same operations, same order)."""
     P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3 = ws
+    E, E3, err_kind = tab.E, tab.E3, tab.err_kind
     s1 = K.shape[0]
     # Sc holds the state scales; the error scale of component j is built per lane.
     for q in range(m):

@@ -20,8 +20,8 @@ import numpy as np
 
 from . import _kernels as K
 from .integrators import (EVENT_DETACH, EVENT_ESCAPE, EVENT_KINDS, METHODS, STATUS_FAILED,
-                          STATUS_MAX_STEPS, Method, integrate, integrate_batch,
-                          integrate_batch_serial, state_scale)
+                          STATUS_MAX_STEPS, Method, StepControl, integrate, integrate_batch,
+                          integrate_batch_serial, state_scale, step_control)
 from .omega import OmegaProfile
 from .scene import Scene, _finite_number
 
@@ -103,7 +103,13 @@ def _check_force(force: object) -> tuple[float, float]:
 def drive_row(profile: OmegaProfile, force: tuple[float, float] = (0.0, 0.0),
               theta0: float = 0.0) -> np.ndarray:
     """The kernels' drive row: Ω profile, saddle angle at t = 0, lab-frame force per unit mass."""
-    return np.concatenate([profile.array(), [theta0, force[0], force[1]]])
+    row = np.zeros(K.DRIVE_WIDTH)
+    row[K.DRIVE_W0], row[K.DRIVE_RATE] = profile.w0, profile.rate
+    row[K.DRIVE_AMP], row[K.DRIVE_FREQ] = profile.amp, profile.freq
+    row[K.DRIVE_PHASE] = profile.phase
+    row[K.DRIVE_THETA0] = theta0
+    row[K.DRIVE_FX], row[K.DRIVE_FY] = force
+    return row
 
 
 def _check_state(scene: Scene, state: object, name: str = "state") -> np.ndarray:
@@ -188,6 +194,12 @@ class Settings:
         if self.dt > 0:
             return math.inf
         return default_max_step(profile.bound(t_end))
+
+    def control(self, max_step: float) -> StepControl:
+        """The compiled loop's record of these settings, with largest step ``max_step`` [s]
+        (from `max_step_for`)."""
+        return step_control(self.dt, self.rtol, self.atol, max_step, self.events,
+                            self.max_steps)
 
     def describe(self) -> str:
         if self.dt > 0:
@@ -410,10 +422,9 @@ def run(scene: Scene, state: np.ndarray, t_end: float, *,
     Y_out = np.empty((len(t_out), K.STATE_WIDTH))
     stats = np.zeros(4, dtype=np.int64)
     status, t_final = integrate(
-        scene.model_code, p, drive_row(profile, force), y, 0.0, t_out, m.C, m.A, m.B, m.E, m.E3,
-        m.err_kind, m.error_order, settings.dt, settings.rtol, settings.atol,
-        state_scale(p, scene.model_code), settings.max_step_for(profile, float(t_out[-1])),
-        settings.events, settings.max_steps, Y_out, stats)
+        scene.model_code, p, drive_row(profile, force), y, 0.0, t_out, m.tableau,
+        settings.control(settings.max_step_for(profile, float(t_out[-1]))),
+        state_scale(p, scene.model_code), Y_out, stats)
     _raise_on_failure(status, t_final, math.hypot(y[0], y[1]), scene)
     n = int(stats[3])
     event = None
@@ -519,10 +530,9 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
     t_final = np.zeros(n)
     stats = np.zeros((n, 4), dtype=np.int64)
     batch = integrate_batch if K.threads_usable() else integrate_batch_serial
-    batch(models, P, drives, Y, 0.0, t_out, m.C, m.A, m.B, m.E, m.E3, m.err_kind,
-          m.error_order, settings.dt, settings.rtol, settings.atol, scales, max_step_arr,
-          settings.events, settings.max_steps, np.ones(n, dtype=bool), Y_out, status, t_final,
-          stats)
+    # Each ball's own largest step replaces the record's (integrate_batch).
+    batch(models, P, drives, Y, 0.0, t_out, m.tableau, settings.control(math.inf), scales,
+          max_step_arr, np.ones(n, dtype=bool), Y_out, status, t_final, stats)
     return BatchResult(t_out, Y_out, stats[:, 3].copy(), status, t_final, Y, stats,
                        settings.describe())
 

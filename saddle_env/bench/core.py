@@ -27,7 +27,7 @@ import numpy as np
 from .. import _kernels as K
 from ..integrators import STATUS_DONE
 from ..linear import abcd, linear_trajectory
-from ..scene import Scene
+from ..scene import P_A, P_B, P_R, Scene
 from ..simulate import initial_state, simulate, simulate_batch
 from .peer import PeerModel
 
@@ -163,8 +163,8 @@ def centre_xy(scene: Scene, states: np.ndarray) -> np.ndarray:
     p = scene.params()
     out = np.empty((len(states), 2))
     for i, row in enumerate(states):
-        geo = K.geometry(p[0], p[1], p[2], row[0], row[1])
-        out[i] = geo[4], geo[5]
+        geo = K.geometry(p[P_A], p[P_B], p[P_R], row[0], row[1])
+        out[i] = geo.cx, geo.cy
     return out
 
 
@@ -277,9 +277,9 @@ def linear_centre_state(case: Case) -> np.ndarray:
     y = np.zeros(K.STATE_WIDTH)
     y[: sc.state_size] = case.state("rolling")
     p = sc.params()
-    geo = K.geometry(p[0], p[1], p[2], y[0], y[1])
+    geo = K.geometry(p[P_A], p[P_B], p[P_R], y[0], y[1])
     vx, vy = K.contact_velocity(sc.model_code, p, y)
-    return np.array([geo[4], geo[5], geo[7] * vx + geo[10] * vy, geo[8] * vx + geo[11] * vy])
+    return np.array([geo.cx, geo.cy, geo.J1x * vx + geo.J2x * vy, geo.J1y * vx + geo.J2y * vy])
 
 
 def measure_linear(case: Case, refs: dict[str, np.ndarray], batch: bool) -> dict[str, object]:

@@ -21,16 +21,18 @@ from ..integrators import (
     EVENT_KINDS,
     METHODS,
     STATUS_MAX_STEPS,
+    StepControl,
     state_scale,
+    step_control,
 )
 from ..scene import N_PARAMS, Scene
 from ..simulate import SimulationError, default_max_step
 from . import _step as S
 from .config import EnvConfig
-from .observation import layout
+from .observation import VELOCITY_SCALE, layout
 
 RESET_OPTION_KEYS = ("x", "y", "vx", "vy", "omega", "R", "a", "contact", "start", "spin_normal")
-VELOCITY_SCALE = 1.0  # [m/s] observation scale of velocities
+MAX_STEPS_PER_CONTROL_STEP = 100_000  # integrator steps before a control step counts as failed
 
 
 class TrapEngine:
@@ -59,9 +61,11 @@ class TrapEngine:
         self.layout = layout(config)
         self.obs_dim = self.layout.dim            # the whole observation (all frames)
         self.frame_dim = self.layout.frame_dim    # one frame, what the compiled step writes
-        m = METHODS[config.method]
-        self.method = m
-        self._method_args = (m.C, m.A, m.B, m.E, m.E3, m.err_kind, m.error_order)
+        self.method = METHODS[config.method]
+        self.tableau = self.method.tableau
+        self.control = self._build_control(config)
+        # what the compiled step takes for the two records (see `_step.step_serial`)
+        self._record_fields = (tuple(self.tableau), tuple(self.control))
         self.cfg = self._build_cfg(config)
         self.models = np.zeros(self.n, dtype=np.int64)
         self.P = np.zeros((self.n, N_PARAMS))
@@ -103,6 +107,15 @@ class TrapEngine:
                 np.zeros((rows, 4 + S.LANES), dtype=np.int64))
 
     # -- configuration -------------------------------------------------------------------
+    @staticmethod
+    def _build_control(c: EnvConfig) -> StepControl:
+        """How the integrator steps through a control period: fixed substeps or adaptive
+        steps under the same step cap as `simulate`; both events on."""
+        rtol = c.rtol if c.rtol is not None else 1e-8
+        max_step = math.inf if c.substep else default_max_step(c.omega_max + c.ripple_amp)
+        return step_control(c.substep or 0.0, rtol, rtol, max_step, EVENT_DETACH | EVENT_ESCAPE,
+                            MAX_STEPS_PER_CONTROL_STEP)
+
     def _build_cfg(self, c: EnvConfig) -> np.ndarray:
         cfg = np.zeros(S.CFG_WIDTH)
         cfg[S.C_DT] = c.control_period
@@ -114,16 +127,9 @@ class TrapEngine:
         cfg[S.C_VEL_SCALE] = VELOCITY_SCALE
         cfg[S.C_RIPPLE_AMP] = c.ripple_amp
         cfg[S.C_RIPPLE_FREQ] = c.ripple_freq
-        cfg[S.C_SUBSTEP] = c.substep or 0.0
-        cfg[S.C_RTOL] = c.rtol if c.rtol is not None else 1e-8
-        cfg[S.C_ATOL] = cfg[S.C_RTOL]
-        # The same step cap as `simulate` for adaptive steps; fixed substeps are as given.
-        cfg[S.C_MAX_STEP] = (math.inf if c.substep else
-                             default_max_step(c.omega_max + c.ripple_amp))
         cfg[S.C_LOSS] = c.loss_penalty
         cfg[S.C_DIST_COST] = c.distance_cost
         cfg[S.C_EFFORT_COST] = c.effort_cost
-        cfg[S.C_EVENTS] = EVENT_DETACH | EVENT_ESCAPE
         cfg[S.C_LOCKSTEP] = 1.0 if self._lockstep else 0.0
         lay = layout(c)
         cfg[S.C_OBS_OMEGA] = lay.omega
@@ -254,7 +260,7 @@ class TrapEngine:
         if self._noise_scale is not None:
             self._draw_noise(rngs, active)
         args = (self.models, self.P, self.scales, self.Y, self.balls, self.cfg, actions, active,
-                *self._method_args, self.noise, self.frame, self.out)
+                *self._record_fields, self.noise, self.frame, self.out)
         if self.parallel and K.threads_usable():
             chunks = self._chunks()
             if self._chunk_scratch[0].shape[0] != chunks:  # the thread count was changed

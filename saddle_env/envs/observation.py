@@ -2,7 +2,8 @@
 inverse a controller needs (reading the speed or the saddle angle back out of a batch).
 
 The compiled step (`_step.observe_one`) writes the columns at the indices this module puts
-into the configuration vector, so the layout lives here only.
+into the configuration vector, so the layout lives here only; `states_from_observations`
+reads them back into physics states (the model-predictive controller's state estimate).
 
 | column | rotating frame (default) | lab frame (``obs_frame="lab"``) | scale |
 |---|---|---|---|
@@ -24,15 +25,20 @@ without a recurrent network. The indices above are those of the newest frame.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 from gymnasium import spaces
 
+from .. import _kernels as K
+from ..scene import P_A, P_B, P_R
 from .config import EnvConfig
 
 # Bounds of the scaled observation, shared with the compiled step (it clips to them).
 POS_BOUND, VEL_BOUND, OMEGA_LOW, OMEGA_HIGH = 2.0, 10.0, -0.5, 1.5
+VELOCITY_SCALE = 1.0  # [m/s] observation scale of velocities (positions: / rim_radius)
 OBS_MAX = 8  # the widest layout: lab frame + command, or rotating frame + command + angle
 
 
@@ -100,5 +106,72 @@ def observation_space(config: EnvConfig) -> spaces.Box:
     return spaces.Box(np.tile(low, lay.frames), np.tile(high, lay.frames), dtype=np.float32)
 
 
-__all__ = ["OBS_MAX", "OMEGA_HIGH", "OMEGA_LOW", "POS_BOUND", "VEL_BOUND", "ObsLayout", "layout",
-           "observation_space"]
+@nb.njit(cache=True)
+def _states_from_obs(model, p, lab, L, V, omega_max, obs, cols, spin, Y, omega):
+    """Physics states (rotating frame) of balls seen in ``obs``: the contact point from the
+    centre (Newton on c(q) = observed centre), its velocity from the centre's
+    (ċ = J q̇, horizontal rows), and for a rolling ball the spin of rolling plus ``spin[i]``
+    about the normal (the component a camera cannot see). ``cols``: the columns of x, y, vx,
+    vy, cos θ (sin θ after it; read in the lab frame only) and the measured Ω."""
+    a, b, R = p[P_A], p[P_B], p[P_R]
+    kx, ky, kvx, kvy, kcos, komega = cols
+    for i in range(obs.shape[0]):
+        W = obs[i, komega] * omega_max
+        if lab:
+            ct, st = obs[i, kcos], obs[i, kcos + 1]
+            nrm = math.hypot(ct, st)
+            if nrm > 0:
+                ct, st = ct / nrm, st / nrm
+            else:
+                ct, st = 1.0, 0.0
+            X, Yl = obs[i, kx] * L, obs[i, ky] * L
+            UX, UY = obs[i, kvx] * V, obs[i, kvy] * V
+            cx, cy = ct * X + st * Yl, -st * X + ct * Yl
+            ux, uy = ct * UX + st * UY, -st * UX + ct * UY
+            vcx, vcy = ux + W * cy, uy - W * cx      # ċ = u − Ω k×c
+        else:
+            cx, cy = obs[i, kx] * L, obs[i, ky] * L
+            vcx, vcy = obs[i, kvx] * V, obs[i, kvy] * V
+        omega[i] = W
+        x, y = cx / (1.0 - 2.0 * R / a), cy / (1.0 + 2.0 * R / b)
+        for _ in range(30):
+            g = K.geometry(a, b, R, x, y)
+            rx, ry = g.cx - cx, g.cy - cy
+            J1x, J1y, J2x, J2y = g.J1x, g.J1y, g.J2x, g.J2y
+            det = J1x * J2y - J2x * J1y
+            dx = (J2y * rx - J2x * ry) / det
+            dy = (-J1y * rx + J1x * ry) / det
+            x -= dx
+            y -= dy
+            if abs(dx) + abs(dy) < 1e-15:
+                break
+        g = K.geometry(a, b, R, x, y)
+        J1x, J1y, J2x, J2y = g.J1x, g.J1y, g.J2x, g.J2y
+        det = J1x * J2y - J2x * J1y
+        vx = (J2y * vcx - J2x * vcy) / det
+        vy = (-J1y * vcx + J1x * vcy) / det
+        K.state_from_velocity(model, p, x, y, vx, vy, spin[i], Y[i])
+
+
+def states_from_observations(config: EnvConfig, model: int, params: np.ndarray,
+                             obs: np.ndarray, spin: np.ndarray | None = None
+                             ) -> tuple[np.ndarray, np.ndarray]:
+    """The inverse of the observation: (n, 5) physics states (rotating frame) and (n,)
+    measured speeds [rad/s] of balls of contact model ``model`` with packed parameters
+    ``params`` (`Scene.params()`), seen in the float64 batch ``obs`` (n, ≥ the newest frame's
+    columns); a rolling ball spins by ``spin`` (n,) [rad/s] about the normal (default 0, as
+    the environment places balls). A noise-free, unclipped observation gives back the state
+    up to its float32 rounding."""
+    lay = layout(config)
+    n = len(obs)
+    Y = np.zeros((n, K.STATE_WIDTH))
+    omega = np.zeros(n)
+    spin = np.zeros(n) if spin is None else np.ascontiguousarray(spin, float)
+    cols = (lay.x, lay.y, lay.vx, lay.vy, -1 if lay.cos is None else lay.cos, lay.omega)
+    _states_from_obs(model, params, lay.lab_frame, config.rim_radius, VELOCITY_SCALE,
+                     config.omega_max, np.ascontiguousarray(obs), cols, spin, Y, omega)
+    return Y, omega
+
+
+__all__ = ["OBS_MAX", "OMEGA_HIGH", "OMEGA_LOW", "POS_BOUND", "VELOCITY_SCALE", "VEL_BOUND",
+           "ObsLayout", "layout", "observation_space", "states_from_observations"]

@@ -92,7 +92,7 @@ class SaddleRenderer:
             pg.draw.lines(surf, (185, 190, 205), False, pts.tolist(), 1)
         # ball centre in the lab
         geo = K.geometry(a, b, R, float(y[0]), float(y[1]))
-        cx, cy, cz = lab(np.array(geo[4]), np.array(geo[5]), np.array(geo[6]))
+        cx, cy, cz = lab(np.array(geo.cx), np.array(geo.cy), np.array(geo.cz))
         self.trail.append((float(cx), float(cy), float(cz)))
         trail = np.array(self.trail)
         if len(trail) > 1:

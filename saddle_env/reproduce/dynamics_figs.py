@@ -21,7 +21,7 @@ import numpy as np
 from .. import _kernels as K
 from ..analysis import linear_precession_rate, orientation_series, precession_angle
 from ..linear import critical_omega, eigenfrequencies, linear_trajectory
-from ..scene import Scene
+from ..scene import P_A, P_B, P_R, Scene
 from ..simulate import Trajectory, initial_state, simulate
 from . import paper_eom
 from .context import Context
@@ -38,9 +38,9 @@ def _centre_state(scene: Scene, state: np.ndarray) -> np.ndarray:
     y = np.zeros(K.STATE_WIDTH)
     y[: len(state)] = state
     p = scene.params()
-    geo = K.geometry(p[0], p[1], p[2], y[0], y[1])
+    geo = K.geometry(p[P_A], p[P_B], p[P_R], y[0], y[1])
     vx, vy = K.contact_velocity(scene.model_code, p, y)
-    return np.array([geo[4], geo[5], geo[7] * vx + geo[10] * vy, geo[8] * vx + geo[11] * vy])
+    return np.array([geo.cx, geo.cy, geo.J1x * vx + geo.J2x * vy, geo.J1y * vx + geo.J2y * vy])
 
 
 def _linear_contact_r(scene: Scene, omega: float, tr: Trajectory) -> np.ndarray:
