@@ -178,6 +178,7 @@ def test_mpc_identifies_the_ball_radius():
 def test_best_constant_search_is_cached(tmp_path, monkeypatch):
     monkeypatch.setattr(BC, "CACHE_FILE", tmp_path / "best.json")
     monkeypatch.setattr(BC, "USER_CACHE_FILE", tmp_path / "user.json")
+    monkeypatch.delenv(BC.CACHE_ENV_VAR)       # the default: the first writable file
     config = EnvConfig(R=0.033)
     first = BC.best_constant(config, episodes=4, max_episode_steps=100)
     wc = critical_omega(config.scene())

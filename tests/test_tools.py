@@ -78,6 +78,7 @@ def test_saddle_eval_unknown_level_is_one_clear_line(capsys):
 def test_best_const_is_searched_and_cached_per_level(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(BC, "CACHE_FILE", tmp_path / "best.json")
     monkeypatch.setattr(BC, "USER_CACHE_FILE", tmp_path / "user.json")
+    monkeypatch.delenv(BC.CACHE_ENV_VAR)       # the default: the first writable file
     real = BC.search_best_constant
     searched = []
 
