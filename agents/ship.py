@@ -34,12 +34,16 @@ def run_summary(run: Path) -> dict[str, Any]:
                 steps = max(steps, int(float(row["time/total_timesteps"])))
             if row.get("time/time_elapsed"):
                 elapsed = max(elapsed, float(row["time/time_elapsed"]))
+    # A warm start (the imitation of mpc: minutes) runs before SB3's clock starts.
+    warm = run / "warm_start.json"
+    warm_s = float(json.loads(warm.read_text()).get("seconds", 0.0)) if warm.is_file() else 0.0
     return {"run": run.name, "seed": int(config["seed"]), "env_id": side["env_id"],
             "env_kwargs": side.get("env_kwargs") or {},
             "validation_mean_return": float(side["validation_mean_return"]),
             "selected_at_steps": int(side["selected_at_steps"]),
-            "total_timesteps": steps, "wall_time_s": round(elapsed, 1),
-            "steps_per_s": round(steps / elapsed) if elapsed > 0 else None,
+            "total_timesteps": steps, "wall_time_s": round(elapsed + warm_s, 1),
+            "warm_start_s": round(warm_s, 1),
+            "steps_per_s": round(steps / elapsed) if elapsed > 0 else None,   # RL alone
             "hyperparams": config.get("hyperparams_used", {})}
 
 
@@ -74,11 +78,13 @@ def ship(runs: Sequence[Path], name: str, models_dir: Path = MODELS_DIR) -> Path
     shipped = summaries[best]
     side.update({"hyperparams": shipped["hyperparams"],
                  "total_timesteps": shipped["total_timesteps"],
-                 "wall_time_s": shipped["wall_time_s"], "steps_per_s": shipped["steps_per_s"],
+                 "wall_time_s": shipped["wall_time_s"], "warm_start_s": shipped["warm_start_s"],
+                 "steps_per_s": shipped["steps_per_s"],
                  "remake": f"python train.py --env {shipped['env_id']} --seed {shipped['seed']}",
                  "recipe_runs": [{k: s[k] for k in ("seed", "validation_mean_return",
                                                    "selected_at_steps", "total_timesteps",
-                                                   "wall_time_s", "steps_per_s")}
+                                                   "wall_time_s", "warm_start_s",
+                                                   "steps_per_s")}
                                  for s in summaries]})
     target.with_suffix(".json").write_text(json.dumps(side, indent=2) + "\n")
     return target

@@ -512,8 +512,10 @@ def train(settings: TrainSettings, resume: str | Path | None = None) -> Path:
             from .warm_start import warm_start
 
             _, config = settings.environment()
+            began = time.time()
             done = warm_start(model, config, hyper["warm_start"], steps, settings.seed,
                               hyper.get("imitation"))
+            done["seconds"] = round(time.time() - began, 1)   # wall time beside RL's
             (run_dir / "warm_start.json").write_text(json.dumps(done, indent=2))
     eval_env = wrap_env(eval_env, norm_kw, frame_stack, training=False)
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))

@@ -42,3 +42,11 @@ def test_ties_go_to_the_later_seed_and_recipes_must_match(tmp_path):
         ship(runs + [other], "m", tmp_path / "models")
     with pytest.raises(ValueError, match="not a finished training run"):
         ship([tmp_path / "missing"], "m", tmp_path / "models")
+
+
+def test_the_warm_start_counts_in_the_wall_time_not_in_the_steps_per_second(tmp_path):
+    run = _run(tmp_path / "r0", 0, 400.0)
+    (run / "warm_start.json").write_text(json.dumps({"warm_start": "mpc", "seconds": 96.0}))
+    side = json.loads(ship([run], "m", tmp_path / "models").with_suffix(".json").read_text())
+    assert side["wall_time_s"] == 100.0 and side["warm_start_s"] == 96.0
+    assert side["steps_per_s"] == 500            # RL's own rate: 2,000 steps in 4 s

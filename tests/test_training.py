@@ -172,3 +172,19 @@ def test_the_main_job_trains_on_a_level_where_learning_shows():
     assert TrainSettings().env_id == MAIN_JOB_ENV_ID != "SaddleTrap-v0"
     hyper = load_hyperparams("ppo", MAIN_JOB_ENV_ID)
     assert hyper["warm_start"] == "best-const" and float(hyper["n_timesteps"]) <= 5e6
+
+
+def test_a_run_warm_started_by_imitating_mpc_records_it_and_can_select_it(tmp_path):
+    hyper = tmp_path / "ppo.yml"
+    hyper.write_text("SaddleTrap-Storm-v0:\n  n_envs: 4\n  n_steps: 64\n  batch_size: 64\n"
+                     "  policy_kwargs: 'dict(log_std_init=-2.0)'\n  warm_start: mpc\n"
+                     "  imitation: {rounds: 2, episodes: 4, epochs: 2}\n")
+    proc = _train(tmp_path, "--env", "SaddleTrap-Storm-v0", "--hyperparams", str(hyper),
+                  "--total-timesteps", "256", "--eval-freq", "100000", "--run-name", "imit")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    run = tmp_path / "imit"
+    record = json.loads((run / "warm_start.json").read_text())
+    assert record["warm_start"] == "mpc" and record["seconds"] > 0
+    assert [r["driver"] for r in record["rounds"]] == ["mpc", "network"]
+    # The imitating network was evaluated before RL: a snapshot at step 0 is on the curve.
+    assert np.load(run / "evaluations.npz")["timesteps"][0] == 0
