@@ -233,12 +233,17 @@ def main(argv: Sequence[str] | None = None) -> int:
                 eps = old.get("episode_results", {}).get(lid, {})
                 done[lid] = {row["key"]: (row, eps[row["key"]]) for row in table["policies"]
                              if row.get("key") in eps}
-                if lid in ids:  # kept as they were until this run reaches the level again
-                    results["levels"][lid] = table
-                    results["episode_results"][lid] = eps
+                # Kept as they were until this run reaches the level again; a level this
+                # run does not evaluate (``--levels`` names others) stays on the board.
+                results["levels"][lid] = table
+                results["episode_results"][lid] = eps
+    # The board lists its levels in the registry's order, whichever were updated.
+    results["order"] = [level.id for level in LEVELS
+                        if level.id in ids or level.id in results["levels"]]
     command = "python -m agents.leaderboard" + (
         "" if argv is None and len(sys.argv) <= 1 else " " + " ".join(argv or sys.argv[1:]))
-    figures: dict[str, str] = {}
+    figures: dict[str, str] = {lid: f"figures/leaderboard_{lid}.png" for lid in results["levels"]
+                               if lid not in ids and (figs / f"leaderboard_{lid}.png").is_file()}
 
     def stop(signum, frame):  # SIGTERM: finish like Ctrl-C, keeping what finished
         raise KeyboardInterrupt

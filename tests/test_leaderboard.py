@@ -106,3 +106,28 @@ def test_bad_arguments_give_one_line_errors(capsys):
         lb.main(["--levels", "SaddleTrap-v9"])
     err = capsys.readouterr().err
     assert "--episodes must be >= 1" in err and "registered levels" in err
+
+
+def test_updating_one_level_keeps_the_others_on_the_board(tmp_path, monkeypatch):
+    import numpy as np
+
+    first, second = LEVELS[1].id, LEVELS[2].id
+
+    def fake(env_id, spec, episodes, seed, progress=True):
+        cell = {"mean": 0.5, "low": 0.4, "high": 0.6}
+        row = {"policy": spec, "kind": "baseline",
+               **{k: cell for k in ("trapping_time", "kept", "detach", "escape",
+                                    "mean_distance_mm", "effort", "return")}}
+        return row, {"time": np.array([1.0, 10.0]), "kept": np.array([False, True])}
+
+    monkeypatch.setattr(lb, "evaluate_policy", fake)
+    monkeypatch.setattr(lb, "shipped_agents", lambda env_id: [])
+    common = ["--episodes", "2", "--out", str(tmp_path), "--no-progress"]
+    assert lb.main(common + ["--levels", second, first]) == 0
+    assert lb.main(common + ["--levels", second, "--resume"]) == 0
+    data = json.loads((tmp_path / "leaderboard.json").read_text())
+    assert data["order"] == [first, second]                  # the registry's order
+    assert set(data["levels"]) == {first, second}
+    page = (tmp_path / "leaderboard.md").read_text()
+    assert f"## {first}" in page and f"## {second}" in page
+    assert f"figures/leaderboard_{first}.png" in page
