@@ -39,10 +39,19 @@ def test_a_small_leaderboard_has_every_baseline_with_intervals(tmp_path):
     assert png.is_file() and png.read_bytes()[:4] == b"\x89PNG"
 
 
-def test_resume_keeps_finished_policies_and_an_interrupt_keeps_what_finished(tmp_path,
-                                                                             monkeypatch):
+def _fake_result(spec):
+    """A row and two episodes for ``spec``, as `evaluate_policy` returns them."""
     import numpy as np
 
+    cell = {"mean": 0.5, "low": 0.4, "high": 0.6}
+    row = {"policy": spec, "kind": "baseline",
+           **{k: cell for k in ("trapping_time", "kept", "detach", "escape",
+                                "mean_distance_mm", "effort", "return")}}
+    return row, {"time": np.array([1.0, 10.0]), "kept": np.array([False, True])}
+
+
+def test_resume_keeps_finished_policies_and_an_interrupt_keeps_what_finished(tmp_path,
+                                                                             monkeypatch):
     first, second = LEVELS[1].id, LEVELS[2].id
     calls = []
 
@@ -50,11 +59,7 @@ def test_resume_keeps_finished_policies_and_an_interrupt_keeps_what_finished(tmp
         calls.append((env_id, spec))
         if env_id == second and spec == "const-1.0":
             raise KeyboardInterrupt
-        cell = {"mean": 0.5, "low": 0.4, "high": 0.6}
-        row = {"policy": spec, "kind": "baseline",
-               **{k: cell for k in ("trapping_time", "kept", "detach", "escape",
-                                    "mean_distance_mm", "effort", "return")}}
-        return row, {"time": np.array([1.0, 10.0]), "kept": np.array([False, True])}
+        return _fake_result(spec)
 
     monkeypatch.setattr(lb, "evaluate_policy", fake)
     monkeypatch.setattr(lb, "shipped_agents", lambda env_id: [])
@@ -109,16 +114,10 @@ def test_bad_arguments_give_one_line_errors(capsys):
 
 
 def test_updating_one_level_keeps_the_others_on_the_board(tmp_path, monkeypatch):
-    import numpy as np
-
     first, second = LEVELS[1].id, LEVELS[2].id
 
     def fake(env_id, spec, episodes, seed, progress=True):
-        cell = {"mean": 0.5, "low": 0.4, "high": 0.6}
-        row = {"policy": spec, "kind": "baseline",
-               **{k: cell for k in ("trapping_time", "kept", "detach", "escape",
-                                    "mean_distance_mm", "effort", "return")}}
-        return row, {"time": np.array([1.0, 10.0]), "kept": np.array([False, True])}
+        return _fake_result(spec)
 
     monkeypatch.setattr(lb, "evaluate_policy", fake)
     monkeypatch.setattr(lb, "shipped_agents", lambda env_id: [])
