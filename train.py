@@ -74,13 +74,30 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _run(parser: argparse.ArgumentParser, prepare, train) -> int:
+    """Both backends: build and check the settings (``prepare()``), ``train(settings)``,
+    print the run folder. Bad input and a missing extra end as one-line errors (exit 2)."""
+    from agents.cli_args import MissingExtra
+
+    try:
+        settings = prepare()
+        start = time.time()
+        run_dir = train(settings)
+    except MissingExtra as exc:
+        parser.exit(2, f"{parser.prog}: error: {exc}\n")
+    except ValueError as exc:
+        parser.error(str(exc))
+    print(f"run folder: {run_dir}  ({time.time() - start:.0f} s)")
+    return 0
+
+
 def _main_rllib(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     """train.py --backend rllib (or --resume of an RLlib checkpoint): all Ray code is in
     agents/rllib_backend.py."""
     from agents import rllib_backend as rb
-    from agents.cli_args import MissingExtra, parse_env_kwargs
+    from agents.cli_args import parse_env_kwargs
 
-    try:
+    def prepare():
         if args.num_env_runners is not None and args.num_env_runners < 1:
             raise ValueError(f"--num-env-runners must be >= 1, got {args.num_env_runners}")
         if not args.resume and args.algo not in rb.RLLIB_ALGOS:
@@ -90,28 +107,21 @@ def _main_rllib(parser: argparse.ArgumentParser, args: argparse.Namespace) -> in
             rb.check_reachable(args.address)   # a one-line error within seconds, not a hang
         rb.check_dependencies()
         if args.resume:
-            settings = rb.settings_for_resume(
+            return rb.settings_for_resume(
                 args.resume, args.total_timesteps, not args.no_progress_bar,
                 num_env_runners=args.num_env_runners, address=args.address,
                 num_cpus=args.num_cpus)
-        else:
-            settings = rb.RllibSettings(
-                algo=args.algo, env_id=args.env, env_kwargs=parse_env_kwargs(args.env_kwargs),
-                seed=args.seed, n_envs=args.n_envs, total_timesteps=args.total_timesteps,
-                hyperparams=args.hyperparams, log_dir=args.log_dir, run_name=args.run_name,
-                save_freq=args.save_freq, max_episode_steps=args.max_episode_steps,
-                progress_bar=not args.no_progress_bar, torch_threads=args.torch_threads,
-                num_env_runners=(rb.DEFAULT_ENV_RUNNERS if args.num_env_runners is None
-                                 else args.num_env_runners),
-                address=args.address, num_cpus=args.num_cpus).validate()
-        start = time.time()
-        run_dir = rb.train(settings, resume=args.resume)
-    except MissingExtra as exc:
-        parser.exit(2, f"{parser.prog}: error: {exc}\n")
-    except ValueError as exc:
-        parser.error(str(exc))
-    print(f"run folder: {run_dir}  ({time.time() - start:.0f} s)")
-    return 0
+        return rb.RllibSettings(
+            algo=args.algo, env_id=args.env, env_kwargs=parse_env_kwargs(args.env_kwargs),
+            seed=args.seed, n_envs=args.n_envs, total_timesteps=args.total_timesteps,
+            hyperparams=args.hyperparams, log_dir=args.log_dir, run_name=args.run_name,
+            save_freq=args.save_freq, max_episode_steps=args.max_episode_steps,
+            progress_bar=not args.no_progress_bar, torch_threads=args.torch_threads,
+            num_env_runners=(rb.DEFAULT_ENV_RUNNERS if args.num_env_runners is None
+                             else args.num_env_runners),
+            address=args.address, num_cpus=args.num_cpus).validate()
+
+    return _run(parser, prepare, lambda settings: rb.train(settings, resume=args.resume))
 
 
 def _is_rllib_checkpoint(path: str) -> bool:
@@ -127,31 +137,24 @@ def main(argv: list[str] | None = None) -> int:
         return _main_rllib(parser, args)
     if args.num_env_runners is not None or args.address is not None:
         parser.error("--num-env-runners and --address need --backend rllib")
-    from agents.cli_args import MissingExtra, parse_env_kwargs
+    from agents.cli_args import parse_env_kwargs
     from agents.training import TrainSettings, check_dependencies, settings_for_resume, train
 
-    try:
+    def prepare():
         check_dependencies(not args.no_progress_bar)
         if args.resume:
-            settings = settings_for_resume(args.resume, args.total_timesteps,
-                                           not args.no_progress_bar)
-        else:
-            settings = TrainSettings(
-                algo=args.algo, env_id=args.env, env_kwargs=parse_env_kwargs(args.env_kwargs),
-                seed=args.seed, n_envs=args.n_envs, total_timesteps=args.total_timesteps,
-                hyperparams=args.hyperparams, log_dir=args.log_dir, run_name=args.run_name,
-                eval_freq=args.eval_freq, eval_episodes=args.eval_episodes,
-                save_freq=args.save_freq, max_episode_steps=args.max_episode_steps,
-                progress_bar=not args.no_progress_bar, torch_threads=args.torch_threads,
-                compare_episodes=args.compare_episodes).validate()
-        start = time.time()
-        run_dir = train(settings, resume=args.resume)
-    except MissingExtra as exc:
-        parser.exit(2, f"{parser.prog}: error: {exc}\n")
-    except ValueError as exc:
-        parser.error(str(exc))
-    print(f"run folder: {run_dir}  ({time.time() - start:.0f} s)")
-    return 0
+            return settings_for_resume(args.resume, args.total_timesteps,
+                                       not args.no_progress_bar)
+        return TrainSettings(
+            algo=args.algo, env_id=args.env, env_kwargs=parse_env_kwargs(args.env_kwargs),
+            seed=args.seed, n_envs=args.n_envs, total_timesteps=args.total_timesteps,
+            hyperparams=args.hyperparams, log_dir=args.log_dir, run_name=args.run_name,
+            eval_freq=args.eval_freq, eval_episodes=args.eval_episodes,
+            save_freq=args.save_freq, max_episode_steps=args.max_episode_steps,
+            progress_bar=not args.no_progress_bar, torch_threads=args.torch_threads,
+            compare_episodes=args.compare_episodes).validate()
+
+    return _run(parser, prepare, lambda settings: train(settings, resume=args.resume))
 
 
 if __name__ == "__main__":

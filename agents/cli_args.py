@@ -18,6 +18,8 @@ import ast
 import importlib
 import json
 from collections.abc import Sequence
+from dataclasses import fields
+from pathlib import Path
 from types import ModuleType
 from typing import Any
 
@@ -129,5 +131,24 @@ def level_overrides(level: Level, config: EnvConfig) -> dict[str, Any]:
             if v != getattr(base, k)}
 
 
+def saved_settings(cls: type, config: Path, total_timesteps: int | None = None,
+                   progress_bar: bool = True, **overrides: Any) -> Any:
+    """The settings dataclass ``cls`` of a run from its ``config.json`` (the keys ``cls``
+    knows; the recorded hyperparameters are re-read at training time), with a new budget
+    and any ``overrides`` that are not None: what ``--resume`` continues with, on either
+    backend. Not validated here."""
+    saved = json.loads(Path(config).read_text())
+    saved.pop("hyperparams_used", None)
+    known = {f.name for f in fields(cls)}
+    settings = cls(**{k: v for k, v in saved.items() if k in known})
+    if total_timesteps:
+        settings.total_timesteps = total_timesteps
+    for key, value in overrides.items():
+        if value is not None:
+            setattr(settings, key, value)
+    settings.progress_bar = progress_bar
+    return settings
+
+
 __all__ = ["EXTRA_OF", "MissingExtra", "install_hint", "level_overrides", "missing",
-           "parse_env_kwargs", "parse_value", "require", "resolve_env"]
+           "parse_env_kwargs", "parse_value", "require", "resolve_env", "saved_settings"]

@@ -78,12 +78,9 @@ def _heads(policy: Any, obs: Any) -> tuple[Any, Any]:
 
 
 def network_actions(policy: Any, obs: np.ndarray) -> np.ndarray:
-    """The network's deterministic actions (n,) in [-1, 1] for a batch of observations."""
-    import torch
-
-    with torch.no_grad():
-        mean, _ = _heads(policy, torch.as_tensor(obs, dtype=torch.float32))
-    return np.clip(mean.numpy().reshape(-1), -1.0, 1.0)
+    """The network's deterministic actions (n,) in [-1, 1] for a batch of observations
+    (SB3's own ``predict``: what evaluation runs)."""
+    return policy.predict(obs, deterministic=True)[0].astype(np.float64).reshape(-1)
 
 
 def discounted_returns(rewards: np.ndarray, alive: np.ndarray, kept: np.ndarray,

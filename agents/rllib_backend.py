@@ -44,7 +44,7 @@ import signal
 import socket
 import sys
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +52,14 @@ import numpy as np
 
 from saddle_env.envs.vector import SaddleTrapVectorEnv
 
-from .cli_args import MissingExtra, install_hint, level_overrides, missing, resolve_env
+from .cli_args import (
+    MissingExtra,
+    install_hint,
+    level_overrides,
+    missing,
+    resolve_env,
+    saved_settings,
+)
 from .rllib_policy import (  # noqa: F401  (the checkpoint side, importable without training)
     CHECKPOINT_MARKER,
     MODULE_PATH,
@@ -197,16 +204,7 @@ def settings_for_resume(checkpoint: str | os.PathLike, total_timesteps: int | No
     if not is_checkpoint(ckpt) or not config.is_file():
         raise ValueError(f"--resume: need an RLlib checkpoint directory inside a run folder "
                          f"with config.json, got {str(checkpoint)!r}")
-    saved = json.loads(config.read_text())
-    saved.pop("hyperparams_used", None)
-    known = {f.name for f in fields(RllibSettings)}
-    settings = RllibSettings(**{k: v for k, v in saved.items() if k in known})
-    if total_timesteps:
-        settings.total_timesteps = total_timesteps
-    for key, value in overrides.items():
-        if value is not None:
-            setattr(settings, key, value)
-    settings.progress_bar = progress_bar
+    settings = saved_settings(RllibSettings, config, total_timesteps, progress_bar, **overrides)
     return settings.validate()
 
 

@@ -44,7 +44,7 @@ import json
 import signal
 import sys
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -59,6 +59,7 @@ from .cli_args import (  # noqa: F401
     missing,
     parse_env_kwargs,
     resolve_env,
+    saved_settings,
 )
 from .seeds import COMPARE_SEED, VALIDATION_SEED
 
@@ -160,14 +161,7 @@ def settings_for_resume(checkpoint: str | Path, total_timesteps: int | None = No
     if not ckpt.is_file() or not config.is_file():
         raise ValueError(f"--resume: need an existing checkpoint inside a run folder with "
                          f"config.json, got {str(checkpoint)!r}")
-    saved = json.loads(config.read_text())
-    saved.pop("hyperparams_used", None)
-    known = {f.name for f in fields(TrainSettings)}
-    settings = TrainSettings(**{k: v for k, v in saved.items() if k in known})
-    if total_timesteps:
-        settings.total_timesteps = total_timesteps
-    settings.progress_bar = progress_bar
-    return settings.validate()
+    return saved_settings(TrainSettings, config, total_timesteps, progress_bar).validate()
 
 
 def check_dependencies(progress_bar: bool) -> None:

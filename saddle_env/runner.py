@@ -379,37 +379,10 @@ def run(scene: Scene, state: np.ndarray, t_end: float, *,
              dt: float | None = None, events: Sequence[str] = DEFAULT_EVENTS,
              max_step: float | None = None, max_steps: int = 50_000_000,
              force: tuple[float, float] = (0.0, 0.0)) -> Trajectory:
-    """Integrate one ball from t = 0 to ``t_end`` with the given integrator settings (no
-    ``tol=``, no check of a fixed step's accuracy: see `saddle_env.simulate.simulate`).
-
-    Parameters
-    ----------
-    scene : Scene
-    state : array (scene.state_size,) — from `initial_state`.
-    t_end : float — final time [s].
-    omega : float, OmegaProfile or tuple — Ω(t) [rad/s] (a number means constant speed).
-    dt_out : float or None — output spacing [s]; None outputs only t = 0 and t_end.
-    method : str — a name in ``METHODS`` (default ``"dop853"``).
-    rtol, atol : float — adaptive tolerances (default 1e-10); ``atol`` is relative to the
-        saddle's size (see `state_scale`).
-    dt : float — fixed step [s]; selects fixed-step integration.
-    events : subset of ("detach", "escape") — stop when the normal force falls below 0 or
-        the contact point leaves ``scene.rim_radius``; the normal force is computed during
-        integration only if "detach" is asked for.
-    max_step : float — largest step [s] (default: an eighth of π/max|Ω|).
-    max_steps : int — give up after this many steps.
-    force : (fx, fy) — constant horizontal force per unit mass [m/s²] fixed in the
-        laboratory (whose axes coincide with the saddle's at t = 0), e.g. an air current.
-
-    Returns
-    -------
-    Trajectory
-
-    Raises
-    ------
-    ValueError — invalid input (the message names the parameter and the allowed range).
-    SimulationError — the integration failed (non-finite state or step-size underflow).
-    """
+    """Integrate one ball from t = 0 to ``t_end`` with the given integrator settings: the
+    layer under `saddle_env.simulate.simulate`, whose docstring documents the parameters, the
+    `Trajectory` returned and the errors raised (here without ``tol=`` and without the check
+    of a fixed step's accuracy)."""
     if not isinstance(scene, Scene):
         raise ValueError(f"scene must be a saddle_env.Scene, got {type(scene).__name__}")
     y = _check_state(scene, state)
