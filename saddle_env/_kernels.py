@@ -88,20 +88,8 @@ def threads_usable() -> bool:
     except ValueError:  # no parallel region has run in this process (or its parent) yet
         return True
 
-from .scene import (
-    ION_PAUL,
-    ION_RRF,
-    P_A,
-    P_ALPHA,
-    P_B,
-    P_DRAG_LINEAR,
-    P_DRAG_QUADRATIC,
-    P_DRILL,
-    P_G,
-    P_R,
-    ROLLING,
-    SLIPPING,
-)
+from .scene import (ION_PAUL, ION_RRF, P_A, P_ALPHA, P_B, P_DRAG_LINEAR, P_DRAG_QUADRATIC, P_DRILL,
+                    P_G, P_R, ROLLING, SLIPPING)
 
 STATE_WIDTH = 6
 # The longest state without its work slot (rolling): the padded width of the public batch

@@ -22,29 +22,11 @@ from collections import namedtuple
 
 import numpy as np
 
-from ._kernels import (
-    DRIVE_WIDTH,
-    STATE_WIDTH,
-    frame_terms,
-    jit,
-    rolling_rates,
-    sized,
-    slipping_rates,
-)
+from ._kernels import (DRIVE_WIDTH, STATE_WIDTH, frame_terms, jit, rolling_rates, sized,
+                       slipping_rates)
 from .integrators import ERR_EMBEDDED, EVENT_DETACH, EVENT_ESCAPE, step_factor
-from .scene import (
-    N_PARAMS,
-    P_A,
-    P_ALPHA,
-    P_B,
-    P_DRAG_LINEAR,
-    P_DRAG_QUADRATIC,
-    P_DRILL,
-    P_G,
-    P_R,
-    P_RIM,
-    ROLLING,
-)
+from .scene import (N_PARAMS, P_A, P_ALPHA, P_B, P_DRAG_LINEAR, P_DRAG_QUADRATIC, P_DRILL, P_G, P_R,
+                    P_RIM, ROLLING)
 
 LANES = 64  # balls per block: the stage arrays of a block stay in the L1 cache
 PARAM_WIDTH = N_PARAMS
