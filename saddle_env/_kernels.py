@@ -5,13 +5,18 @@ frame and its forces"), per unit mass, with the contact point ``q = (x, y)`` as 
 coordinates. Vectors are handled as scalar triples so that numba keeps them in registers;
 no arrays are allocated on the hot path.
 
-State vectors always have ``STATE_WIDTH = 5`` slots so that single balls and batches of
+State vectors always have ``STATE_WIDTH = 6`` slots so that single balls and batches of
 mixed contact models share one memory layout:
 
-* rolling:  ``(x, y, wx, wy, wz)`` — contact point [m] and the ball's angular velocity
+* rolling:  ``(x, y, wx, wy, wz, W)`` — contact point [m] and the ball's angular velocity
   relative to the saddle, in the saddle's axes [rad/s];
-* slipping / point: ``(x, y, vx, vy, 0)`` — contact point and its velocity [m/s]. The
+* slipping / point: ``(x, y, vx, vy, W, 0)`` — contact point and its velocity [m/s]. The
   spin is decoupled (docs/physics.md, "Frictionless slipping") and is not integrated.
+
+W [J/kg], in the slot right after the dynamics, is the work per unit mass the dissipative
+forces (air drag, drilling friction) have done since the start: the Jacobi integral's
+change. It is integrated only when the scene dissipates (`integrated_size`), so a
+conservative scene's step is the same arithmetic as without it.
 
 Notation (derivations in docs/physics.md):
   m(q) = (-2x/a, 2y/b, 1) is the un-normalised normal — affine in q, so its second time
@@ -83,9 +88,13 @@ def threads_usable() -> bool:
     except ValueError:  # no parallel region has run in this process (or its parent) yet
         return True
 
-from .scene import ION_PAUL, ION_RRF, P_A, P_ALPHA, P_B, P_DRILL, P_G, P_R, ROLLING
+from .scene import (ION_PAUL, ION_RRF, P_A, P_ALPHA, P_B, P_DRAG_LINEAR, P_DRAG_QUADRATIC, P_DRILL,
+                    P_G, P_R, ROLLING, SLIPPING)
 
-STATE_WIDTH = 5
+STATE_WIDTH = 6
+# The longest state without its work slot (rolling): the padded width of the public batch
+# API's states (`saddle_env.simulate.simulate_batch`).
+DYNAMICS_WIDTH = 5
 
 # Layout of a drive row: the saddle speed Ω(t) = w0 + rate·t + amp·sin(freq·t + phase),
 # the saddle angle θ0 at t = 0, and a horizontal force per unit mass (fx, fy) [m/s²] fixed
@@ -202,9 +211,44 @@ def _effective_gravity(g, Om, Omd, fx, fy, cx, cy, cdx, cdy):
     return gx, gy, -g
 
 
+@jit
+def sized(model, drill, drag_linear, drag_quadratic):
+    """How many leading state slots the integrator advances: the dynamics (5 rolling, 4
+    otherwise), plus the work slot W when the scene dissipates (air drag; drilling friction
+    on a rolling ball). From the scene's dissipation coefficients (`integrated_size` takes
+    the packed row)."""
+    drag = drag_linear != 0.0 or drag_quadratic != 0.0
+    if model == ROLLING:
+        return 6 if (drag or drill != 0.0) else 5
+    return 5 if (model == SLIPPING and drag) else 4
+
+
+@jit
+def integrated_size(model, p):
+    """`sized` for the packed parameter row ``p``."""
+    return sized(model, p[P_DRILL], p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC])
+
+
 @inline
-def rolling_rates(a, b, R, alpha, g, drill, Om, Omd, fx, fy, x, y, wx, wy, wz):
-    """Time derivatives of a rolling ball's state (x, y, wx, wy, wz) and N/m [m/s²].
+def _air_drag(drag_linear, drag_quadratic, Om, cx, cy, cdx, cdy, cdz):
+    """Air drag per unit mass on the centre [m/s²], in the saddle's axes, and its power
+    [W/kg] in the rotating frame, f·ċ. The air is still in the laboratory, so the centre
+    moves through it at u = ċ + Ω k×c."""
+    ux = cdx - Om * cy
+    uy = cdy + Om * cx
+    uz = cdz
+    k = drag_linear
+    if drag_quadratic != 0.0:
+        k += drag_quadratic * math.sqrt(ux * ux + uy * uy + uz * uz)
+    fx, fy, fz = -k * ux, -k * uy, -k * uz
+    return fx, fy, fz, fx * cdx + fy * cdy + fz * cdz
+
+
+@inline
+def rolling_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, Om, Omd, fx, fy,
+                  x, y, wx, wy, wz):
+    """Time derivatives of a rolling ball's state (x, y, wx, wy, wz), the dissipated power
+    Ẇ [W/kg] and N/m [m/s²].
 
     Scalars in, scalars out, always inlined: the same code serves `rhs` and the SIMD lanes
     of `saddle_env.lockstep` (a call would stop the compiler from vectorising the loop).
@@ -218,6 +262,12 @@ def rolling_rates(a, b, R, alpha, g, drill, Om, Omd, fx, fy, x, y, wx, wy, wz):
     vx, vy = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, cdx, cdy, cdz)
     mdx, mdy, nm, ndx, ndy, ndz = _normal_rate(a, b, s, nx, ny, nz, vx, vy)
     gx, gy, gz = _effective_gravity(g, Om, Omd, fx, fy, cx, cy, cdx, cdy)
+    power = 0.0
+    if drag_linear != 0.0 or drag_quadratic != 0.0:
+        # Drag is a force on the centre, like gravity: it joins g_eff (and so the contact
+        # force, which keeps the ball rolling, takes its share).
+        dx, dy, dz, power = _air_drag(drag_linear, drag_quadratic, Om, cx, cy, cdx, cdy, cdz)
+        gx, gy, gz = gx + dx, gy + dy, gz + dz
     # Euler's equation with the contact force eliminated:
     # [(1+α) 1 - n nᵀ] ẇ = -α(Ω̇ k + Ω k×w) - n×(w×ṅ) + n×g_eff/R, and n×(w×ṅ) = -(n·w) ṅ
     # because n·ṅ = 0. The matrix is inverted in closed form (Sherman–Morrison):
@@ -236,15 +286,18 @@ def rolling_rates(a, b, R, alpha, g, drill, Om, Omd, fx, fy, x, y, wx, wy, wz):
     wny = wz * ndx - wx * ndz
     wnz = wx * ndy - wy * ndx
     normal = R * (nx * wnx + ny * wny + nz * wnz) - (nx * gx + ny * gy + nz * gz)
+    # Drilling friction's power: α R² w·ẇ of its term -λ (n·w) n (the term is normal, so
+    # the centre's acceleration does not see it).
+    power -= alpha * R * R * drl * nw
     return (vx, vy, (rx + nr_over_alpha * nx) * inv - drl * nx,
             (ry + nr_over_alpha * ny) * inv - drl * ny,
-            (rz + nr_over_alpha * nz) * inv - drl * nz, normal)
+            (rz + nr_over_alpha * nz) * inv - drl * nz, power, normal)
 
 
 @inline
-def slipping_rates(a, b, R, g, Om, Omd, fx, fy, x, y, vx, vy):
-    """Time derivatives of a slipping ball's state (x, y, vx, vy) and N/m [m/s²]; the point
-    model is R = 0. Inlined like `rolling_rates`."""
+def slipping_rates(a, b, R, g, drag_linear, drag_quadratic, Om, Omd, fx, fy, x, y, vx, vy):
+    """Time derivatives of a slipping ball's state (x, y, vx, vy), the dissipated power Ẇ
+    [W/kg] and N/m [m/s²]; the point model is R = 0. Inlined like `rolling_rates`."""
     s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, x, y)
     cdx = J1x * vx + J2x * vy
     cdy = J1y * vx + J2y * vy
@@ -255,11 +308,16 @@ def slipping_rates(a, b, R, g, Om, Omd, fx, fy, x, y, vx, vy):
     kapy = -kR * (2.0 * nm * ndy + ndm * ny)
     kapz = 2.0 * (vx * vx / a - vy * vy / b) - kR * (2.0 * nm * ndz + ndm * nz)
     gx, gy, gz = _effective_gravity(g, Om, Omd, fx, fy, cx, cy, cdx, cdy)
+    power = 0.0
+    if drag_linear != 0.0 or drag_quadratic != 0.0:
+        cdz = J1z * vx + J2z * vy
+        dx, dy, dz, power = _air_drag(drag_linear, drag_quadratic, Om, cx, cy, cdx, cdy, cdz)
+        gx, gy, gz = gx + dx, gy + dy, gz + dz
     # The centre is a particle on the offset surface: q̈ = (JᵀJ)⁻¹ Jᵀ (g_eff - J̇ q̇).
     rx, ry, rz = gx - kapx, gy - kapy, gz - kapz
     ax, ay = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, rx, ry, rz)
     # N/m = n·(c̈ - g_eff) and n·J q̈ = 0.
-    return vx, vy, ax, ay, -(nx * rx + ny * ry + nz * rz)
+    return vx, vy, ax, ay, power, -(nx * rx + ny * ry + nz * rz)
 
 
 # Layout of an ion's parameter row (saddle_env.iontrap.IonTrap.params); slot P_RIM (6) is
@@ -297,26 +355,29 @@ def rhs(model, p, prof, t, y, dy, want_normal):
     model : int
         ``ROLLING`` or ``SLIPPING`` (the point model is slipping with p[P_R] = 0), or
         ``ION_RRF`` / ``ION_PAUL`` (state (x, y, vx, vy); no normal force: returns +inf).
-    p : (7,) float64 — packed scene parameters (Scene.params()).
+    p : (N_PARAMS,) float64 — packed scene parameters (Scene.params()).
     prof : (8,) float64 — drive row (Ω profile, θ0, external force).
     t : float — time [s].
-    y, dy : (5,) float64 — state and its derivative.
+    y, dy : (STATE_WIDTH,) float64 — state and its derivative (the work slot's derivative
+        is the dissipated power; 0 when nothing dissipates).
     want_normal : bool — whether to return the normal force per unit mass.
     """
     Om, Omd, fx, fy = frame_terms(prof, t)
     if model == ROLLING:
-        dy[0], dy[1], dy[2], dy[3], dy[4], normal = rolling_rates(
-            p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], Om, Omd, fx, fy,
-            y[0], y[1], y[2], y[3], y[4])
+        dy[0], dy[1], dy[2], dy[3], dy[4], dy[5], normal = rolling_rates(
+            p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
+            p[P_DRAG_QUADRATIC], Om, Omd, fx, fy, y[0], y[1], y[2], y[3], y[4])
     elif model >= ION_RRF:
         dy[0], dy[1] = y[2], y[3]
         dy[2], dy[3] = ion_rates(model, p, prof, t, Om, Omd, y[0], y[1], y[2], y[3])
         dy[4] = 0.0
+        dy[5] = 0.0
         normal = np.inf
     else:
-        dy[0], dy[1], dy[2], dy[3], normal = slipping_rates(
-            p[P_A], p[P_B], p[P_R], p[P_G], Om, Omd, fx, fy, y[0], y[1], y[2], y[3])
-        dy[4] = 0.0
+        dy[0], dy[1], dy[2], dy[3], dy[4], normal = slipping_rates(
+            p[P_A], p[P_B], p[P_R], p[P_G], p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC], Om, Omd,
+            fx, fy, y[0], y[1], y[2], y[3])
+        dy[5] = 0.0
     return normal if want_normal else 0.0
 
 
@@ -375,6 +436,7 @@ def state_from_velocity(model, p, x, y, vx, vy, spin_normal, out):
     about the normal relative to the saddle: w = n × ċ / R + spin_normal · n."""
     out[0] = x
     out[1] = y
+    out[5] = 0.0  # no work done yet (the work slot is 4 when not rolling)
     if model != ROLLING:
         out[2] = vx
         out[3] = vy

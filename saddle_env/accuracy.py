@@ -268,13 +268,14 @@ def _jacobi_rows(traj) -> np.ndarray:
 
 
 def jacobi_drift(traj) -> float:
-    """Largest |h(t) − h(0)| over the outputs (and the event state), relative to
-    |h(0)| + g·a/100; NaN when the Jacobi integral is not conserved (Ω varies, a lab-frame
-    force acts, or drilling friction dissipates)."""
-    if (not traj.omega.constant or traj.force != (0.0, 0.0) or len(traj.t) < 1
-            or traj.scene.drilling_friction > 0):
+    """Largest |h(t) − h(0) − W(t)| over the outputs (and, without dissipation, the event
+    state), relative to |h(0)| + g·a/100, where W is the work of the dissipative forces
+    (`Trajectory.work`); NaN when the Jacobi integral is not conserved (Ω varies or a
+    lab-frame force acts)."""
+    if not traj.omega.constant or traj.force != (0.0, 0.0) or len(traj.t) < 1:
         return math.nan
-    h = _jacobi_rows(traj)
+    # The event state carries no work, so a dissipative run is measured at its outputs.
+    h = traj.h - traj.work if np.any(traj.work) else _jacobi_rows(traj)
     if len(h) < 2:
         return math.nan
     scale = abs(h[0]) + traj.scene.g * traj.scene.a / 100.0

@@ -51,6 +51,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--g", type=float, default=d.g, help="gravity [m/s^2]")
     ap.add_argument("--drilling-friction", type=float, default=0.0,
                     help="rate [1/s] at which the spin about the normal relaxes (rolling)")
+    ap.add_argument("--drag-linear", type=float, default=d.drag_linear, metavar="K1",
+                    help="linear air drag [1/s]: force/mass = -K1 u, u the centre's velocity "
+                         "relative to the lab's still air")
+    ap.add_argument("--drag-quadratic", type=float, default=d.drag_quadratic, metavar="K2",
+                    help="quadratic air drag [1/m]: force/mass = -K2 |u| u")
     ap.add_argument("--omega", type=float, default=20.0, metavar="W0", help="Ω at t=0 [rad/s]")
     ap.add_argument("--omega-rate", type=float, default=0.0, metavar="WDOT", help="dΩ/dt [rad/s^2]")
     ap.add_argument("--omega-amp", type=float, default=0.0, metavar="AMP", help="ripple amplitude [rad/s]")
@@ -81,7 +86,8 @@ def build_parser() -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> Trajectory:
     scene = Scene(a=args.a, b=args.b, R=args.R, alpha=args.alpha, g=args.g,
                   contact=args.contact, rim_radius=args.rim,
-                  drilling_friction=args.drilling_friction)
+                  drilling_friction=args.drilling_friction, drag_linear=args.drag_linear,
+                  drag_quadratic=args.drag_quadratic)
     profile = OmegaProfile(args.omega, args.omega_rate, args.omega_amp, args.omega_freq)
     state = initial_state(scene, args.x0, args.y0, args.vx0, args.vy0, start=args.start,
                           omega=profile, spin_normal=args.spin_n)

@@ -29,7 +29,7 @@ import numpy as np
 from scipy.integrate._ivp import dop853_coefficients as _dop853_tableau
 from scipy.integrate._ivp import rk as _scipy_rk
 
-from ._kernels import STATE_WIDTH, jit, rhs, serial_twin
+from ._kernels import STATE_WIDTH, integrated_size, jit, rhs, serial_twin
 from .scene import P_A, P_B, P_G, P_R, P_RIM, ROLLING
 
 # Event flags (a bit mask) and the status codes `integrate` returns.
@@ -337,13 +337,13 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
     Parameters
     ----------
     model : int — ROLLING or SLIPPING.
-    p : (7,) — packed scene parameters.  prof : (8,) — drive row (DRIVE_* in _kernels).
-    y : (5,) — state at t0; on return, the state at the final time (or at the event).
+    p : (N_PARAMS,) — packed scene parameters.  prof : (8,) — drive row (DRIVE_* in _kernels).
+    y : (STATE_WIDTH,) — state at t0; on return, the state at the final time (or at the event).
     t0 : float.  t_out : (m,) ascending output times, all ≥ t0.
     tab : Tableau — the method (`Method.tableau`).
     ctl : StepControl — fixed step or tolerances, largest step, events, step limit.
-    scale : (5,) characteristic size of each state component (`state_scale`).
-    Y_out : (m, 5) — written with the state at each output time reached.
+    scale : (STATE_WIDTH,) characteristic size of each state component (`state_scale`).
+    Y_out : (m, STATE_WIDTH) — written with the state at each output time reached.
     stats : (4,) int64 — incremented: steps accepted, steps rejected, f evaluations, outputs written.
     h_start : float — adaptive only: the starting step if > 0 (a caller continuing a run,
         e.g. the environment's next control step, passes the last ``h_next`` back); 0 lets
@@ -360,7 +360,7 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
     B, err_order = tab.B, tab.err_order
     dt, rtol, atol, max_step = ctl.dt, ctl.rtol, ctl.atol, ctl.max_step
     events = ctl.events
-    d = 5 if model == ROLLING else 4
+    d = integrated_size(model, p)
     s = B.shape[0]
     K = work[:s + 1]
     ytmp = work[s + 1]
@@ -483,9 +483,9 @@ def integrate_batch(models, P, profiles, Y, t0, t_out, tab, ctl, scales, max_ste
 
     All balls start at ``t0`` and share the output times and ``ctl``, except that ball i's
     largest step is ``max_step[i]``. Balls with ``active[i] == False`` are not touched.
-    Arrays are indexed by ball first: models (n,), P (n, 7), profiles (n, 8) drive rows,
-    Y (n, 5), scales (n, 5), max_step (n,), Y_out (n, m, 5), status (n,), t_final (n,),
-    stats (n, 4).
+    Arrays are indexed by ball first: models (n,), P (n, N_PARAMS), profiles (n, 8) drive
+    rows, Y (n, STATE_WIDTH), scales (n, STATE_WIDTH), max_step (n,), Y_out (n, m,
+    STATE_WIDTH), status (n,), t_final (n,), stats (n, 4).
     """
     n = Y.shape[0]
     for i in nb.prange(n):
@@ -505,16 +505,17 @@ def state_scale(p: np.ndarray, model: int) -> np.ndarray:
     """Characteristic size of each state component, so one tolerance fits all of them.
 
     Lengths scale with the saddle length a; velocities with a·ω₀ where ω₀ = sqrt(2g/a)
-    (1 s⁻¹ when g = 0); a rolling ball's spin with a·ω₀/R.
+    (1 s⁻¹ when g = 0); a rolling ball's spin with a·ω₀/R; the dissipated work with (a·ω₀)².
     """
     # Python floats: an extreme scene (g = 1e308, R = 1e-320) overflows to inf here without
     # NumPy's RuntimeWarning, and is then reported as the clear error it is.
     a, b, g, R = float(p[P_A]), float(p[P_B]), float(p[P_G]), float(p[P_R])
     omega0 = math.sqrt(2.0 * g / a) if g > 0 else 1.0
     v = a * omega0
-    sc = np.array([a, min(a, b), v, v, v])
+    sc = np.array([a, min(a, b), v, v, v, v])
     if model == ROLLING:
-        sc[2:] = v / R
+        sc[2:5] = v / R
+    sc[5 if model == ROLLING else 4] = v * v  # the work slot
     if not (np.all(np.isfinite(sc)) and np.all(sc > 0)):
         raise ValueError(f"the scene's scales are out of floating-point range (a = {a:g} m, "
                          f"g = {g:g} m/s^2, R = {R:g} m give a speed scale of "

@@ -69,6 +69,33 @@ def abcd(scene: Scene, omega: float, spin_z: float = 0.0) -> ABCD:
     return ABCD(A=W * W - 2 * g / am, B=2 * W, C=W * W + 2 * g / bp, D=-2 * W)
 
 
+def system_matrix(scene: Scene, omega: float, spin_z: float = 0.0) -> np.ndarray:
+    """First-order matrix of the linearised motion for (x_c, y_c, ẋ_c, ẏ_c), with the scene's
+    linear air drag (quadratic drag has no linear part).
+
+    The drag per unit mass, -k (ċ + Ω k×c) with the air still in the laboratory, adds
+    -μk (ẋ_c - Ω y_c) to ẍ_c and -μk (ẏ_c + Ω x_c) to ÿ_c, where μ = 1 for a slipping ball
+    and 1/(1 + α) for a rolling one (the contact force makes the ball's spin take its share).
+    Without drag this is ``abcd(...).matrix()``.
+    """
+    M = abcd(scene, omega, spin_z).matrix()
+    k = scene.drag_linear / (1.0 + scene.alpha) if scene.rolling else scene.drag_linear
+    W = float(omega)
+    M[2, 1] += k * W
+    M[2, 2] -= k
+    M[3, 0] -= k * W
+    M[3, 3] -= k
+    return M
+
+
+def growth_rate(scene: Scene, omega: float, spin_z: float = 0.0) -> float:
+    """Largest real part [1/s] of the eigenvalues of `system_matrix`: > 0 means the orbit
+    grows as e^{rate·t}. Zero (to round-off) where the drag-free motion is marginally
+    stable; with drag, its sign tells whether the air damps the orbit or, dissipation-
+    induced instability, drives it out."""
+    return float(np.max(np.linalg.eigvals(system_matrix(scene, omega, spin_z)).real))
+
+
 def _biquadratic(c: ABCD) -> tuple[float, float]:
     """(P, Q) of ϖ⁴ + P ϖ² + Q = 0."""
     return c.A + c.C + c.B * c.D, c.A * c.C
@@ -193,7 +220,8 @@ def centre_from_contact(scene: Scene, x: np.ndarray, y: np.ndarray) -> tuple[np.
 
 def linear_trajectory(scene: Scene, omega: float, centre_state: np.ndarray, t: np.ndarray,
                       spin_z: float = 0.0) -> np.ndarray:
-    """Exact solution of the linearised equations: (len(t), 4) rows (x_c, y_c, ẋ_c, ẏ_c).
+    """Exact solution of the linearised equations: (len(t), 4) rows (x_c, y_c, ẋ_c, ẏ_c),
+    with the scene's linear air drag (`system_matrix`).
 
     ``t`` must be evenly spaced from 0; the solution is advanced by the matrix exponential
     of one spacing, so it carries no discretisation error.
@@ -217,7 +245,7 @@ def linear_trajectory(scene: Scene, omega: float, centre_state: np.ndarray, t: n
         step = np.diff(t)
         if not np.allclose(step, step[0], rtol=1e-9, atol=0):
             raise ValueError("t must be evenly spaced")
-        E = expm(abcd(scene, omega, spin_z).matrix() * step[0])
+        E = expm(system_matrix(scene, omega, spin_z) * step[0])
         for i in range(1, len(t)):
             out[i] = E @ out[i - 1]
     return out

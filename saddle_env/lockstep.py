@@ -22,9 +22,11 @@ from collections import namedtuple
 
 import numpy as np
 
-from ._kernels import DRIVE_WIDTH, STATE_WIDTH, frame_terms, jit, rolling_rates, slipping_rates
+from ._kernels import (DRIVE_WIDTH, STATE_WIDTH, frame_terms, jit, rolling_rates, sized,
+                       slipping_rates)
 from .integrators import ERR_EMBEDDED, EVENT_DETACH, EVENT_ESCAPE, step_factor
-from .scene import N_PARAMS, P_A, P_ALPHA, P_B, P_DRILL, P_G, P_R, P_RIM, ROLLING
+from .scene import (N_PARAMS, P_A, P_ALPHA, P_B, P_DRAG_LINEAR, P_DRAG_QUADRATIC, P_DRILL, P_G, P_R,
+                    P_RIM, ROLLING)
 
 LANES = 64  # balls per block: the stage arrays of a block stay in the L1 cache
 PARAM_WIDTH = N_PARAMS
@@ -75,26 +77,53 @@ def carve_block(buf, stages):
 
 
 @jit
-def _rates(model, m, P, fr, Y, Kout, Nout):
-    """Rates and N/m of lanes 0..m-1 (the loops the compiler vectorises)."""
-    if model == ROLLING:
+def _rates(model, m, P, fr, Y, Kout, Nout, dragged, work):
+    """Rates and N/m of lanes 0..m-1 (the loops the compiler vectorises).
+
+    ``dragged``: some lane has air drag; ``work``: the block integrates the work slot. The
+    loops are written out per case because the compiler vectorises only what is constant
+    across lanes: a block without drag passes the drag coefficients as the constant 0, so
+    the inlined rates lose their drag branch (a branch that may differ between lanes made
+    the environment's step twice as slow, measured), and a block without the work slot
+    drops the power. A lane gets the same numbers in every case that applies to it."""
+    if model == ROLLING and not dragged and not work:
         for q in range(m):
-            (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Kout[4, q], Nout[q]) = rolling_rates(
+            (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Kout[4, q], _,
+             Nout[q]) = rolling_rates(
                 P[P_A, q], P[P_B, q], P[P_R, q], P[P_ALPHA, q], P[P_G, q], P[P_DRILL, q],
-                fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q], Y[2, q], Y[3, q],
-                Y[4, q])
+                0.0, 0.0, fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q], Y[2, q],
+                Y[3, q], Y[4, q])
+    elif model == ROLLING and not dragged:  # drilling friction only
+        for q in range(m):
+            (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Kout[4, q], Kout[5, q],
+             Nout[q]) = rolling_rates(
+                P[P_A, q], P[P_B, q], P[P_R, q], P[P_ALPHA, q], P[P_G, q], P[P_DRILL, q],
+                0.0, 0.0, fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q], Y[2, q],
+                Y[3, q], Y[4, q])
+    elif model == ROLLING:
+        for q in range(m):
+            (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Kout[4, q], Kout[5, q],
+             Nout[q]) = rolling_rates(
+                P[P_A, q], P[P_B, q], P[P_R, q], P[P_ALPHA, q], P[P_G, q], P[P_DRILL, q],
+                P[P_DRAG_LINEAR, q], P[P_DRAG_QUADRATIC, q], fr[0, q], fr[1, q], fr[2, q],
+                fr[3, q], Y[0, q], Y[1, q], Y[2, q], Y[3, q], Y[4, q])
+    elif not dragged:
+        for q in range(m):
+            (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], _, Nout[q]) = slipping_rates(
+                P[P_A, q], P[P_B, q], P[P_R, q], P[P_G, q], 0.0, 0.0, fr[0, q], fr[1, q],
+                fr[2, q], fr[3, q], Y[0, q], Y[1, q], Y[2, q], Y[3, q])
     else:
         for q in range(m):
-            (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Nout[q]) = slipping_rates(
-                P[P_A, q], P[P_B, q], P[P_R, q], P[P_G, q], fr[0, q], fr[1, q], fr[2, q],
-                fr[3, q], Y[0, q], Y[1, q], Y[2, q], Y[3, q])
-            Kout[4, q] = 0.0
+            (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Kout[4, q], Nout[q]) = slipping_rates(
+                P[P_A, q], P[P_B, q], P[P_R, q], P[P_G, q], P[P_DRAG_LINEAR, q],
+                P[P_DRAG_QUADRATIC, q], fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q],
+                Y[2, q], Y[3, q])
 
 
 @jit
 def _combine(m, d, h, w, count, K, Y0, acc, Yout):
     """Yout = Y0 + h·Σ_{l < count} w[l]·K[l] for lanes 0..m-1, summed in the order `_stages`
-    uses; components from d on (a slipping ball's unused slot) are copied."""
+    uses; components from d on (slots not integrated) are copied."""
     for j in range(d):
         for q in range(m):
             acc[q] = 0.0
@@ -116,30 +145,37 @@ def rk_step_block(model, m, h, tab, ctl, ws):
 
     The caller has filled P, D (drive rows), Y0 and Sc. Fills the stages, Ynew, the normal
     forces and (adaptive) the error norms, exactly as `integrators.integrate_h` computes
-    them for its first step."""
+    them for its first step. Returns the number of state slots integrated: the largest
+    `integrated_size` of the lanes (a lane with fewer is then not `accepted`)."""
     P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3 = ws
     C, A, B = tab.C, tab.A, tab.B
     s = B.shape[0]
-    d = 5 if model == ROLLING else 4
+    d = 0
+    dragged = False
+    for q in range(m):
+        d = max(d, sized(model, P[P_DRILL, q], P[P_DRAG_LINEAR, q], P[P_DRAG_QUADRATIC, q]))
+        dragged |= P[P_DRAG_LINEAR, q] != 0.0 or P[P_DRAG_QUADRATIC, q] != 0.0
+    work = d > sized(model, 0.0, 0.0, 0.0)  # more than the dynamics
     # Drive terms at the stage times (trigonometry only with ripple or an external force).
     for q in range(m):
         prof = D[q]
         for i in range(s):
             Fr[i, 0, q], Fr[i, 1, q], Fr[i, 2, q], Fr[i, 3, q] = frame_terms(prof, 0.0 + C[i] * h)
         Fr[s, 0, q], Fr[s, 1, q], Fr[s, 2, q], Fr[s, 3, q] = frame_terms(prof, 0.0 + h)
-    _rates(model, m, P, Fr[0], Y0, K[0], Nstart)
+    _rates(model, m, P, Fr[0], Y0, K[0], Nstart, dragged, work)
     for q in range(m):
         Nmin[q] = np.inf
     for i in range(1, s):
         _combine(m, d, h, A[i], i, K, Y0, acc, Ytmp)
-        _rates(model, m, P, Fr[i], Ytmp, K[i], Nstage)
+        _rates(model, m, P, Fr[i], Ytmp, K[i], Nstage, dragged, work)
         for q in range(m):
             if Nstage[q] < Nmin[q]:
                 Nmin[q] = Nstage[q]
     _combine(m, d, h, B, s, K, Y0, acc, Ynew)
-    _rates(model, m, P, Fr[s], Ynew, K[s], Nend)
+    _rates(model, m, P, Fr[s], Ynew, K[s], Nend, dragged, work)
     if ctl.dt <= 0.0:  # adaptive
         _error_norms(m, d, h, tab, ctl.rtol, ctl.atol, ws)
+    return d
 
 
 @jit
@@ -180,11 +216,13 @@ def _error_norms(m, d, h, tab, rtol, atol, ws):
 
 
 @jit
-def accepted(q, model, adaptive, events, ws):
-    """Whether `integrate_h` would accept lane q's step as it stands and stop there."""
+def accepted(q, model, d, adaptive, events, ws):
+    """Whether `integrate_h` would accept lane q's step as it stands and stop there; ``d``
+    is the integrated size `rk_step_block` returned."""
     P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3 = ws
     s = K.shape[0] - 1
-    d = 5 if model == ROLLING else 4
+    if sized(model, P[P_DRILL, q], P[P_DRAG_LINEAR, q], P[P_DRAG_QUADRATIC, q]) != d:
+        return False  # the block integrated the work slot this lane does not have
     for j in range(d):
         if not math.isfinite(Ynew[j, q]) or not math.isfinite(K[s, j, q]):
             return False

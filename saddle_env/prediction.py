@@ -24,6 +24,7 @@ import numpy as np
 from . import _kernels as K
 from .integrators import integrate_h, state_scale, workspace
 from .runner import DEFAULT_EVENTS, Settings, default_max_step
+from .scene import N_PARAMS
 
 
 @dataclass
@@ -33,7 +34,7 @@ class Prediction:
     Attributes
     ----------
     t : (n, S, m) time of each sample since the run's start [s].
-    state : (n, S, m, 5) state at each sample; NaN where a segment has fewer samples, was
+    state : (n, S, m, 5) state at each sample, padded as in `simulate_batch`; NaN where a segment has fewer samples, was
         skipped (duration ≤ 0) or was not reached (an event came first).
     normal : (n, S, m) N/m at each sample [m/s²] (NaN where ``state`` is).
     status : (n,) STATUS_* code of each run (an event, a failure or STATUS_DONE).
@@ -108,8 +109,9 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
     Parameters
     ----------
     models : int or (n,) — contact model codes (`Scene.model_code`), one for all or per run.
-    P : (n, 7) packed scene parameters (`Scene.params()`).
-    Y0 : (n, 5) start states (padded as in `simulate_batch`).
+    P : (n, N_PARAMS) packed scene parameters (`Scene.params()`).
+    Y0 : (n, 5) start states (padded as in `simulate_batch`), or (n, STATE_WIDTH) kernel
+        states (with the work slot, as `states_from_observations` builds them).
     drives : (n, S, 8) drive rows (DRIVE_*); the angle θ0 of segments after the first is
         replaced by where the previous one ended.
     durations : (n, S) [s]; a segment of duration ≤ 0 is skipped.
@@ -117,7 +119,7 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
     method, rtol, atol, events, max_steps : as in `simulate` (adaptive steps only).
     max_step : float — largest step [s]; default as in `simulate`, from the largest |Ω| the
         drives reach.
-    scales : (n, 5) state scales for the tolerances; default `state_scale` of each row.
+    scales : (n, STATE_WIDTH) state scales for the tolerances; default `state_scale` of each row.
 
     Returns
     -------
@@ -125,13 +127,16 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
     """
     P = np.ascontiguousarray(P, dtype=float)
     Y = np.array(Y0, dtype=float)
+    if Y.ndim == 2 and Y.shape[1] == K.DYNAMICS_WIDTH:
+        Y = np.concatenate([Y, np.zeros((len(Y), K.STATE_WIDTH - K.DYNAMICS_WIDTH))], axis=1)
     drives = np.ascontiguousarray(drives, dtype=float)
     durations = np.ascontiguousarray(durations, dtype=float)
     n, S = durations.shape
     if P.shape != (n, P.shape[1]) or Y.shape != (n, K.STATE_WIDTH) or \
             drives.shape != (n, S, K.DRIVE_WIDTH):
-        raise ValueError(f"shapes disagree: P {P.shape}, Y0 {Y.shape}, drives {drives.shape}, "
-                         f"durations {durations.shape} (want (n, 7), (n, 5), (n, S, 8), (n, S))")
+        raise ValueError(f"shapes disagree: P {P.shape}, Y0 {np.shape(Y0)}, drives {drives.shape}, "
+                         f"durations {durations.shape} (want (n, {N_PARAMS}), "
+                         f"(n, {K.DYNAMICS_WIDTH}), (n, S, {K.DRIVE_WIDTH}), (n, S))")
     if not (isinstance(sample, (int, float)) and math.isfinite(sample) and sample > 0):
         raise ValueError(f"sample must be a positive number of seconds, got {sample!r}")
     codes = np.ascontiguousarray(np.broadcast_to(np.asarray(models, dtype=np.int64), (n,)))
@@ -150,7 +155,8 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
     kernel(codes, P, np.ascontiguousarray(scales, dtype=float), Y, drives, durations,
            float(sample), settings.method.tableau, settings.control(max_step), t, state, normal,
            status)
-    return Prediction(t, state, normal, status, Y)
+    return Prediction(t, np.ascontiguousarray(state[..., :K.DYNAMICS_WIDTH]), normal, status,
+                      np.ascontiguousarray(Y[:, :K.DYNAMICS_WIDTH]))
 
 
 def _speed_bound(drives: np.ndarray, durations: np.ndarray) -> float:

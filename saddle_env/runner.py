@@ -283,6 +283,9 @@ class Trajectory:
     ----------
     t : (n,) output times [s].  state : (n, state_size) states (see `initial_state`).
     event : Event or None.  settings : str, the integrator used.  stats : Stats.
+    work : (n,) work per unit mass [J/kg] done by the dissipative forces (air drag, drilling
+    friction) since t = 0, integrated with the state; zeros when the scene has none. At
+    constant Ω and with no lab-fixed force, ``h - h[0] == work``.
     Derived quantities (velocity, normal force, Jacobi integral, centre, laboratory
     coordinates) are computed on first access from the shared kernels.
     """
@@ -295,8 +298,13 @@ class Trajectory:
     settings: str
     stats: Stats
     force: tuple[float, float] = (0.0, 0.0)
+    work: np.ndarray | None = None
     _obs: np.ndarray | None = field(default=None, repr=False)
     _obs_has_normal: bool = field(default=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.work is None:
+            self.work = np.zeros(len(self.t))
 
     def _observables(self, want_normal: bool) -> np.ndarray:
         if self._obs is None or (want_normal and not self._obs_has_normal):
@@ -405,7 +413,8 @@ def run(scene: Scene, state: np.ndarray, t_end: float, *,
         event = Event(EVENT_KINDS[status], float(t_final), y[: scene.state_size].copy())
     traj = Trajectory(scene, profile, t_out[:n].copy(), Y_out[:n, : scene.state_size].copy(),
                       event, settings.describe(),
-                      Stats(int(stats[0]), int(stats[1]), int(stats[2])), force)
+                      Stats(int(stats[0]), int(stats[1]), int(stats[2])), force,
+                      Y_out[:n, scene.state_size].copy())
     return traj
 
 
@@ -434,7 +443,8 @@ class BatchResult:
     t : (m,) output times.  state : (n, m, 5) padded states; rows after a ball's last output
     are NaN.  n_out : (n,) outputs reached per ball.  status : (n,) STATUS_* codes.
     t_final : (n,) time of each final state (event time where one fired).
-    final_state : (n, 5) state at t_final.
+    final_state : (n, 5) state at t_final.  work : (n, m) work of the dissipative forces
+    per unit mass [J/kg] since t = 0 (`Trajectory.work`), NaN after a ball's last output.
     """
 
     t: np.ndarray
@@ -445,6 +455,7 @@ class BatchResult:
     final_state: np.ndarray
     stats: np.ndarray
     settings: str = ""
+    work: np.ndarray | None = None
 
     def event(self, i: int) -> str | None:
         return EVENT_KINDS.get(int(self.status[i]))
@@ -484,7 +495,7 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
         raise ValueError(f"scenes must be a Scene or a sequence of {n} Scenes (one per ball)")
     Y = np.zeros((n, K.STATE_WIDTH))
     for i, (sc, row) in enumerate(zip(scene_list, states)):
-        if states.shape[1] == K.STATE_WIDTH and sc.state_size < K.STATE_WIDTH:
+        if states.shape[1] == K.DYNAMICS_WIDTH and sc.state_size < K.DYNAMICS_WIDTH:
             row = row[: sc.state_size]
         Y[i] = _check_state(sc, row, f"states[{i}]")
     profiles = _profiles(omega, n)
@@ -506,8 +517,9 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
     # Each ball's own largest step replaces the record's (integrate_batch).
     batch(models, P, drives, Y, 0.0, t_out, m.tableau, settings.control(math.inf), scales,
           max_step_arr, np.ones(n, dtype=bool), Y_out, status, t_final, stats)
-    return BatchResult(t_out, Y_out, stats[:, 3].copy(), status, t_final, Y, stats,
-                       settings.describe())
+    work = np.array([Y_out[i, :, sc.state_size] for i, sc in enumerate(scene_list)])
+    return BatchResult(t_out, Y_out[..., :K.DYNAMICS_WIDTH], stats[:, 3].copy(), status, t_final,
+                       Y[:, :K.DYNAMICS_WIDTH], stats, settings.describe(), work)
 
 
 def _profiles(omega: object, n: int) -> np.ndarray:

@@ -22,8 +22,8 @@ ROLLING, SLIPPING = 0, 1
 ION_RRF, ION_PAUL = 2, 3
 
 # Layout of the packed parameter vector read by the kernels (saddle_env._kernels).
-P_A, P_B, P_R, P_ALPHA, P_G, P_DRILL, P_RIM = range(7)
-N_PARAMS = 7
+P_A, P_B, P_R, P_ALPHA, P_G, P_DRILL, P_RIM, P_DRAG_LINEAR, P_DRAG_QUADRATIC = range(9)
+N_PARAMS = 9
 
 
 def _finite_number(name: str, value: object) -> float:
@@ -62,6 +62,14 @@ class Scene:
         Rate [1/s] at which friction about the contact normal relaxes the spin about the
         normal toward the saddle's own rate (the paper's ω_z → 0). Acts on rolling balls only
         (a slipping ball has no friction by definition). ``0`` disables it.
+    drag_linear : float
+        Linear air drag [1/s]: a force per unit mass ``-drag_linear · u`` on the ball's
+        centre, where ``u`` is the centre's velocity relative to still air in the laboratory.
+        Acts on every contact model. ``0`` disables it.
+    drag_quadratic : float
+        Quadratic air drag [1/m]: a force per unit mass ``-drag_quadratic · |u| · u`` (for a
+        ball of density ρ_b in air of density ρ_a with drag coefficient C_d, this is
+        3 C_d ρ_a / (8 ρ_b R)). Acts on every contact model. ``0`` disables it.
     """
 
     a: float = 0.159
@@ -72,6 +80,8 @@ class Scene:
     contact: ContactModel = "rolling"
     rim_radius: float = 0.1
     drilling_friction: float = 0.0
+    drag_linear: float = 0.0
+    drag_quadratic: float = 0.0
 
     def __post_init__(self) -> None:
         a = _finite_number("a", self.a)
@@ -107,9 +117,16 @@ class Scene:
         drill = _finite_number("drilling_friction", self.drilling_friction)
         if drill < 0:
             raise ValueError(f"drilling_friction must be >= 0 (1/s), got {drill}")
+        drag_linear = _finite_number("drag_linear", self.drag_linear)
+        if drag_linear < 0:
+            raise ValueError(f"drag_linear must be >= 0 (1/s), got {drag_linear}")
+        drag_quadratic = _finite_number("drag_quadratic", self.drag_quadratic)
+        if drag_quadratic < 0:
+            raise ValueError(f"drag_quadratic must be >= 0 (1/m), got {drag_quadratic}")
         # Normalise to plain floats so equality, hashing and pickling behave.
         for name, value in (("a", a), ("b", b), ("R", R), ("alpha", alpha), ("g", g),
-                            ("rim_radius", rim), ("drilling_friction", drill)):
+                            ("rim_radius", rim), ("drilling_friction", drill),
+                            ("drag_linear", drag_linear), ("drag_quadratic", drag_quadratic)):
             object.__setattr__(self, name, value)
 
     # -- derived quantities -------------------------------------------------------------
@@ -137,6 +154,7 @@ class Scene:
         p = np.empty(N_PARAMS)
         p[P_A], p[P_B], p[P_R], p[P_ALPHA] = self.a, self.b, self.radius, self.alpha
         p[P_G], p[P_DRILL], p[P_RIM] = self.g, self.drilling_friction, self.rim_radius
+        p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC] = self.drag_linear, self.drag_quadratic
         return p
 
     def with_(self, **changes: object) -> Scene:

@@ -151,7 +151,7 @@ def simulate_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: f
         rows = []
         for i in pick:
             row = arr[i]
-            if arr.shape[1] == runner.K.STATE_WIDTH and scene_list[i].state_size < arr.shape[1]:
+            if arr.shape[1] == runner.K.DYNAMICS_WIDTH and scene_list[i].state_size < arr.shape[1]:
                 row = row[: scene_list[i].state_size]
             rows.append(runner._check_state(scene_list[i], row, f"states[{i}]")
                         [: scene_list[i].state_size])

@@ -20,6 +20,10 @@ rolling : nonholonomic. Newton + Euler about the centre in the lab, with the rol
     constraint "ball material point at the contact moves with the saddle material point
     there" differentiated in time to close the system for the absolute spin omega_lab.
 
+Air drag (both models): a force per unit mass f = -(k1 + k2 |v|) v on the centre, v the
+centre's velocity in the laboratory (the air is still there). Slipping: the generalised
+force f . dc_lab/dq joins the Euler-Lagrange equations. Rolling: f joins Newton's law.
+
 Only numpy / scipy / sympy are used; nothing is imported from the production package.
 """
 
@@ -97,13 +101,24 @@ def _slipping_functions():
 
     acc_lab = to_syms(c_lab.diff(t, 2))   # needs ax, ay for the normal force
     n_lab = to_syms(_rz(thf) * n_body)
+    # For drag: the lab velocity of the centre and dc_lab/dq (generalised forces).
+    v_sym = to_syms(v_lab)
+    J_sym = to_syms(c_lab.jacobian(sp.Matrix([xf, yf])))
 
     args = (x, y, vx, vy, th, Om, Omd, a, b, R, g)
     # M and rhs share most subexpressions: one flat function [M11, M12, M21, M22, r1, r2].
     f_Mrhs = sp.lambdify(args, list(M) + list(rhs), modules="math", cse=True)
     f_acc = sp.lambdify(args + (ax, ay), acc_lab, modules="numpy", cse=True)
     f_n = sp.lambdify((x, y, th, a, b), n_lab, modules="numpy", cse=True)
-    return f_Mrhs, f_acc, f_n
+    f_vJ = sp.lambdify((x, y, vx, vy, th, Om, a, b, R), list(v_sym) + list(J_sym),
+                       modules="math", cse=True)
+    return f_Mrhs, f_acc, f_n, f_vJ
+
+
+def _drag(v, drag):
+    """Drag force per unit mass on a centre moving at lab velocity v; drag = (k1, k2)."""
+    k1, k2 = drag
+    return -(k1 + k2 * np.sqrt(v @ v)) * v
 
 
 @lru_cache(maxsize=None)
@@ -181,13 +196,21 @@ def _check_params(contact, a, b, R):
 # Slipping / point
 # ----------------------------------------------------------------------------------
 def _simulate_slipping(a, b, R, g, omega, omega_dot, q0, qdot0, t_eval, theta0,
-                       rtol, atol):
-    f_Mrhs, f_acc, f_n = _slipping_functions()
+                       rtol, atol, drag):
+    f_Mrhs, f_acc, f_n, f_vJ = _slipping_functions()
+
+    def drag_force(t, s):
+        x, y, vx, vy, th = (float(v) for v in s)
+        vJ = np.array(f_vJ(x, y, vx, vy, th, omega(t), a, b, R))
+        return _drag(vJ[:3], drag), vJ[3:].reshape(3, 2)
 
     def accel(t, s):
         x, y, vx, vy, th = (float(v) for v in s)
         m11, m12, m21, m22, r1, r2 = f_Mrhs(x, y, vx, vy, th, omega(t), omega_dot(t),
                                             a, b, R, g)
+        if drag != (0.0, 0.0):
+            f, J = drag_force(t, s)
+            r1, r2 = r1 + f @ J[:, 0], r2 + f @ J[:, 1]
         return np.linalg.solve([[m11, m12], [m21, m22]], [r1, r2])
 
     def deriv(t, s):
@@ -207,8 +230,9 @@ def _simulate_slipping(a, b, R, g, omega, omega_dot, q0, qdot0, t_eval, theta0,
         acc = _vec(f_acc(x, y, vx, vy, th, omega(t), omega_dot(t), a, b, R, g,
                          qdd[0], qdd[1]))
         n = _vec(f_n(x, y, th, a, b))
-        # m c'' = F - m g k; frictionless so F = N n and N = n.(c'' + g k).
-        N[i] = n @ (acc + g * _K)
+        # m c'' = F + m f - m g k; frictionless so F = N n and N = n.(c'' + g k - f).
+        f = drag_force(t, s)[0] if drag != (0.0, 0.0) else np.zeros(3)
+        N[i] = n @ (acc + g * _K - f)
     return {
         "t": np.asarray(t_eval, dtype=float),
         "x": sol[0], "y": sol[1], "vx": sol[2], "vy": sol[3],
@@ -220,8 +244,9 @@ def _simulate_slipping(a, b, R, g, omega, omega_dot, q0, qdot0, t_eval, theta0,
 # ----------------------------------------------------------------------------------
 # Rolling
 # ----------------------------------------------------------------------------------
-def _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot):
-    """Everything the rolling model needs at one state: returns (qdot, wdot, F, n)."""
+def _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot, drag=(0.0, 0.0)):
+    """Everything the rolling model needs at one state: returns (qdot, wdot, F, n), F the
+    contact force per unit mass."""
     x, y, th = s[0], s[1], s[2]
     w = np.asarray(s[3:6], dtype=float)          # absolute spin, lab axes
     Om, Omd = omega(t), omega_dot(t)
@@ -248,18 +273,20 @@ def _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot):
     #   c'' = Omegadot k x o + Omega k x o' + R w' x n + R w x n'
     #       = R w' x n + known_part
     known = _cross(Omd * _K, o) + _cross(Om * _K, odot) + R * _cross(w, ndot)
-    # Newton:  F = c'' + g k  (m = 1).  Euler about the centre: I w' = (-R n) x F.
-    #   alpha R^2 w' = -R n x (R w' x n + known + g k)
+    # Drag on the centre, whose lab velocity is the rolling constraint's Omega k x o + R w x n.
+    f = _drag(_cross(Om * _K, o) + R * _cross(w, n), drag)
+    # Newton:  F = c'' + g k - f  (m = 1).  Euler about the centre: I w' = (-R n) x F.
+    #   alpha R^2 w' = -R n x (R w' x n + known + g k - f)
     #   n x (w' x n) = w' - n (n.w')  =>
-    #   [(alpha+1) R^2 1 - R^2 n n^T] w' = -R n x (known + g k)
+    #   [(alpha+1) R^2 1 - R^2 n n^T] w' = -R n x (known + g k - f)
     A = (alpha + 1.0) * R**2 * np.eye(3) - R**2 * np.outer(n, n)
-    wdot = np.linalg.solve(A, -R * _cross(n, known + g * _K))
-    F = R * _cross(wdot, n) + known + g * _K
+    wdot = np.linalg.solve(A, -R * _cross(n, known + g * _K - f))
+    F = R * _cross(wdot, n) + known + g * _K - f
     return qdot, wdot, F, n
 
 
 def _simulate_rolling(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
-                      spin_normal, theta0, rtol, atol):
+                      spin_normal, theta0, rtol, atol, drag):
     # Initial spin: relative to the saddle, rolling needs R w_rel x n = c_rot'.
     # w_rel = n x c_rot'/R satisfies it (c_rot' is tangent); spin about n is free.
     _, Jb, nb = body_geometry(a, b, R, q0[0], q0[1])
@@ -268,7 +295,7 @@ def _simulate_rolling(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
     w_abs_lab = _rz_num(theta0) @ (w_rel + omega(0.0) * _K)
 
     def deriv(t, s):
-        qdot, wdot, _, _ = _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot)
+        qdot, wdot, _, _ = _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot, drag)
         return [qdot[0], qdot[1], omega(t), wdot[0], wdot[1], wdot[2]]
 
     s0 = [q0[0], q0[1], theta0, *w_abs_lab]
@@ -280,7 +307,7 @@ def _simulate_rolling(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
     for i, (t, s) in enumerate(zip(t_eval, sol.T)):
         if np.isnan(s).any():      # after an escape
             continue
-        qdot, _, F, n = _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot)
+        qdot, _, F, n = _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot, drag)
         vx[i], vy[i] = qdot
         N[i] = F @ n
         # Back to saddle axes and subtract the saddle's own rotation.
@@ -327,7 +354,8 @@ def _integrate(deriv, s0, t_eval, rtol, atol, r_escape):
 # Public API
 # ----------------------------------------------------------------------------------
 def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
-                       spin_normal=0.0, theta0=0.0, rtol=1e-12, atol=1e-14):
+                       spin_normal=0.0, theta0=0.0, rtol=1e-12, atol=1e-14,
+                       drag_linear=0.0, drag_quadratic=0.0):
     """contact in {"rolling", "slipping", "point"} ("point" means R is treated as 0, slipping).
     omega, omega_dot: callables t -> float (Omega(t), dOmega/dt).
     q0 = (x0, y0): contact point, body coords [m].
@@ -337,6 +365,8 @@ def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, 
     where c_rot' = J q' is the centre velocity relative to the saddle (J = dc/dq); the absolute one is
     w_rel + Omega(0) k (then rotated by theta0 into lab axes).
     t_eval: 1-D array of output times starting at 0.
+    drag_linear [1/s], drag_quadratic [1/m]: air drag per unit mass -(k1 + k2 |v|) v on the
+    centre, v its velocity in the laboratory.
     Returns dict of arrays, one entry per t_eval, all expressed back in the ROTATING (body) frame:
       "t", "x", "y" (contact point, body coords),
       "vx", "vy" (contact point velocity relative to the saddle, body coords),
@@ -353,11 +383,12 @@ def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, 
     if contact == "point":
         R = 0.0
     _check_params(contact, a, b, R)
+    drag = (float(drag_linear), float(drag_quadratic))
     if contact == "rolling":
         return _simulate_rolling(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
-                                 spin_normal, theta0, rtol, atol)
+                                 spin_normal, theta0, rtol, atol, drag)
     return _simulate_slipping(a, b, R, g, omega, omega_dot, q0, qdot0, t_eval, theta0,
-                              rtol, atol)
+                              rtol, atol, drag)
 
 
 def jacobi_integral(res, a, b, R, alpha, g, Omega, contact):

@@ -34,6 +34,11 @@ def test_defaults_are_the_papers_saddle():
     ({"rim_radius": math.nan}, "rim_radius"),
     ({"rim_radius": "big"}, "rim_radius"),
     ({"drilling_friction": -1.0}, "drilling_friction"),
+    ({"drag_linear": -0.1}, "drag_linear"),
+    ({"drag_linear": math.inf}, "drag_linear"),
+    ({"drag_quadratic": -1.0}, "drag_quadratic"),
+    ({"drag_quadratic": math.nan}, "drag_quadratic"),
+    ({"drag_quadratic": "0.1"}, "drag_quadratic"),
     ({"a": "0.159"}, "a"),
     ({"R": True}, "R"),
 ])

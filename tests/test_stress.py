@@ -318,9 +318,10 @@ def test_property_event_times_consistent_with_N(case):
         from saddle_env import _kernels as K
         from saddle_env.simulate import drive_row
 
-        y = np.zeros(5)
+        y = np.zeros(K.STATE_WIDTH)
         y[: sc.state_size] = tr.event.state
-        n_at = K.rhs(sc.model_code, sc.params(), drive_row(omega), t_e, y, np.zeros(5), True)
+        n_at = K.rhs(sc.model_code, sc.params(), drive_row(omega), t_e, y,
+                     np.zeros(K.STATE_WIDTH), True)
         assert abs(n_at) / g < 1e-5, n_at
         if t_e > 1e-5:
             before = simulate(sc, s0, t_e - 1e-6, omega=omega, dt_out=None)

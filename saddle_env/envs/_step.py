@@ -285,15 +285,14 @@ def _step_block(model, m, lanes, rates, ws, sc, record, P, scales, Y, balls, cfg
     # A block of a few balls costs more than it saves (loop overhead of ~2 µs): step them
     # one by one.
     use_block = m >= MIN_BLOCK
-    if use_block:
-        rk_step_block(model, m, dt, tab, ctl, ws)
+    d = rk_step_block(model, m, dt, tab, ctl, ws) if use_block else 0
     D, Ynew, Nend = ws.D, ws.Ynew, ws.Nend
     p, scale, y, ball, nz, ob, o = record
     failed = 0
     for q in range(m):
         i = lanes[q]
         _load(i, P, scales, Y, balls, noise, record)
-        if use_block and accepted(q, model, adaptive, events, ws):
+        if use_block and accepted(q, model, d, adaptive, events, ws):
             for j in range(STATE_WIDTH):
                 y[j] = Ynew[j, q]
             h_first = _first_step(ball, ctl)

@@ -43,7 +43,7 @@ class EnvConfig:
     """Options of `SaddleTrapEnv` (all are constructor keywords of the environment).
 
     Scene (see `saddle_env.Scene`): ``a, b, R, alpha, g, contact, rim_radius,
-    drilling_friction``.
+    drilling_friction, drag_linear, drag_quadratic``.
 
     Control: ``control_period`` [s] (20 ms); ``max_accel`` [rad/s²], the motor's limit on
     |Ω̇| (20: 0 → 45 s⁻¹ in 2.25 s); ``omega_max`` [rad/s], the motor's top speed (45, about
@@ -89,6 +89,8 @@ class EnvConfig:
     contact: str = Scene.contact
     rim_radius: float = Scene.rim_radius
     drilling_friction: float = Scene.drilling_friction
+    drag_linear: float = Scene.drag_linear
+    drag_quadratic: float = Scene.drag_quadratic
     control_period: float = 0.02
     max_accel: float = 20.0
     omega_max: float = 45.0
