@@ -88,13 +88,20 @@ def threads_usable() -> bool:
     except ValueError:  # no parallel region has run in this process (or its parent) yet
         return True
 
-from .scene import (ION_PAUL, ION_RRF, P_A, P_ALPHA, P_B, P_DRAG_LINEAR, P_DRAG_QUADRATIC, P_DRILL,
-                    P_G, P_R, ROLLING, SLIPPING)
+from .scene import (COULOMB, ION_PAUL, ION_RRF, P_A, P_ALPHA, P_B, P_DRAG_LINEAR,
+                    P_DRAG_QUADRATIC, P_DRILL, P_G, P_MU, P_MU_STATIC, P_R, ROLLING, SLIPPING)
 
-STATE_WIDTH = 6
-# The longest state without its work slot (rolling): the padded width of the public batch
+STATE_WIDTH = 9
+# The longest state without its work slot (coulomb): the padded width of the public batch
 # API's states (`saddle_env.simulate.simulate_batch`).
-DYNAMICS_WIDTH = 5
+DYNAMICS_WIDTH = 7
+# A coulomb ball's phase, in the last slot: never integrated, switched by the integrator's
+# loop at a stick-slip transition (saddle_env.integrators) and read by `rhs`.
+PHASE_SLOT = 8
+# ONSET is slip that has just begun from v_s = 0 and is still below the integration's noise
+# level: the friction then acts against the slip the other forces start (its direction cannot
+# be read off a slip velocity that small). Users see it as slip.
+STICK, SLIP, ONSET = 0.0, 1.0, 2.0
 
 # Layout of a drive row: the saddle speed Ω(t) = w0 + rate·t + amp·sin(freq·t + phase),
 # the saddle angle θ0 at t = 0, and a horizontal force per unit mass (fx, fy) [m/s²] fixed
@@ -220,7 +227,17 @@ def sized(model, drill, drag_linear, drag_quadratic):
     drag = drag_linear != 0.0 or drag_quadratic != 0.0
     if model == ROLLING:
         return 6 if (drag or drill != 0.0) else 5
+    if model == COULOMB:
+        return 8  # kinetic friction dissipates whenever the ball slips
     return 5 if (model == SLIPPING and drag) else 4
+
+
+@jit
+def work_slot(model):
+    """The state slot that holds the dissipated work W: right after the dynamics."""
+    if model == ROLLING:
+        return 5
+    return 7 if model == COULOMB else 4
 
 
 @jit
@@ -320,6 +337,136 @@ def slipping_rates(a, b, R, g, drag_linear, drag_quadratic, Om, Omd, fx, fy, x, 
     return vx, vy, ax, ay, power, -(nx * rx + ny * ry + nz * rz)
 
 
+@inline
+def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, mu, phase, Om, Omd,
+                  fx, fy, x, y, wx, wy, wz, vx, vy):
+    """Time derivatives of a coulomb ball's state (x, y, wx, wy, wz, vx, vy), Ẇ [W/kg], N/m
+    [m/s²], the friction per unit mass |f| [m/s²], the slip speed |v_s| [m/s] and the rate at
+    which the slip speed grows [m/s²] (docs/physics.md, "Coulomb friction").
+
+    The ball's centre obeys c̈ = g_eff + f + (N/m) n and its spin
+    ẇ = -(Ω̇ k + Ω k×w) - n×f/(αR) (- drilling friction), with the friction f tangential. The
+    material point at the contact slips at v_s = ċ - R w×n, and
+    v̇_s = a0 + (1 + 1/α) f with a0 what the other forces give it. Sticking (``slipping``
+    false): f = -P a0/(1 + 1/α), the friction that keeps v_s = 0, and the contact-point
+    velocity is the rolling one, from w (the state's (vx, vy) are then only carried along),
+    so the stick phase is exactly the rolling model. Slipping: f = -μ N v_s/|v_s|; as slip
+    starts (``phase`` ONSET) the friction opposes the slip that a0 starts, -μ N a0/|a0|.
+    """
+    slipping = phase != STICK
+    s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, x, y)
+    wnx = wy * nz - wz * ny
+    wny = wz * nx - wx * nz
+    wnz = wx * ny - wy * nx
+    if not slipping:
+        vx, vy = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, R * wnx, R * wny, R * wnz)
+    cdx = J1x * vx + J2x * vy
+    cdy = J1y * vx + J2y * vy
+    cdz = J1z * vx + J2z * vy
+    mdx, mdy, nm, ndx, ndy, ndz = _normal_rate(a, b, s, nx, ny, nz, vx, vy)
+    ndm = ndx * mdx + ndy * mdy
+    kR = R * nz
+    kapx = -kR * (2.0 * nm * ndx + ndm * nx)
+    kapy = -kR * (2.0 * nm * ndy + ndm * ny)
+    kapz = 2.0 * (vx * vx / a - vy * vy / b) - kR * (2.0 * nm * ndz + ndm * nz)
+    gx, gy, gz = _effective_gravity(g, Om, Omd, fx, fy, cx, cy, cdx, cdy)
+    power = 0.0
+    if drag_linear != 0.0 or drag_quadratic != 0.0:
+        dx, dy, dz, power = _air_drag(drag_linear, drag_quadratic, Om, cx, cy, cdx, cdy, cdz)
+        gx, gy, gz = gx + dx, gy + dy, gz + dz
+    normal = nx * (kapx - gx) + ny * (kapy - gy) + nz * (kapz - gz)
+    # e = Ω̇ k + Ω k×w; a0 = P g_eff + R e×n - R P(w×ṅ) (e×n is tangential already).
+    ex, ey, ez = -Om * wy, Om * wx, Omd
+    ux = gx + R * (ey * nz - ez * ny) - R * (wy * ndz - wz * ndy)
+    uy = gy + R * (ez * nx - ex * nz) - R * (wz * ndx - wx * ndz)
+    uz = gz + R * (ex * ny - ey * nx) - R * (wx * ndy - wy * ndx)
+    un = nx * ux + ny * uy + nz * uz
+    a0x, a0y, a0z = ux - un * nx, uy - un * ny, uz - un * nz
+    vsx, vsy, vsz = cdx - R * wnx, cdy - R * wny, cdz - R * wnz
+    speed = math.sqrt(vsx * vsx + vsy * vsy + vsz * vsz)
+    gain = 1.0 + 1.0 / alpha
+    if not slipping:
+        ffx, ffy, ffz = -a0x / gain, -a0y / gain, -a0z / gain
+        growth = 0.0
+    else:
+        if phase != ONSET and speed > 0.0:
+            k = -mu * normal / speed
+            ffx, ffy, ffz = k * vsx, k * vsy, k * vsz
+            growth = (vsx * a0x + vsy * a0y + vsz * a0z) / speed - gain * mu * normal
+        else:
+            a0 = math.sqrt(a0x * a0x + a0y * a0y + a0z * a0z)
+            k = -mu * normal / a0 if a0 > 0.0 else 0.0
+            ffx, ffy, ffz = k * a0x, k * a0y, k * a0z
+            growth = a0 - gain * mu * normal
+    # The centre: q̈ = (JᵀJ)⁻¹ Jᵀ (g_eff + f - J̇ q̇).
+    ax, ay = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, gx + ffx - kapx, gy + ffy - kapy,
+                            gz + ffz - kapz)
+    # The spin: -n×f/(αR) is the friction's torque.
+    iaR = 1.0 / (alpha * R)
+    nw = nx * wx + ny * wy + nz * wz
+    drl = drill * nw
+    dwx = -ex - (ny * ffz - nz * ffy) * iaR - drl * nx
+    dwy = -ey - (nz * ffx - nx * ffz) * iaR - drl * ny
+    dwz = -ez - (nx * ffy - ny * ffx) * iaR - drl * nz
+    # Friction's power in the rotating frame is f·v_s (0 while sticking); drilling's as rolling.
+    power += ffx * vsx + ffy * vsy + ffz * vsz - alpha * R * R * drl * nw
+    friction = math.sqrt(ffx * ffx + ffy * ffy + ffz * ffz)
+    return vx, vy, dwx, dwy, dwz, ax, ay, power, normal, friction, speed, growth
+
+
+@jit
+def coulomb_contact(p, prof, t, y):
+    """A coulomb ball's contact at (t, y) in its current phase: (N/m, |f|, |v_s|, growth of
+    |v_s|) as `coulomb_rates` defines them, for the loop's phase decisions."""
+    Om, Omd, fx, fy = frame_terms(prof, t)
+    r = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
+                      p[P_DRAG_QUADRATIC], p[P_MU], y[PHASE_SLOT], Om, Omd, fx, fy,
+                      y[0], y[1], y[2], y[3], y[4], y[5], y[6])
+    return r[8], r[9], r[10], r[11]
+
+
+@jit
+def stick_margin(p, prof, t, y):
+    """μ_s N/m - |f| [m/s²] for the friction that would keep the ball sticking at (t, y):
+    positive while static friction can hold it."""
+    Om, Omd, fx, fy = frame_terms(prof, t)
+    r = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
+                      p[P_DRAG_QUADRATIC], p[P_MU], STICK, Om, Omd, fx, fy,
+                      y[0], y[1], y[2], y[3], y[4], y[5], y[6])
+    return p[P_MU_STATIC] * r[8] - r[9]
+
+
+@jit
+def stop_slip(p, prof, t, y):
+    """Stop a coulomb ball's (small) slip with the friction impulse that does it: Δċ = P,
+    Δw = -n×P/(αR), P = -α v_s/(1 + α), so v_s becomes 0 exactly; the kinetic energy this
+    takes, of order |v_s|², is added to the work slot."""
+    a, b, R, alpha = p[P_A], p[P_B], p[P_R], p[P_ALPHA]
+    before = jacobi(COULOMB, p, prof, t, y)
+    s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, y[0], y[1])
+    wx, wy, wz = y[2], y[3], y[4]
+    k = -alpha / (1.0 + alpha)
+    Px = k * (J1x * y[5] + J2x * y[6] - R * (wy * nz - wz * ny))
+    Py = k * (J1y * y[5] + J2y * y[6] - R * (wz * nx - wx * nz))
+    Pz = k * (J1z * y[5] + J2z * y[6] - R * (wx * ny - wy * nx))
+    iaR = 1.0 / (alpha * R)
+    y[2] -= (ny * Pz - nz * Py) * iaR
+    y[3] -= (nz * Px - nx * Pz) * iaR
+    y[4] -= (nx * Py - ny * Px) * iaR
+    rolling_velocity(p, y, y)
+    phase = y[PHASE_SLOT]
+    y[PHASE_SLOT] = STICK  # the velocity now follows from the spin
+    y[7] += jacobi(COULOMB, p, prof, t, y) - before
+    y[PHASE_SLOT] = phase
+
+
+@jit
+def rolling_velocity(p, y, out):
+    """Write the rolling contact-point velocity, from the spin, into a coulomb state's (vx, vy)
+    slots: the slip velocity is then exactly 0."""
+    out[5], out[6] = contact_velocity(ROLLING, p, y)
+
+
 # Layout of an ion's parameter row (saddle_env.iontrap.IonTrap.params); slot P_RIM (6) is
 # the escape radius, as for a ball, so the loop's escape event serves both.
 I_KQUAD, I_KDC, I_OMEGA_B, I_KSTATIC = range(4)
@@ -353,8 +500,9 @@ def rhs(model, p, prof, t, y, dy, want_normal):
     Parameters
     ----------
     model : int
-        ``ROLLING`` or ``SLIPPING`` (the point model is slipping with p[P_R] = 0), or
-        ``ION_RRF`` / ``ION_PAUL`` (state (x, y, vx, vy); no normal force: returns +inf).
+        ``ROLLING``, ``SLIPPING`` (the point model is slipping with p[P_R] = 0), ``COULOMB``
+        (its phase in y[PHASE_SLOT]), or ``ION_RRF`` / ``ION_PAUL`` (state (x, y, vx, vy);
+        no normal force: returns +inf).
     p : (N_PARAMS,) float64 — packed scene parameters (Scene.params()).
     prof : (8,) float64 — drive row (Ω profile, θ0, external force).
     t : float — time [s].
@@ -367,24 +515,34 @@ def rhs(model, p, prof, t, y, dy, want_normal):
         dy[0], dy[1], dy[2], dy[3], dy[4], dy[5], normal = rolling_rates(
             p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
             p[P_DRAG_QUADRATIC], Om, Omd, fx, fy, y[0], y[1], y[2], y[3], y[4])
-    elif model >= ION_RRF:
+    elif model == COULOMB:
+        (dy[0], dy[1], dy[2], dy[3], dy[4], dy[5], dy[6], dy[7], normal, _, _,
+         _) = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL],
+                            p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC], p[P_MU], y[PHASE_SLOT],
+                            Om, Omd, fx, fy, y[0], y[1], y[2], y[3], y[4], y[5], y[6])
+        dy[8] = 0.0
+    elif model == ION_RRF or model == ION_PAUL:
         dy[0], dy[1] = y[2], y[3]
         dy[2], dy[3] = ion_rates(model, p, prof, t, Om, Omd, y[0], y[1], y[2], y[3])
-        dy[4] = 0.0
-        dy[5] = 0.0
+        for j in range(4, STATE_WIDTH):
+            dy[j] = 0.0
         normal = np.inf
     else:
         dy[0], dy[1], dy[2], dy[3], dy[4], normal = slipping_rates(
             p[P_A], p[P_B], p[P_R], p[P_G], p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC], Om, Omd,
             fx, fy, y[0], y[1], y[2], y[3])
-        dy[5] = 0.0
+        for j in range(5, STATE_WIDTH):
+            dy[j] = 0.0
     return normal if want_normal else 0.0
 
 
 @jit
 def contact_velocity(model, p, y):
     """Contact-point velocity (vx, vy) in the rotating frame [m/s]."""
-    if model != ROLLING:
+    if model == COULOMB:
+        if y[PHASE_SLOT] != STICK:
+            return y[5], y[6]
+    elif model != ROLLING:
         return y[2], y[3]
     a, b, R = p[P_A], p[P_B], p[P_R]
     s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, y[0], y[1])
@@ -397,7 +555,8 @@ def contact_velocity(model, p, y):
 def jacobi(model, p, prof, t, y):
     """Jacobi integral per unit mass [J/kg] (conserved when Ω is constant).
 
-    rolling: ½|ċ|² + ½ α R² |w|² - ½ Ω² (cx² + cy²) + g cz; slipping: without the spin term.
+    rolling and coulomb: ½|ċ|² + ½ α R² |w|² - ½ Ω² (cx² + cy²) + g cz; slipping: without
+    the spin term (decoupled, and constant).
     """
     a, b, R, g = p[P_A], p[P_B], p[P_R], p[P_G]
     Om = omega_at(prof, t)[0]
@@ -407,7 +566,7 @@ def jacobi(model, p, prof, t, y):
     cdy = J1y * vx + J2y * vy
     cdz = J1z * vx + J2z * vy
     h = 0.5 * (cdx * cdx + cdy * cdy + cdz * cdz) - 0.5 * Om * Om * (cx * cx + cy * cy) + g * cz
-    if model == ROLLING:
+    if model == ROLLING or model == COULOMB:
         h += 0.5 * p[P_ALPHA] * R * R * (y[2] * y[2] + y[3] * y[3] + y[4] * y[4])
     return h
 
@@ -432,16 +591,20 @@ def observables(model, p, prof, T, Y, want_normal, out):
 
 @jit
 def state_from_velocity(model, p, x, y, vx, vy, spin_normal, out):
-    """Build a state from the contact point, its rotating-frame velocity and (rolling) the spin
-    about the normal relative to the saddle: w = n × ċ / R + spin_normal · n."""
+    """Build a state from the contact point, its rotating-frame velocity and (rolling,
+    coulomb) the spin about the normal relative to the saddle: w = n × ċ / R + spin_normal · n,
+    so a coulomb ball starts rolling without slip. No work done yet."""
+    for j in range(STATE_WIDTH):
+        out[j] = 0.0
     out[0] = x
     out[1] = y
-    out[5] = 0.0  # no work done yet (the work slot is 4 when not rolling)
-    if model != ROLLING:
+    if model != ROLLING and model != COULOMB:
         out[2] = vx
         out[3] = vy
-        out[4] = 0.0
         return
+    if model == COULOMB:
+        out[5] = vx
+        out[6] = vy
     a, b, R = p[P_A], p[P_B], p[P_R]
     s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, x, y)
     cdx = J1x * vx + J2x * vy

@@ -56,6 +56,10 @@ def build_parser() -> argparse.ArgumentParser:
                          "relative to the lab's still air")
     ap.add_argument("--drag-quadratic", type=float, default=d.drag_quadratic, metavar="K2",
                     help="quadratic air drag [1/m]: force/mass = -K2 |u| u")
+    ap.add_argument("--mu", type=float, default=None, metavar="MU",
+                    help="coulomb: kinetic friction coefficient (needed with --contact coulomb)")
+    ap.add_argument("--mu-static", type=float, default=None, metavar="MU_S",
+                    help="coulomb: static friction coefficient (>= --mu; default: = --mu)")
     ap.add_argument("--omega", type=float, default=20.0, metavar="W0", help="Ω at t=0 [rad/s]")
     ap.add_argument("--omega-rate", type=float, default=0.0, metavar="WDOT", help="dΩ/dt [rad/s^2]")
     ap.add_argument("--omega-amp", type=float, default=0.0, metavar="AMP", help="ripple amplitude [rad/s]")
@@ -68,7 +72,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="start at rest on the saddle or placed at rest in the lab "
                          "(overrides --vx0/--vy0)")
     ap.add_argument("--spin-n", type=float, default=0.0, metavar="W",
-                    help="rolling: spin about the normal relative to the saddle [rad/s]")
+                    help="rolling, coulomb: spin about the normal relative to the saddle [rad/s]")
+    ap.add_argument("--spin", type=float, nargs=3, default=None, metavar=("WX", "WY", "WZ"),
+                    help="coulomb: the ball's angular velocity relative to the saddle, in its "
+                         "axes [rad/s] (default: rolling without slip)")
     ap.add_argument("--rim", type=float, default=d.rim_radius, metavar="RADIUS",
                     help="rim radius [m] (inf: no rim)")
     ap.add_argument("--t-end", type=float, default=2.0, metavar="T", help="duration [s]")
@@ -87,10 +94,11 @@ def run(args: argparse.Namespace) -> Trajectory:
     scene = Scene(a=args.a, b=args.b, R=args.R, alpha=args.alpha, g=args.g,
                   contact=args.contact, rim_radius=args.rim,
                   drilling_friction=args.drilling_friction, drag_linear=args.drag_linear,
-                  drag_quadratic=args.drag_quadratic)
+                  drag_quadratic=args.drag_quadratic, mu=args.mu, mu_static=args.mu_static)
     profile = OmegaProfile(args.omega, args.omega_rate, args.omega_amp, args.omega_freq)
     state = initial_state(scene, args.x0, args.y0, args.vx0, args.vy0, start=args.start,
-                          omega=profile, spin_normal=args.spin_n)
+                          omega=profile, spin_normal=args.spin_n,
+                          spin=None if args.spin is None else tuple(args.spin))
     return simulate(scene, state, args.t_end, omega=profile, dt_out=args.dt_out,
                     method=args.method, rtol=args.rtol, dt=args.dt)
 
@@ -99,10 +107,16 @@ def render(traj: Trajectory, fmt: str) -> str:
     if fmt == "json":
         return json.dumps(traj.as_dict()) + "\n"
     cols = [traj.t, traj.x, traj.y, traj.vx, traj.vy, traj.N_over_mg, traj.h]
+    names = COLUMNS
+    if traj.phase is not None:  # coulomb: the phase (0 stick, 1 slip) and the work
+        cols += [traj.phase, traj.work]
+        names += ("slipping", "work")
     lines = [f"# saddle-sim: {traj.scene}; integrator {traj.settings}"]
+    for tr in traj.transitions:
+        lines.append(f"# transition: {tr.phase} at t = {tr.t!r} s")
     if traj.event is not None:
         lines.append(f"# event: {traj.event.kind} at t = {traj.event.t!r} s")
-    lines.append(",".join(COLUMNS))
+    lines.append(",".join(names))
     lines += [",".join(repr(float(c[i])) for c in cols) for i in range(len(traj.t))]
     return "\n".join(lines) + "\n"
 

@@ -29,8 +29,10 @@ import numpy as np
 from scipy.integrate._ivp import dop853_coefficients as _dop853_tableau
 from scipy.integrate._ivp import rk as _scipy_rk
 
-from ._kernels import STATE_WIDTH, integrated_size, jit, rhs, serial_twin
-from .scene import P_A, P_B, P_G, P_R, P_RIM, ROLLING
+from ._kernels import (ONSET, PHASE_SLOT, SLIP, STATE_WIDTH, STICK, coulomb_contact, integrated_size,
+                       jit, rhs, rolling_velocity, serial_twin, stick_margin, stop_slip,
+                       work_slot)
+from .scene import COULOMB, P_A, P_B, P_G, P_MU, P_R, P_RIM, ROLLING
 
 # Event flags (a bit mask) and the status codes `integrate` returns.
 EVENT_DETACH, EVENT_ESCAPE = 1, 2
@@ -39,6 +41,25 @@ STATUS_FAILED, STATUS_MAX_STEPS = -1, -2
 EVENT_KINDS = {STATUS_DETACH: "detach", STATUS_ESCAPE: "escape"}
 
 EVENT_TIME_TOL = 1e-12  # [s] width of the final bracket around an event time
+
+# A coulomb ball's stick-slip transitions (docs/physics.md, "Coulomb friction"). Not a
+# stopping event: the loop switches the phase and goes on.
+# * stick -> slip: the friction the rolling constraint needs reaches μ_s N. The event
+#   function μ_s N - |f| is smooth across it (the stick dynamics are the rolling model's), so
+#   it is located like a detachment: kind TRANSITION in `_event_value`.
+# * slip -> stick: the slip speed reaches 0. |v_s| only touches 0 (it does not change sign),
+#   and the friction's direction v_s/|v_s| jumps there, so a step across it would chatter
+#   (rejected, shrunk, rejected). Instead no slip step goes past the stop the slip's current
+#   deceleration predicts: a step is cut to SLIP_STOP_FRACTION of |v_s|/(-d|v_s|/dt), so
+#   |v_s| falls about a hundredfold per step (faster as the approach straightens), and once
+#   it is at the integration's noise level (`_snap_speed`, SLIP_SNAP times the tolerance),
+#   the rest of the slip is stopped by a friction impulse (`_kernels.stop_slip`: the ball's
+#   momentum and spin change as friction would change them, the energy that takes is added
+#   to the dissipated work, so the Jacobi balance still closes), and the ball sticks if
+#   static friction can hold it (`_settle_coulomb`; else slip restarts, along the push).
+TRANSITION = 16
+SLIP_STOP_FRACTION = 0.99
+SLIP_SNAP = 100.0
 
 # Error-estimate kinds.
 ERR_NONE, ERR_EMBEDDED, ERR_DOP853 = 0, 1, 2
@@ -222,6 +243,8 @@ def _event_value(kind, model, p, prof, t, y, dy):
     """Signed event function: positive while nothing has happened."""
     if kind == STATUS_DETACH:
         return rhs(model, p, prof, t, y, dy, True)
+    if kind == TRANSITION:
+        return stick_margin(p, prof, t, y)
     rim = p[P_RIM]
     return rim * rim - (y[0] * y[0] + y[1] * y[1])
 
@@ -314,10 +337,84 @@ def _initial_step(model, p, prof, t, y, f0, d, sc, order, ytmp, f1, hmax):
 
 
 @jit
-def workspace(tab):
-    """Scratch memory for `integrate_h` with the method ``tab`` (a `Tableau`)."""
-    return np.empty((tab.B.shape[0] + 5, STATE_WIDTH))
+def workspace(tab, log_rows=0):
+    """Scratch memory for `integrate_h` with the method ``tab`` (a `Tableau`); with
+    ``log_rows`` > 0 it also keeps a log of a coulomb ball's stick-slip transitions (`log`)."""
+    w = np.empty((tab.B.shape[0] + 5 + (log_rows + 1 if log_rows > 0 else 0), STATE_WIDTH))
+    if log_rows > 0:
+        w[tab.B.shape[0] + 5, 0] = 0.0
+    return w
 
+
+# Columns of a transition-log row: the time and the phase the ball switched to.
+LOG_T, LOG_PHASE = 0, 1
+
+
+@jit
+def log(tab, work):
+    """The transitions a run with a logging `workspace` recorded: (count, rows); rows beyond
+    the log's length are counted but not kept."""
+    s = tab.B.shape[0]
+    return int(work[s + 5, 0]), work[s + 6:]
+
+
+@jit
+def _log_switch(work, s, t, before, after):
+    """Log a phase change as users see it: ONSET and SLIP are both slip."""
+    if after >= 0.0 and (after == STICK) != (before == STICK):
+        _record(work, s, t, STICK if after == STICK else SLIP)
+
+
+@jit
+def _record(work, s, t, phase):
+    if work.shape[0] > s + 5:
+        i = int(work[s + 5, 0])
+        if s + 6 + i < work.shape[0]:
+            work[s + 6 + i, LOG_T] = t
+            work[s + 6 + i, LOG_PHASE] = phase
+        work[s + 5, 0] = i + 1.0
+
+
+@jit
+def _snap_speed(p, y, atol, rtol, scale):
+    """Slip speed [m/s] below which a coulomb ball's slip is integration noise: v_s = ċ - R w×n
+    is a difference of integrated quantities, each known to about atol·scale + rtol·|value|."""
+    R = p[P_R]
+    speed = math.sqrt(y[5] * y[5] + y[6] * y[6])
+    spin = math.sqrt(y[2] * y[2] + y[3] * y[3] + y[4] * y[4])
+    return SLIP_SNAP * (atol * scale[5] + rtol * (speed + R * spin))
+
+
+@jit
+def _settle_coulomb(p, prof, t, y, speed_tol):
+    """Decide a coulomb ball's phase at (t, y) before a step; return the phase it switched
+    to, or -1 if it kept its phase. (The stick -> slip switch is an event inside a step.)
+
+    Sticking, it stays stuck while static friction holds it and otherwise starts to slip
+    (ONSET). Starting to slip, it sticks again as soon as static friction can hold it, and
+    counts as slipping once its slip is above the noise level ``speed_tol`` [m/s]. Slipping,
+    a slip that has fallen to the noise level and is still falling is stopped
+    (`_kernels.stop_slip`), and it sticks if static friction can hold it, else starts again."""
+    old = y[PHASE_SLOT]
+    speed, growth = coulomb_contact(p, prof, t, y)[2:]
+    if old == STICK:
+        rolling_velocity(p, y, y)
+        new = STICK if stick_margin(p, prof, t, y) >= 0.0 else ONSET
+    elif old == ONSET:
+        if speed > speed_tol:
+            new = SLIP
+        elif stick_margin(p, prof, t, y) >= 0.0:
+            stop_slip(p, prof, t, y)
+            new = STICK
+        else:
+            new = ONSET
+    else:
+        if speed > speed_tol or growth >= 0.0:
+            return -1.0
+        stop_slip(p, prof, t, y)
+        new = STICK if stick_margin(p, prof, t, y) >= 0.0 else ONSET
+    y[PHASE_SLOT] = new
+    return new if new != old else -1.0
 
 @jit
 def integrate(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats):
@@ -372,6 +469,9 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
     m = t_out.shape[0]
     k = 0
     t = t0
+    coulomb = model == COULOMB
+    if coulomb:  # the starting phase (not logged: it is no change)
+        _settle_coulomb(p, prof, t, y, _snap_speed(p, y, atol, rtol, scale))
     normal = rhs(model, p, prof, t, y, K[0], want_normal)
     stats[2] += 1
     accepted_normal = normal if want_normal else np.nan  # N/m at the last accepted state
@@ -403,6 +503,20 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
         if reaches(t, hstep, target):
             hstep = target - t
             clipped = True
+        capped = False
+        if coulomb and y[PHASE_SLOT] != STICK:
+            speed_tol = _snap_speed(p, y, atol, rtol, scale)
+            before = y[PHASE_SLOT]
+            switched = _settle_coulomb(p, prof, t, y, speed_tol)
+            if switched >= 0.0:
+                _log_switch(work, s, t, before, switched)
+                normal = rhs(model, p, prof, t, y, K[0], want_normal)
+                stats[2] += 1
+                continue
+            speed, growth = coulomb_contact(p, prof, t, y)[2:]
+            if y[PHASE_SLOT] == SLIP and growth < 0.0 and hstep > SLIP_STOP_FRACTION * speed / -growth:
+                hstep = SLIP_STOP_FRACTION * speed / -growth
+                clipped, capped = False, True
         if not (hstep > 1e-14 * max(1.0, abs(t))):
             return Outcome(STATUS_FAILED, t, h_start, accepted_normal)
         stage_normal = _stages(model, p, prof, t, y, hstep, d, tab, K, ytmp, ynew, want_normal)
@@ -427,6 +541,16 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
             return Outcome(STATUS_FAILED, t, h_start, accepted_normal)
         n_steps += 1
         stats[0] += 1
+        switch_tau = -1.0
+        yswitch = ynew
+        if coulomb and y[PHASE_SLOT] == STICK and stick_margin(p, prof, t + hstep, ynew) < 0.0:
+            # Static friction gives way inside this step: locate where, and keep that state
+            # (locating a stopping event below overwrites ynew).
+            yend = ynew.copy()
+            switch_tau = _locate(TRANSITION, model, p, prof, t, y, hstep, d, tab, K, ytmp,
+                                 ynew, dy)
+            yswitch = ynew.copy()
+            ynew[:] = yend
         fired = _fired(events, model, p, prof, t + hstep, ynew, dy, normal) if events else 0
         if not fired and stage_normal < 0.0:
             # N is positive at both ends but a stage point saw it negative: a brief dip
@@ -456,9 +580,28 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
                     if best_kind == 0 or tau < best_tau:
                         best_tau, best_kind = tau, kind
                         ybest[:] = ynew
-            y[:] = ybest
+            if switch_tau < 0.0 or best_tau <= switch_tau:
+                y[:] = ybest
+                stats[2] += 1
+                return Outcome(best_kind, t + best_tau, h_start, accepted_normal)
+        if switch_tau >= 0.0:
+            # Slip starts at t + switch_tau from v_s = 0; go on from there.
+            y[:] = yswitch
+            t = target if (clipped and switch_tau >= hstep) else t + switch_tau
+            y[PHASE_SLOT] = ONSET
+            rolling_velocity(p, y, y)
+            _record(work, s, t, SLIP)
+            normal = rhs(model, p, prof, t, y, K[0], want_normal)
             stats[2] += 1
-            return Outcome(best_kind, t + best_tau, h_start, accepted_normal)
+            if want_normal:
+                accepted_normal = normal
+            if clipped and t >= target:
+                Y_out[k, :] = y
+                k += 1
+                stats[3] += 1
+            if adaptive:
+                h = min(max(hstep * step_factor(err, exponent), switch_tau), max_step)
+            continue
         t = target if clipped else t + hstep
         if want_normal:
             accepted_normal = normal
@@ -472,7 +615,7 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
         if adaptive:
             hnew = hstep * step_factor(err, exponent)
             # A step shortened to hit an output says nothing against the natural step.
-            h = min(max(hnew, h) if clipped else hnew, max_step)
+            h = min(max(hnew, h) if (clipped or capped) else hnew, max_step)
     return Outcome(STATUS_DONE, t, h, accepted_normal)
 
 
@@ -512,10 +655,12 @@ def state_scale(p: np.ndarray, model: int) -> np.ndarray:
     a, b, g, R = float(p[P_A]), float(p[P_B]), float(p[P_G]), float(p[P_R])
     omega0 = math.sqrt(2.0 * g / a) if g > 0 else 1.0
     v = a * omega0
-    sc = np.array([a, min(a, b), v, v, v, v])
-    if model == ROLLING:
+    sc = np.full(STATE_WIDTH, v)
+    sc[0], sc[1] = a, min(a, b)
+    if model == ROLLING or model == COULOMB:
         sc[2:5] = v / R
-    sc[5 if model == ROLLING else 4] = v * v  # the work slot
+    sc[work_slot(model)] = v * v
+    sc[STATE_WIDTH - 1] = 1.0  # a coulomb ball's phase (not integrated)
     if not (np.all(np.isfinite(sc)) and np.all(sc > 0)):
         raise ValueError(f"the scene's scales are out of floating-point range (a = {a:g} m, "
                          f"g = {g:g} m/s^2, R = {R:g} m give a speed scale of "

@@ -24,7 +24,7 @@ import numpy as np
 from . import _kernels as K
 from .integrators import integrate_h, state_scale, workspace
 from .runner import DEFAULT_EVENTS, Settings, default_max_step
-from .scene import N_PARAMS
+from .scene import COULOMB, N_PARAMS
 
 
 @dataclass
@@ -110,7 +110,7 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
     ----------
     models : int or (n,) — contact model codes (`Scene.model_code`), one for all or per run.
     P : (n, N_PARAMS) packed scene parameters (`Scene.params()`).
-    Y0 : (n, 5) start states (padded as in `simulate_batch`), or (n, STATE_WIDTH) kernel
+    Y0 : (n, k ≤ 7) start states (padded as in `simulate_batch`), or (n, STATE_WIDTH) kernel
         states (with the work slot, as `states_from_observations` builds them).
     drives : (n, S, 8) drive rows (DRIVE_*); the angle θ0 of segments after the first is
         replaced by where the previous one ended.
@@ -127,8 +127,8 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
     """
     P = np.ascontiguousarray(P, dtype=float)
     Y = np.array(Y0, dtype=float)
-    if Y.ndim == 2 and Y.shape[1] == K.DYNAMICS_WIDTH:
-        Y = np.concatenate([Y, np.zeros((len(Y), K.STATE_WIDTH - K.DYNAMICS_WIDTH))], axis=1)
+    if Y.ndim == 2 and Y.shape[1] <= K.DYNAMICS_WIDTH:  # padded public states
+        Y = np.concatenate([Y, np.zeros((len(Y), K.STATE_WIDTH - Y.shape[1]))], axis=1)
     drives = np.ascontiguousarray(drives, dtype=float)
     durations = np.ascontiguousarray(durations, dtype=float)
     n, S = durations.shape
@@ -155,8 +155,10 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
     kernel(codes, P, np.ascontiguousarray(scales, dtype=float), Y, drives, durations,
            float(sample), settings.method.tableau, settings.control(max_step), t, state, normal,
            status)
-    return Prediction(t, np.ascontiguousarray(state[..., :K.DYNAMICS_WIDTH]), normal, status,
-                      np.ascontiguousarray(Y[:, :K.DYNAMICS_WIDTH]))
+    # Padded as `simulate_batch` pads: to 5, or 7 with a coulomb ball among the runs.
+    width = K.DYNAMICS_WIDTH if np.any(codes == COULOMB) else 5
+    return Prediction(t, np.ascontiguousarray(state[..., :width]), normal, status,
+                      np.ascontiguousarray(Y[:, :width]))
 
 
 def _speed_bound(drives: np.ndarray, durations: np.ndarray) -> float:

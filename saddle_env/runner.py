@@ -19,7 +19,8 @@ from typing import Literal
 import numpy as np
 
 from . import _kernels as K
-from .integrators import (EVENT_DETACH, EVENT_ESCAPE, EVENT_KINDS, METHODS, STATUS_FAILED,
+from .integrators import (EVENT_DETACH, EVENT_ESCAPE, EVENT_KINDS, LOG_PHASE, LOG_T, METHODS,
+                          STATUS_FAILED, integrate_h, log, workspace,
                           STATUS_MAX_STEPS, Method, StepControl, integrate, integrate_batch,
                           integrate_batch_serial, state_scale, step_control)
 from .omega import OmegaProfile
@@ -32,6 +33,8 @@ DEFAULT_FIXED_DT = 1e-3
 EVENT_NAMES = {"detach": EVENT_DETACH, "escape": EVENT_ESCAPE}
 DEFAULT_EVENTS = ("detach", "escape")
 MAX_OUTPUTS = 10_000_000
+TRANSITION_LOG_ROWS = 100_000  # stick-slip transitions kept per run (more are counted)
+PHASE_NAMES = {K.STICK: "stick", K.SLIP: "slip"}
 RTOL_MIN = 1e-15
 
 Start = Literal["rotating-rest", "lab-rest"]
@@ -46,7 +49,8 @@ class SimulationError(RuntimeError):
 # --------------------------------------------------------------------------------------
 def initial_state(scene: Scene, x: float, y: float, vx: float = 0.0, vy: float = 0.0, *,
                   start: Start | None = None, omega: float | OmegaProfile = 0.0,
-                  spin_normal: float = 0.0) -> np.ndarray:
+                  spin_normal: float = 0.0,
+                  spin: Sequence[float] | None = None) -> np.ndarray:
     """State vector of a ball whose contact point is at (x, y) [m] in the rotating frame.
 
     Parameters
@@ -61,14 +65,19 @@ def initial_state(scene: Scene, x: float, y: float, vx: float = 0.0, vy: float =
         tangential part of -Ω k×c (the normal part cannot be given to a ball that stays on
         the surface); needs ``omega``.
     omega : float or OmegaProfile — the saddle speed at t = 0 (used by ``"lab-rest"``).
-    spin_normal : float — rolling only: spin about the normal relative to the saddle [rad/s];
-        0 is the state friction drives the ball to (the paper's ω_z = 0).
+    spin_normal : float — rolling and coulomb: spin about the normal relative to the saddle
+        [rad/s]; 0 is the state friction drives the ball to (the paper's ω_z = 0).
+    spin : (wx, wy, wz), optional — coulomb only: the ball's whole angular velocity relative
+        to the saddle, in the saddle's axes [rad/s], instead of the rolling one (then it
+        slips from the start unless the two agree). By default a coulomb ball starts rolling
+        without slip.
 
     Returns
     -------
     ndarray, shape (scene.state_size,)
         rolling ``(x, y, wx, wy, wz)``: the spin w relative to the saddle is n × ċ / R +
-        spin_normal · n; slipping/point ``(x, y, vx, vy)``.
+        spin_normal · n; slipping/point ``(x, y, vx, vy)``; coulomb
+        ``(x, y, wx, wy, wz, vx, vy)``, the spin as rolling's unless ``spin`` is given.
     """
     if not isinstance(scene, Scene):
         raise ValueError(f"scene must be a saddle_env.Scene, got {type(scene).__name__}")
@@ -85,8 +94,15 @@ def initial_state(scene: Scene, x: float, y: float, vx: float = 0.0, vy: float =
             vx = vy = 0.0
         else:
             vx, vy = K.lab_rest_velocity(scene.params(), profile(0.0), x, y)
+    if spin is not None and scene.contact != "coulomb":
+        raise ValueError(f"spin applies to contact='coulomb' only (got contact={scene.contact!r}); "
+                         "a rolling ball's spin follows from its velocity (use spin_normal)")
     out = np.empty(K.STATE_WIDTH)
     K.state_from_velocity(scene.model_code, scene.params(), x, y, vx, vy, spin_normal, out)
+    if spin is not None:
+        if not isinstance(spin, (tuple, list, np.ndarray)) or len(spin) != 3:
+            raise ValueError(f"spin must be a triple (wx, wy, wz) in rad/s, got {spin!r}")
+        out[2:5] = [_finite_number(f"spin {c}", w) for c, w in zip(("wx", "wy", "wz"), spin)]
     if not np.all(np.isfinite(out)):
         raise ValueError(f"initial state is not finite for x = {x:g}, y = {y:g}, vx = {vx:g}, "
                          f"vy = {vy:g} m: the position or velocity is too large for the saddle")
@@ -124,6 +140,9 @@ def _check_state(scene: Scene, state: object, name: str = "state") -> np.ndarray
         raise ValueError(f"{name} must be finite, got {arr}")
     padded = np.zeros(K.STATE_WIDTH)
     padded[: scene.state_size] = arr
+    # A coulomb state does not say its phase: the loop decides it (it slips unless the slip
+    # velocity is 0 and static friction can hold it).
+    padded[K.PHASE_SLOT] = K.ONSET if scene.contact == "coulomb" else 0.0
     return padded
 
 
@@ -269,6 +288,17 @@ class Event:
 
 
 @dataclass(frozen=True)
+class Transition:
+    """A coulomb ball's change of phase at time ``t`` [s] to ``phase`` ("stick" or "slip")."""
+
+    t: float
+    phase: str
+
+    def as_dict(self) -> dict[str, object]:
+        return {"t": self.t, "phase": self.phase}
+
+
+@dataclass(frozen=True)
 class Stats:
     steps: int
     rejected: int
@@ -286,6 +316,10 @@ class Trajectory:
     work : (n,) work per unit mass [J/kg] done by the dissipative forces (air drag, drilling
     friction) since t = 0, integrated with the state; zeros when the scene has none. At
     constant Ω and with no lab-fixed force, ``h - h[0] == work``.
+    phase : (n,) coulomb: 0 where the ball sticks (rolls), 1 where it slips; None otherwise.
+    transitions : list of `Transition` — coulomb: every change of phase after t = 0, at its
+    located time (``phase[0]`` is the starting phase); ``transitions_total`` counts them all
+    when more than TRANSITION_LOG_ROWS happened.
     Derived quantities (velocity, normal force, Jacobi integral, centre, laboratory
     coordinates) are computed on first access from the shared kernels.
     """
@@ -299,6 +333,9 @@ class Trajectory:
     stats: Stats
     force: tuple[float, float] = (0.0, 0.0)
     work: np.ndarray | None = None
+    phase: np.ndarray | None = None
+    transitions: list[Transition] = field(default_factory=list)
+    transitions_total: int = 0
     _obs: np.ndarray | None = field(default=None, repr=False)
     _obs_has_normal: bool = field(default=False, repr=False)
 
@@ -310,6 +347,8 @@ class Trajectory:
         if self._obs is None or (want_normal and not self._obs_has_normal):
             padded = np.zeros((len(self.t), K.STATE_WIDTH))
             padded[:, : self.scene.state_size] = self.state
+            if self.phase is not None:
+                padded[:, K.PHASE_SLOT] = self.phase
             out = np.empty((len(self.t), K.OBS_WIDTH))
             K.observables(self.scene.model_code, self.scene.params(),
                           drive_row(self.omega, self.force), self.t, padded, want_normal, out)
@@ -372,10 +411,15 @@ class Trajectory:
 
     def as_dict(self) -> dict[str, object]:
         """The columns of `saddle-sim --format json`."""
-        return {"t": self.t.tolist(), "x": self.x.tolist(), "y": self.y.tolist(),
-                "vx": self.vx.tolist(), "vy": self.vy.tolist(),
-                "N_over_mg": self.N_over_mg.tolist(), "h": self.h.tolist(),
-                "event": None if self.event is None else self.event.as_dict()}
+        out = {"t": self.t.tolist(), "x": self.x.tolist(), "y": self.y.tolist(),
+               "vx": self.vx.tolist(), "vy": self.vy.tolist(),
+               "N_over_mg": self.N_over_mg.tolist(), "h": self.h.tolist(),
+               "event": None if self.event is None else self.event.as_dict()}
+        if self.phase is not None:
+            out["phase"] = [PHASE_NAMES[float(p)] for p in self.phase]
+            out["transitions"] = [tr.as_dict() for tr in self.transitions]
+            out["work"] = self.work.tolist()
+        return out
 
 
 # --------------------------------------------------------------------------------------
@@ -399,14 +443,17 @@ def run(scene: Scene, state: np.ndarray, t_end: float, *,
     t_out = _output_times(t_end, dt_out)
     settings = Settings.build(method, rtol, atol, dt, events, max_step, max_steps)
     p = scene.params()
-    m = settings.method
+    tab = settings.method.tableau
     Y_out = np.empty((len(t_out), K.STATE_WIDTH))
     stats = np.zeros(4, dtype=np.int64)
-    status, t_final = integrate(
-        scene.model_code, p, drive_row(profile, force), y, 0.0, t_out, m.tableau,
+    coulomb = scene.contact == "coulomb"
+    work = workspace(tab, TRANSITION_LOG_ROWS if coulomb else 0)
+    status, t_final = integrate_h(
+        scene.model_code, p, drive_row(profile, force), y, 0.0, t_out, tab,
         settings.control(settings.max_step_for(profile, float(t_out[-1]))),
-        state_scale(p, scene.model_code), Y_out, stats)
+        state_scale(p, scene.model_code), Y_out, stats, 0.0, work)[:2]
     _raise_on_failure(status, t_final, math.hypot(y[0], y[1]), scene)
+    total, rows = log(tab, work) if coulomb else (0, work[:0])
     n = int(stats[3])
     event = None
     if status in EVENT_KINDS:
@@ -414,7 +461,11 @@ def run(scene: Scene, state: np.ndarray, t_end: float, *,
     traj = Trajectory(scene, profile, t_out[:n].copy(), Y_out[:n, : scene.state_size].copy(),
                       event, settings.describe(),
                       Stats(int(stats[0]), int(stats[1]), int(stats[2])), force,
-                      Y_out[:n, scene.state_size].copy())
+                      Y_out[:n, scene.state_size].copy(),
+                      # users see slip starting (ONSET) as slip
+                      np.minimum(Y_out[:n, K.PHASE_SLOT], K.SLIP) if coulomb else None,
+                      [Transition(float(r[LOG_T]), PHASE_NAMES[float(r[LOG_PHASE])])
+                       for r in rows[:min(total, len(rows))]], total)
     return traj
 
 
@@ -440,10 +491,10 @@ class BatchResult:
 
     Attributes
     ----------
-    t : (m,) output times.  state : (n, m, 5) padded states; rows after a ball's last output
-    are NaN.  n_out : (n,) outputs reached per ball.  status : (n,) STATUS_* codes.
+    t : (m,) output times.  state : (n, m, k) states padded to k = 5 (7 when the batch has a
+    coulomb ball); rows after a ball's last output are NaN.  n_out : (n,) outputs reached per ball.  status : (n,) STATUS_* codes.
     t_final : (n,) time of each final state (event time where one fired).
-    final_state : (n, 5) state at t_final.  work : (n, m) work of the dissipative forces
+    final_state : (n, k) state at t_final.  work : (n, m) work of the dissipative forces
     per unit mass [J/kg] since t = 0 (`Trajectory.work`), NaN after a ball's last output.
     """
 
@@ -472,7 +523,7 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
     given integrator settings (``tol=`` is `saddle_env.simulate.simulate_batch`'s).
 
     ``scenes`` is one Scene for all balls or one per ball (contact models may differ).
-    ``states`` is (n, k) with k = 5 (padded) or the common ``state_size``.
+    ``states`` is (n, k): each row a ball's state, padded with zeros to a common k ≤ 7.
     ``omega`` is one value/profile for all, or one per ball (a sequence, or an (n,) array of
     constant speeds, or an (n, 5) array of profile rows). Failures do not raise; they are
     reported per ball in ``status``.
@@ -495,7 +546,7 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
         raise ValueError(f"scenes must be a Scene or a sequence of {n} Scenes (one per ball)")
     Y = np.zeros((n, K.STATE_WIDTH))
     for i, (sc, row) in enumerate(zip(scene_list, states)):
-        if states.shape[1] == K.DYNAMICS_WIDTH and sc.state_size < K.DYNAMICS_WIDTH:
+        if sc.state_size < states.shape[1] <= K.DYNAMICS_WIDTH:  # a padded row
             row = row[: sc.state_size]
         Y[i] = _check_state(sc, row, f"states[{i}]")
     profiles = _profiles(omega, n)
@@ -518,8 +569,10 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
     batch(models, P, drives, Y, 0.0, t_out, m.tableau, settings.control(math.inf), scales,
           max_step_arr, np.ones(n, dtype=bool), Y_out, status, t_final, stats)
     work = np.array([Y_out[i, :, sc.state_size] for i, sc in enumerate(scene_list)])
-    return BatchResult(t_out, Y_out[..., :K.DYNAMICS_WIDTH], stats[:, 3].copy(), status, t_final,
-                       Y[:, :K.DYNAMICS_WIDTH], stats, settings.describe(), work)
+    # Padded to the longest state in the batch, and never narrower than a rolling ball's (5).
+    width = max(5, max(sc.state_size for sc in scene_list))
+    return BatchResult(t_out, Y_out[..., :width], stats[:, 3].copy(), status, t_final,
+                       Y[:, :width], stats, settings.describe(), work)
 
 
 def _profiles(omega: object, n: int) -> np.ndarray:

@@ -13,17 +13,19 @@ from typing import Literal
 
 import numpy as np
 
-ContactModel = Literal["rolling", "slipping", "point"]
-CONTACT_MODELS: tuple[str, ...] = ("rolling", "slipping", "point")
+ContactModel = Literal["rolling", "slipping", "point", "coulomb"]
+CONTACT_MODELS: tuple[str, ...] = ("rolling", "slipping", "point", "coulomb")
 
 # Integer codes the compiled kernels switch on (kept in one place). The ion codes select a
 # charged particle in a quadrupole trap (saddle_env.iontrap), integrated by the same loop.
 ROLLING, SLIPPING = 0, 1
 ION_RRF, ION_PAUL = 2, 3
+COULOMB = 4
 
 # Layout of the packed parameter vector read by the kernels (saddle_env._kernels).
-P_A, P_B, P_R, P_ALPHA, P_G, P_DRILL, P_RIM, P_DRAG_LINEAR, P_DRAG_QUADRATIC = range(9)
-N_PARAMS = 9
+(P_A, P_B, P_R, P_ALPHA, P_G, P_DRILL, P_RIM, P_DRAG_LINEAR, P_DRAG_QUADRATIC, P_MU,
+ P_MU_STATIC) = range(11)
+N_PARAMS = 11
 
 
 def _finite_number(name: str, value: object) -> float:
@@ -51,10 +53,13 @@ class Scene:
         Moment-of-inertia factor, ``I = alpha·m·R²`` (2/5 solid ball, 2/3 thin shell), ``0 < alpha <= 1``.
     g : float
         Gravitational acceleration [m/s²], ``>= 0``.
-    contact : {"rolling", "slipping", "point"}
+    contact : {"rolling", "slipping", "point", "coulomb"}
         ``"rolling"``: rolls without slipping (spin integrated). ``"slipping"``: frictionless,
         spin decoupled and not integrated. ``"point"``: the mass-point (Brouwer) model, i.e.
-        slipping with R = 0.
+        slipping with R = 0. ``"coulomb"``: Coulomb friction between the two: the ball
+        sticks (rolls) while the friction it needs stays below ``mu_static``·N and slips
+        with friction ``mu``·N against the slip otherwise (docs/physics.md, "Coulomb
+        friction"); position, contact-point velocity and full spin are integrated.
     rim_radius : float
         Horizontal radius [m] of the saddle's edge; the ball escapes when its contact point
         leaves it. ``math.inf`` for an unbounded saddle.
@@ -70,6 +75,12 @@ class Scene:
         Quadratic air drag [1/m]: a force per unit mass ``-drag_quadratic · |u| · u`` (for a
         ball of density ρ_b in air of density ρ_a with drag coefficient C_d, this is
         3 C_d ρ_a / (8 ρ_b R)). Acts on every contact model. ``0`` disables it.
+    mu : float
+        ``contact="coulomb"`` only: the kinetic friction coefficient, ``>= 0``. ``0`` is the
+        frictionless (slipping) ball; a large value keeps it rolling.
+    mu_static : float or None
+        ``contact="coulomb"`` only: the static friction coefficient, ``>= mu``; defaults to
+        ``mu``.
     """
 
     a: float = 0.159
@@ -82,6 +93,8 @@ class Scene:
     drilling_friction: float = 0.0
     drag_linear: float = 0.0
     drag_quadratic: float = 0.0
+    mu: float | None = None
+    mu_static: float | None = None
 
     def __post_init__(self) -> None:
         a = _finite_number("a", self.a)
@@ -123,11 +136,33 @@ class Scene:
         drag_quadratic = _finite_number("drag_quadratic", self.drag_quadratic)
         if drag_quadratic < 0:
             raise ValueError(f"drag_quadratic must be >= 0 (1/m), got {drag_quadratic}")
+        mu, mu_static = self._friction_coefficients()
         # Normalise to plain floats so equality, hashing and pickling behave.
         for name, value in (("a", a), ("b", b), ("R", R), ("alpha", alpha), ("g", g),
                             ("rim_radius", rim), ("drilling_friction", drill),
-                            ("drag_linear", drag_linear), ("drag_quadratic", drag_quadratic)):
+                            ("drag_linear", drag_linear), ("drag_quadratic", drag_quadratic),
+                            ("mu", mu), ("mu_static", mu_static)):
             object.__setattr__(self, name, value)
+
+    def _friction_coefficients(self) -> tuple[float | None, float | None]:
+        """Validated (mu, mu_static): both numbers for "coulomb", both None otherwise."""
+        if self.contact != "coulomb":
+            for name in ("mu", "mu_static"):
+                if getattr(self, name) is not None:
+                    raise ValueError(f"{name} applies to contact='coulomb' only (got "
+                                     f"contact={self.contact!r}); leave it None")
+            return None, None
+        if self.mu is None:
+            raise ValueError("contact='coulomb' needs mu, the kinetic friction coefficient "
+                             "(>= 0; e.g. Scene(contact='coulomb', mu=0.3))")
+        mu = _finite_number("mu", self.mu)
+        if mu < 0:
+            raise ValueError(f"mu must be >= 0 (kinetic friction coefficient), got {mu}")
+        mu_static = mu if self.mu_static is None else _finite_number("mu_static", self.mu_static)
+        if mu_static < mu:
+            raise ValueError(f"mu_static must be >= mu = {mu:g} (static friction is at least "
+                             f"the kinetic), got {mu_static:g}")
+        return mu, mu_static
 
     # -- derived quantities -------------------------------------------------------------
     @property
@@ -137,17 +172,18 @@ class Scene:
 
     @property
     def rolling(self) -> bool:
-        """True when the spin is integrated (pure rolling)."""
+        """True for the pure-rolling model (the constraint always holds)."""
         return self.contact == "rolling"
 
     @property
     def state_size(self) -> int:
-        """Length of the state vector: (x, y, wx, wy, wz) rolling, (x, y, vx, vy) otherwise."""
-        return 5 if self.rolling else 4
+        """Length of the state vector: (x, y, wx, wy, wz) rolling, (x, y, vx, vy) slipping
+        and point, (x, y, wx, wy, wz, vx, vy) coulomb."""
+        return {"rolling": 5, "coulomb": 7}.get(self.contact, 4)
 
     @property
     def model_code(self) -> int:
-        return ROLLING if self.rolling else SLIPPING
+        return {"rolling": ROLLING, "coulomb": COULOMB}.get(self.contact, SLIPPING)
 
     def params(self) -> np.ndarray:
         """The packed float64 parameter vector read by the compiled kernels."""
@@ -155,6 +191,8 @@ class Scene:
         p[P_A], p[P_B], p[P_R], p[P_ALPHA] = self.a, self.b, self.radius, self.alpha
         p[P_G], p[P_DRILL], p[P_RIM] = self.g, self.drilling_friction, self.rim_radius
         p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC] = self.drag_linear, self.drag_quadratic
+        p[P_MU] = 0.0 if self.mu is None else self.mu
+        p[P_MU_STATIC] = 0.0 if self.mu_static is None else self.mu_static
         return p
 
     def with_(self, **changes: object) -> Scene:

@@ -131,7 +131,7 @@ def simulate_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: f
     """Integrate many balls at once (threads over balls; same kernel as `simulate`).
 
     ``scenes`` is one Scene for all balls or one per ball (contact models may differ).
-    ``states`` is (n, k) with k = 5 (padded) or the common ``state_size``.
+    ``states`` is (n, k): each row a ball's state, padded with zeros to a common k ≤ 7.
     ``omega`` is one value/profile for all, or one per ball (a sequence, or an (n,) array of
     constant speeds, or an (n, 5) array of profile rows). Failures do not raise; they are
     reported per ball in ``status``. ``tol`` [m] picks the integrator automatically as in
@@ -151,7 +151,7 @@ def simulate_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: f
         rows = []
         for i in pick:
             row = arr[i]
-            if arr.shape[1] == runner.K.DYNAMICS_WIDTH and scene_list[i].state_size < arr.shape[1]:
+            if scene_list[i].state_size < arr.shape[1] <= runner.K.DYNAMICS_WIDTH:  # padded
                 row = row[: scene_list[i].state_size]
             rows.append(runner._check_state(scene_list[i], row, f"states[{i}]")
                         [: scene_list[i].state_size])

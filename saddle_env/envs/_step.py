@@ -55,7 +55,7 @@ from .._kernels import (DRIVE_AMP, DRIVE_FREQ, DRIVE_FX, DRIVE_FY, DRIVE_PHASE, 
 from ..integrators import EVENT_DETACH, STATUS_DETACH, StepControl, Tableau, integrate_h, reaches
 from ..lockstep import (LANES, PARAM_WIDTH, accepted, block_size, carve_block, next_step,
                         rk_step_block, take)
-from ..scene import P_A, P_B, P_G, P_R, P_RIM, ROLLING, SLIPPING
+from ..scene import COULOMB, P_A, P_B, P_G, P_R, P_RIM, ROLLING, SLIPPING
 from .observation import OBS_MAX, OMEGA_HIGH, OMEGA_LOW, POS_BOUND, VEL_BOUND
 
 # The slots of the module's table: the only way into the engine's per-ball rows. The rows are
@@ -324,13 +324,14 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
     Pl, D, Y0, Sc = ws.P, ws.D, ws.Y0, ws.Sc
     lockstep = cfg[C_LOCKSTEP] != 0.0
     failed = 0
-    for model in (ROLLING, SLIPPING):
+    for model in (ROLLING, SLIPPING, COULOMB):
         m = 0
         for i in range(lo, hi):
             if not active[i] or models[i] != model:
                 continue
             _load(i, P, scales, Y, balls, noise, record)
-            if lockstep and reaches(0.0, _first_step(ball, ctl), dt):
+            # A coulomb ball may change phase inside a step: only the scalar loop can.
+            if lockstep and model != COULOMB and reaches(0.0, _first_step(ball, ctl), dt):
                 lanes[m] = i
                 rates[m] = _drive(ball, cfg, actions[i], D[m])
                 for k in range(PARAM_WIDTH):

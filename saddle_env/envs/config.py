@@ -43,7 +43,8 @@ class EnvConfig:
     """Options of `SaddleTrapEnv` (all are constructor keywords of the environment).
 
     Scene (see `saddle_env.Scene`): ``a, b, R, alpha, g, contact, rim_radius,
-    drilling_friction, drag_linear, drag_quadratic``.
+    drilling_friction, drag_linear, drag_quadratic, mu, mu_static`` (the friction
+    coefficients apply to ``"coulomb"`` balls and are passed to no other).
 
     Control: ``control_period`` [s] (20 ms); ``max_accel`` [rad/s²], the motor's limit on
     |Ω̇| (20: 0 → 45 s⁻¹ in 2.25 s); ``omega_max`` [rad/s], the motor's top speed (45, about
@@ -63,7 +64,9 @@ class EnvConfig:
     ``"rotating-rest"``, plus a random velocity of up to ``init_speed`` [m/s]; Ω₀ uniform in
     ``omega0_range`` [rad/s]. Domain randomisation: ``ball_radii`` (a tuple to draw R from,
     e.g. `PAPER_BALL_RADII`), ``a_range`` ((low, high) for the saddle length, b = a
-    unless ``b`` is given) and ``contact_models`` (a tuple to draw from).
+    unless ``b`` is given), ``contact_models`` (a tuple to draw from) and ``mu_range``
+    ((low, high): a coulomb ball's kinetic friction coefficient, uniform; its static one is
+    ``mu_static`` if given, else equal).
 
     Reward per step: the fraction of the step the ball stayed trapped, minus
     ``distance_cost``·(r/rim)², minus ``effort_cost``·action², minus ``loss_penalty`` when the
@@ -91,6 +94,8 @@ class EnvConfig:
     drilling_friction: float = Scene.drilling_friction
     drag_linear: float = Scene.drag_linear
     drag_quadratic: float = Scene.drag_quadratic
+    mu: float | None = Scene.mu
+    mu_static: float | None = Scene.mu_static
     control_period: float = 0.02
     max_accel: float = 20.0
     omega_max: float = 45.0
@@ -109,6 +114,7 @@ class EnvConfig:
     ball_radii: tuple[float, ...] | None = None
     a_range: tuple[float, float] | None = None
     contact_models: tuple[str, ...] | None = None
+    mu_range: tuple[float, float] | None = None
     loss_penalty: float = 10.0
     distance_cost: float = 0.0
     effort_cost: float = 0.0
@@ -124,6 +130,12 @@ class EnvConfig:
         # Scene parameters are validated by building the nominal scene.
         self.scene()
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
+        # The friction coefficients reach only coulomb balls' scenes: check them here too.
+        for name in ("mu", "mu_static"):
+            if getattr(self, name) is not None:
+                set_(name, _positive(name, getattr(self, name), allow_zero=True))
+        if self.mu is not None and self.mu_static is not None and self.mu_static < self.mu:
+            raise ValueError(f"mu_static must be >= mu = {self.mu:g}, got {self.mu_static:g}")
         set_("control_period", _positive("control_period", self.control_period))
         if self.control_period > 1.0:
             raise ValueError(f"control_period must be <= 1 s, got {self.control_period}")
@@ -174,6 +186,11 @@ class EnvConfig:
                 raise ValueError(f"contact_models must be a non-empty tuple from {CONTACT_MODELS}, "
                                  f"got {self.contact_models!r}")
             set_("contact_models", models)
+        if self.mu_range is not None:
+            if "coulomb" not in (self.contact_models or (self.contact,)):
+                raise ValueError("mu_range randomises a coulomb ball's friction: it needs "
+                                 "contact='coulomb' or 'coulomb' in contact_models")
+            set_("mu_range", _range("mu_range", self.mu_range, lo=0.0))
         # Every randomised scene must be valid: check the extremes now, not mid-training.
         for scene in self.extreme_scenes():
             scene.with_()  # re-validates
@@ -203,18 +220,23 @@ class EnvConfig:
         """The nominal scene (or one with randomised parameters changed)."""
         kw = {name: getattr(self, name) for name in SCENE_FIELDS}
         kw.update(changes)
+        if kw["contact"] != "coulomb":  # friction coefficients belong to coulomb balls only
+            kw["mu"] = kw["mu_static"] = None
+        elif kw["mu"] is None and self.mu_range is not None:
+            kw["mu"] = self.mu_range[0]
         return Scene(**kw)  # type: ignore[arg-type]
 
     def extreme_scenes(self) -> list[Scene]:
         radii = self.ball_radii or (self.R,)
         a_values = self.a_range or (self.a,)
         models = self.contact_models or (self.contact,)
+        mus = self.mu_range or (self.mu,)
         out = []
         for R in (min(radii), max(radii)):
             for a in (min(a_values), max(a_values)):
-                for m in models:
+                for m, mu in ((m, mu) for m in models for mu in (mus if m == "coulomb" else (None,))):
                     try:
-                        out.append(self.scene(R=R, a=a, contact=m))
+                        out.append(self.scene(R=R, a=a, contact=m, **({"mu": mu} if mu is not None else {})))
                     except ValueError as exc:
                         raise ValueError(f"randomised scene R={R}, a={a}, contact={m!r} is "
                                          f"invalid: {exc}") from None

@@ -227,6 +227,8 @@ class TrapEngine:
             changes["contact"] = opts["contact"]
         elif c.contact_models is not None:
             changes["contact"] = c.contact_models[rng.integers(len(c.contact_models))]
+        if c.mu_range is not None and changes.get("contact", c.contact) == "coulomb":
+            changes["mu"] = rng.uniform(*c.mu_range)
         key = tuple(sorted(changes.items()))
         hit = self._scene_cache.get(key)
         if hit is None:

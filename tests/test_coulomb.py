@@ -1,0 +1,297 @@
+"""The coulomb contact model: a ball that sticks (rolls) or slips under Coulomb friction.
+
+Layers: the parameters are checked; the rates of the stick phase are the rolling model's and
+those of a frictionless slip the slipping model's (kernel level, random states); over 10 s
+a coulomb ball with a large μ follows the rolling ball and one with μ = 0 the slipping ball;
+the Jacobi integral's change equals the work the dissipative forces did, across stick-slip
+transitions; the transition times agree with the flat-ground solution and with a run at a
+tighter tolerance; the environment runs coulomb balls.
+"""
+
+import json
+import math
+import subprocess
+import sys
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from saddle_env import OmegaProfile, Scene, initial_state, simulate
+from saddle_env import _kernels as K
+from saddle_env.linear import is_stable
+
+
+def _random_scene(rng, **kw):
+    base = {"a": rng.uniform(0.12, 0.2), "b": rng.uniform(0.12, 0.2),
+            "R": rng.uniform(0.008, 0.03), "alpha": rng.choice([0.4, 2 / 3])}
+    base.update(kw)
+    return Scene(**base)
+
+
+# -- parameters --------------------------------------------------------------------------
+def test_friction_coefficients_are_checked():
+    with pytest.raises(ValueError, match="needs mu"):
+        Scene(contact="coulomb")
+    with pytest.raises(ValueError, match="mu must be >= 0"):
+        Scene(contact="coulomb", mu=-0.1)
+    with pytest.raises(ValueError, match="mu_static must be >= mu"):
+        Scene(contact="coulomb", mu=0.3, mu_static=0.2)
+    with pytest.raises(ValueError, match="'coulomb' only"):
+        Scene(contact="rolling", mu=0.3)
+    with pytest.raises(ValueError, match="mu must be finite"):
+        Scene(contact="coulomb", mu=math.inf)
+    sc = Scene(contact="coulomb", mu=0.3)
+    assert sc.mu_static == 0.3 and sc.state_size == 7 and sc.model_code == K.COULOMB
+    with pytest.raises(ValueError, match="spin applies to contact='coulomb' only"):
+        initial_state(Scene(), 0.01, 0.0, spin=(0.0, 0.0, 1.0))
+    with pytest.raises(ValueError, match="spin must be a triple"):
+        initial_state(sc, 0.01, 0.0, spin=(0.0, 1.0))
+
+
+# -- the rates -----------------------------------------------------------------------------
+def _rates(scene, y, phase, t=0.3):
+    prof = np.zeros(K.DRIVE_WIDTH)
+    prof[K.DRIVE_W0], prof[K.DRIVE_RATE] = 15.0, 2.0
+    prof[K.DRIVE_AMP], prof[K.DRIVE_FREQ] = 1.0, 3.0
+    prof[K.DRIVE_FX], prof[K.DRIVE_FY] = 0.3, -0.2
+    row = np.zeros(K.STATE_WIDTH)
+    row[: len(y)] = y
+    row[K.PHASE_SLOT] = phase
+    dy = np.zeros(K.STATE_WIDTH)
+    normal = K.rhs(scene.model_code, scene.params(), prof, t, row, dy, True)
+    return dy, normal
+
+
+def test_stick_phase_is_the_rolling_model():
+    # Sticking, the friction is the one the rolling constraint needs, so the rates of
+    # (x, y, w) and N are the rolling model's — derived separately (Euler's equation with
+    # the contact force eliminated, against Newton-Euler with the friction solved for).
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        kw = {"drilling_friction": rng.uniform(0, 2), "drag_linear": rng.uniform(0, 0.5),
+              "drag_quadratic": rng.uniform(0, 2)}
+        sc = _random_scene(rng, contact="coulomb", mu=0.3, **kw)
+        roll = sc.with_(contact="rolling", mu=None, mu_static=None)
+        y = np.zeros(7)
+        y[:5] = rng.normal(size=5) * [0.03, 0.03, 5, 5, 5]
+        dc, nc = _rates(sc, y, K.STICK)
+        dr, nr = _rates(roll, y[:5], 0.0)
+        np.testing.assert_allclose(dc[:5], dr[:5], rtol=1e-12, atol=1e-12)
+        assert nc == pytest.approx(nr, rel=1e-12, abs=1e-12)
+        assert dc[K.work_slot(K.COULOMB)] == pytest.approx(dr[K.work_slot(K.ROLLING)], abs=1e-12)
+        # the carried contact-point velocity moves as the rolling one: finite difference
+        # of the rolling velocity along the rates
+        eps = 1e-6
+        y2 = y.copy()
+        y2[:5] += eps * dr[:5]
+        v1 = K.contact_velocity(K.ROLLING, roll.params(), np.r_[y[:5], np.zeros(4)])
+        v2 = K.contact_velocity(K.ROLLING, roll.params(), np.r_[y2[:5], np.zeros(4)])
+        np.testing.assert_allclose(dc[5:7], (np.array(v2) - v1) / eps, rtol=1e-4, atol=1e-6)
+
+
+def test_frictionless_slip_is_the_slipping_model():
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        sc = _random_scene(rng, contact="coulomb", mu=0.0, drag_linear=rng.uniform(0, 0.5))
+        slip = sc.with_(contact="slipping", mu=None, mu_static=None)
+        y = np.zeros(7)
+        y[:5] = rng.normal(size=5) * [0.03, 0.03, 5, 5, 5]
+        y[5:7] = rng.normal(size=2) * 0.3
+        dc, nc = _rates(sc, y, K.SLIP)
+        ds, ns = _rates(slip, np.r_[y[:2], y[5:7]], 0.0)
+        np.testing.assert_allclose(dc[[0, 1, 5, 6]], ds[:4], rtol=1e-12, atol=1e-12)
+        assert nc == pytest.approx(ns, rel=1e-12)
+
+
+def test_slip_velocity_changes_at_the_derived_rate():
+    # v̇_s = a0 + (1 + 1/α) f: the slip speed's rate that the loop's stop prediction uses,
+    # against a finite difference of |v_s| along the rates.
+    rng = np.random.default_rng(2)
+    for _ in range(10):
+        sc = _random_scene(rng, contact="coulomb", mu=rng.uniform(0.05, 0.5))
+        p = sc.params()
+        prof = np.zeros(K.DRIVE_WIDTH)
+        prof[K.DRIVE_W0] = 14.0
+        y = np.zeros(K.STATE_WIDTH)
+        y[:5] = rng.normal(size=5) * [0.02, 0.02, 3, 3, 3]
+        y[5:7] = rng.normal(size=2) * 0.2
+        y[K.PHASE_SLOT] = K.SLIP
+        _, _, speed, growth = K.coulomb_contact(p, prof, 0.0, y)
+        dy = np.zeros(K.STATE_WIDTH)
+        K.rhs(K.COULOMB, p, prof, 0.0, y, dy, False)
+        h = 1e-7
+        y2 = y + h * dy
+        y2[K.PHASE_SLOT] = K.SLIP
+        speed2 = K.coulomb_contact(p, prof, h, y2)[2]
+        assert (speed2 - speed) / h == pytest.approx(growth, rel=1e-4, abs=1e-5)
+
+
+# -- limits over 10 s ------------------------------------------------------------------------
+def _limit_cases(seed, contact, n=3):
+    """Random scenes (a ≠ b, rippling Ω) in which the ``contact`` ball stays trapped 10 s."""
+    rng = np.random.default_rng(seed)
+    cases = []
+    while len(cases) < n:
+        sc = _random_scene(rng, contact="rolling", rim_radius=0.2)
+        omega = OmegaProfile(rng.uniform(18.0, 28.0), 0.0, rng.uniform(0.5, 2.0),
+                             rng.uniform(2.0, 6.0), rng.uniform(0, 6.28))
+        x0, y0 = rng.uniform(-0.005, 0.005, size=2)
+        if not is_stable(sc, omega.w0):
+            continue
+        ref_scene = sc.with_(contact=contact)
+        ref = simulate(ref_scene, initial_state(ref_scene, x0, y0), 10.0, omega=omega,
+                       dt_out=0.05)
+        if ref.event is None:
+            cases.append((sc, omega, (x0, y0), ref))
+    return cases
+
+
+def test_large_mu_follows_the_rolling_ball():
+    for sc, omega, (x0, y0), roll in _limit_cases(10, "rolling"):
+        coul_scene = sc.with_(contact="coulomb", mu=1e3)
+        coul = simulate(coul_scene, initial_state(coul_scene, x0, y0), 10.0, omega=omega,
+                        dt_out=0.05)
+        assert coul.event is None and roll.event is None
+        assert np.all(coul.phase == K.STICK)
+        assert coul.transitions == []
+        # The same equations stepped with differently sized error norms (8 integrated
+        # slots against 5): they agree to the integrator's tolerance.
+        np.testing.assert_allclose(coul.state[:, :2], roll.state[:, :2], rtol=0, atol=1e-8)
+        spin = np.max(np.abs(roll.state[:, 2:5]))
+        np.testing.assert_allclose(coul.state[:, 2:5], roll.state[:, 2:5], rtol=0,
+                                   atol=1e-7 * spin)
+        np.testing.assert_allclose(coul.N_over_mg, roll.N_over_mg, atol=1e-7)
+
+
+def test_zero_mu_follows_the_slipping_ball():
+    # Both start at rest on the saddle (the coulomb ball then rolls off at once: nothing
+    # holds it), so their starts are the same.
+    for sc, omega, (x0, y0), slip in _limit_cases(11, "slipping"):
+        coul_scene = sc.with_(contact="coulomb", mu=0.0)
+        coul = simulate(coul_scene, initial_state(coul_scene, x0, y0), 10.0, omega=omega,
+                        dt_out=0.05)
+        assert coul.event is None
+        assert np.all(coul.phase == K.SLIP)
+        np.testing.assert_allclose(coul.state[:, [0, 1, 5, 6]], slip.state, rtol=0, atol=1e-7)
+
+
+# -- energy bookkeeping ----------------------------------------------------------------------
+def test_jacobi_change_equals_the_dissipated_work_across_transitions():
+    # Constant Ω, no lab force: h(t) - h(0) = W(t), W the work of kinetic friction (and
+    # drag, drilling) integrated with the state, through stick-slip transitions.
+    rng = np.random.default_rng(5)
+    checked = 0
+    attempts = 0
+    while checked < 4:
+        attempts += 1
+        assert attempts < 60
+        mu = rng.uniform(0.02, 0.15)
+        sc = _random_scene(rng, contact="coulomb", mu=mu, mu_static=mu * rng.uniform(1.0, 1.5),
+                           drag_linear=rng.uniform(0, 0.3) * (checked % 2),
+                           drilling_friction=rng.uniform(0, 2) * (checked % 2), rim_radius=0.2)
+        y0 = initial_state(sc, *rng.uniform(-0.01, 0.01, size=2),
+                           spin=tuple(rng.normal(size=3) * 5.0))
+        tr = simulate(sc, y0, 10.0, omega=rng.uniform(16.0, 26.0), dt_out=0.01)
+        if len(tr.transitions) < 1 or tr.phase[0] != K.SLIP or len(tr.t) < 20:
+            continue
+        checked += 1
+        scale = max(np.max(np.abs(tr.h)), np.max(np.abs(tr.work)))
+        assert np.max(np.abs(tr.h - tr.h[0] - tr.work)) < 1e-9 * scale
+        if sc.drag_linear == 0.0:  # friction only takes energy (drag, seen from the
+            # turning saddle, is a wind that can also give some)
+            assert np.all(np.diff(tr.work) <= 1e-12 * scale)
+
+
+# -- transitions -----------------------------------------------------------------------------
+def _flat_ground(mu, R=0.02, alpha=0.4, w0=30.0):
+    """A ball at the centre of an almost flat saddle (a = b = 10⁴ km, so its slope along the
+    path changes the speeds by < 1e-7), not turning, spinning about x with no velocity: it
+    slips at R·w0 until friction stops the slip after R w0 / (μ g (1 + 1/α)), then rolls at
+    α R w0/(1 + α)."""
+    sc = Scene(a=1e7, R=R, alpha=alpha, contact="coulomb", mu=mu, rim_radius=100.0)
+    y0 = initial_state(sc, 0.0, 0.0, spin=(w0, 0.0, 0.0))
+    t_stick = R * w0 / (mu * sc.g * (1.0 + 1.0 / alpha))
+    return sc, y0, t_stick, alpha * R * w0 / (1.0 + alpha)
+
+
+@pytest.mark.parametrize("mu", [0.05, 0.3, 1.0])
+def test_slip_stops_when_flat_ground_says(mu):
+    sc, y0, t_stick, v_roll = _flat_ground(mu)
+    # atol is relative to the saddle's size: this one needs a small one
+    tr = simulate(sc, y0, 2 * t_stick, omega=0.0, dt_out=t_stick / 50, rtol=1e-12, atol=1e-16)
+    assert [t.phase for t in tr.transitions] == ["stick"]
+    assert tr.transitions[0].t == pytest.approx(t_stick, rel=1e-6)
+    # rolling from then on at the speed the spin has left, to the saddle's curvature
+    end = tr.state[-1]
+    assert math.hypot(end[5], end[6]) == pytest.approx(v_roll, rel=1e-6)
+    # energy: friction took the difference of the kinetic energies
+    assert tr.work[-1] == pytest.approx(tr.h[-1] - tr.h[0], rel=1e-9)
+    assert tr.stats.steps < 200  # no chattering at the stop
+
+
+def test_transition_times_converge_with_the_tolerance():
+    # A ball that slips, sticks and slips again: the located times at rtol 1e-9 and 1e-12
+    # agree to 1e-7 s (4e-9 s measured), and so does its escape.
+    sc = Scene(contact="coulomb", mu=0.05, R=0.02)
+    y0 = initial_state(sc, 0.01, 0.005)
+    runs = [simulate(sc, y0, 3.0, omega=16.0, dt_out=0.01, rtol=r) for r in (1e-9, 1e-12)]
+    kinds = [[t.phase for t in r.transitions] for r in runs]
+    assert kinds[0] == kinds[1] and kinds[0][:2] == ["stick", "slip"]
+    assert runs[0].phase[0] == K.SLIP  # static friction cannot hold it at the start
+    for a, b in zip(runs[0].transitions, runs[1].transitions):
+        assert a.t == pytest.approx(b.t, abs=1e-7)
+    assert runs[0].event.t == pytest.approx(runs[1].event.t, abs=1e-7)
+    assert runs[1].event is not None and runs[1].event.kind == "escape"
+
+
+def test_json_reports_phase_and_transitions(tmp_path):
+    out = subprocess.run(
+        [sys.executable, "-m", "saddle_env.cli", "--contact", "coulomb", "--mu", "0.3",
+         "--mu-static", "0.4", "--spin", "0", "0", "20", "--t-end", "0.5", "--format", "json"],
+        capture_output=True, text=True, check=True).stdout
+    res = json.loads(out)
+    assert set(res["phase"]) <= {"stick", "slip"} and len(res["phase"]) == len(res["t"])
+    assert res["transitions"] and all(set(t) == {"t", "phase"} for t in res["transitions"])
+
+
+# -- the environment ---------------------------------------------------------------------------
+def test_env_runs_coulomb_balls_with_random_friction():
+    kw = {"contact_models": ("rolling", "coulomb"), "mu_range": (0.05, 0.5)}
+    env = gym.make("SaddleTrap-v0", **kw)
+    obs, _ = env.reset(seed=3)
+    mus = set()
+    for ep in range(6):
+        env.reset(seed=100 + ep)
+        scene = env.unwrapped.scene
+        if scene.contact == "coulomb":
+            assert 0.05 <= scene.mu <= 0.5
+            mus.add(scene.mu)
+        for _ in range(20):
+            obs, r, term, trunc, _ = env.step(env.action_space.sample())
+            assert np.all(np.isfinite(obs))
+            if term:
+                break
+    assert len(mus) >= 2
+    with pytest.raises(ValueError, match="mu_range"):
+        gym.make("SaddleTrap-v0", mu_range=(0.1, 0.2))
+
+
+def test_vector_env_equals_single_env_for_coulomb():
+    from saddle_env.envs.vector import SaddleTrapVectorEnv
+
+    kw = {"contact": "coulomb", "mu": 0.08, "omega0_range": (15.0, 17.0)}
+    vec = SaddleTrapVectorEnv(num_envs=3, **kw)
+    obs_v, _ = vec.reset(seed=7)
+    singles = [gym.make("SaddleTrap-v0", **kw) for _ in range(3)]
+    obs_s = [e.reset(seed=7 + i)[0] for i, e in enumerate(singles)]
+    np.testing.assert_array_equal(obs_v, np.array(obs_s))
+    rng = np.random.default_rng(0)
+    for _ in range(30):
+        a = rng.uniform(-1, 1, size=(3, 1)).astype(np.float32)
+        obs_v, r_v, term_v, _, _ = vec.step(a)
+        for i, e in enumerate(singles):
+            o, r, term, _, _ = e.step(a[i])
+            if not term_v[i]:
+                np.testing.assert_array_equal(obs_v[i], o)
+                assert r_v[i] == r
