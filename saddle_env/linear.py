@@ -15,6 +15,7 @@ solve ϖ⁴ + (A + C + BD) ϖ² + AC = 0; the motion is (marginally) stable iff 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -167,7 +168,8 @@ def mass_point_band(a: float, b: float, g: float = 9.8) -> tuple[float, float] |
 
 def stable_band(scene: Scene, spin_z: float = 0.0, omega_max: float | None = None,
                 n_grid: int = 4000) -> list[tuple[float, float]]:
-    """Intervals of Ω in (0, omega_max] where the linearised motion is stable.
+    """Intervals of Ω in (0, omega_max] where the drag-free linearised motion is stable
+    (`is_stable`; the scene's drag is ignored — see `damped_band`).
 
     Scans a grid (geometric above Ω_ref = sqrt(2g/min(a, b))) and refines every edge by
     bisection to ~1e-12 relative. An interval reaching ``omega_max`` is reported with an
@@ -175,6 +177,31 @@ def stable_band(scene: Scene, spin_z: float = 0.0, omega_max: float | None = Non
     saddle there is none).
     """
     _check_scene(scene)
+    return _bands_where(lambda w: is_stable(scene, w, spin_z), scene, omega_max, n_grid)
+
+
+def damped_band(scene: Scene, spin_z: float = 0.0, omega_max: float | None = None,
+                n_grid: int = 4000) -> list[tuple[float, float]]:
+    """Intervals of Ω in (0, omega_max] where the linearised motion with the scene's linear
+    drag does not grow (`growth_rate` ≤ 0), on the grid and edge refinement of
+    `stable_band`.
+
+    Without drag this is `stable_band`: there the stable modes neither grow nor decay, and
+    a rate of zero computed by an eigensolver is only zero to round-off, so the exact
+    criterion is used instead. With drag the rate changes sign at an edge, and the band
+    may lose part of the drag-free one (dissipation-induced instability) — e.g. on an
+    asymmetric saddle a rolling ball's band can become finite.
+    """
+    _check_scene(scene)
+    if scene.drag_linear == 0.0:
+        return stable_band(scene, spin_z, omega_max, n_grid)
+    return _bands_where(lambda w: growth_rate(scene, w, spin_z) <= 0.0, scene, omega_max,
+                        n_grid)
+
+
+def _bands_where(holds: Callable[[float], bool], scene: Scene, omega_max: float | None,
+                 n_grid: int) -> list[tuple[float, float]]:
+    """Intervals of Ω in (0, omega_max] where ``holds(Ω)``: a grid scan, edges bisected."""
     if isinstance(n_grid, bool) or not isinstance(n_grid, (int, np.integer)) or not 10 <= n_grid <= 10**7:
         raise ValueError(f"n_grid must be an integer in [10, 1e7], got {n_grid!r}")
     ref = math.sqrt(2 * max(scene.g, 1e-12) / min(scene.a, scene.b))
@@ -184,14 +211,14 @@ def stable_band(scene: Scene, spin_z: float = 0.0, omega_max: float | None = Non
     grid = np.unique(np.concatenate([np.linspace(top * 1e-4, ref * 4, n_grid // 2),
                                      np.geomspace(ref * 4, top, n_grid // 2)]))
     grid = grid[grid <= top]
-    stable = [is_stable(scene, w, spin_z) for w in grid]
+    stable = [holds(w) for w in grid]
 
     def edge(lo: float, hi: float, stable_lo: bool) -> float:
         for _ in range(200):
             mid = 0.5 * (lo + hi)
             if (hi - lo) <= 1e-13 * hi:
                 break
-            if is_stable(scene, mid, spin_z) == stable_lo:
+            if holds(mid) == stable_lo:
                 lo = mid
             else:
                 hi = mid

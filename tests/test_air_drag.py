@@ -17,7 +17,8 @@ from reference_lab_frame import simulate_lab_frame
 
 from saddle_env import OmegaProfile, Scene, initial_state, simulate, simulate_batch
 from saddle_env import _kernels as K
-from saddle_env.linear import growth_rate, is_stable, linear_trajectory, system_matrix
+from saddle_env.linear import (damped_band, growth_rate, is_stable, linear_trajectory,
+                               stable_band, system_matrix)
 
 
 def _random_scene(rng, contact, drag=True):
@@ -187,3 +188,23 @@ def test_env_takes_the_drag_keywords():
         env.step(env.action_space.sample())
     with pytest.raises(ValueError, match="^drag_linear must"):
         gym.make("SaddleTrap-v0", drag_linear=-1.0)
+
+
+def test_damped_band_loses_the_top_of_an_asymmetric_band_to_drag():
+    # Without drag damped_band is stable_band. With drag the symmetric saddle's band keeps
+    # no upper edge (every mode decays), while on the asymmetric saddle above ~12.57 rad/s
+    # a mode grows (the dissipation-induced instability) and the band becomes finite; the
+    # rate is ≤ 0 inside each band and > 0 just outside.
+    for kw in ({"R": 0.0265}, {"a": 0.229, "b": 0.143, "R": 0.006}):
+        sc = Scene(**kw)
+        assert damped_band(sc, omega_max=100.0) == stable_band(sc, omega_max=100.0)
+    sym = damped_band(Scene(R=0.0265, drag_linear=0.1), omega_max=100.0)
+    assert len(sym) == 1 and sym[0][1] == math.inf
+    sc = Scene(a=0.229, b=0.143, R=0.006, drag_linear=0.1)
+    (lo, hi), = damped_band(sc, omega_max=100.0)
+    free_lo = stable_band(sc, omega_max=100.0)[0][0]
+    assert abs(lo - free_lo) < 1e-3 and 12.0 < hi < 13.0
+    for inside in (lo * (1 + 1e-6), 0.5 * (lo + hi), hi * (1 - 1e-6)):
+        assert growth_rate(sc, inside) <= 0.0
+    for outside in (lo * (1 - 1e-6), hi * (1 + 1e-6), 50.0):
+        assert growth_rate(sc, outside) > 0.0

@@ -45,6 +45,8 @@ CSV_COLUMNS = {
     "analogy_orbits": ["t", "ball_xc", "ball_yc", "best_ion_x", "best_ion_y", "paper_ion_x",
                        "paper_ion_y", "mass_point_linear_x", "mass_point_linear_y",
                        "mass_point_ion_x", "mass_point_ion_y"],
+    "damping": ["panel", "k1", "omega", "growth_theory", "growth_simulated"],
+    "damping_bands": ["panel", "k1", "omega_low", "omega_high"],
 }
 
 

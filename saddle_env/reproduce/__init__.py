@@ -10,6 +10,7 @@ convention it used. Modules:
 * `dynamics_figs` — trajectories and precession, support force, feasible regions,
   trapping time;
 * `analogy_fig` — the ion-trap analogy: ball vs RRF ion, Paul trap vs rotating saddle;
+* `damping_fig` — air drag: the orbit's growth rate vs Ω and how the stable band moves;
 * `paper_eom` — the paper's approximate Eq. (EOM), for comparison only.
 
 Importing this package does not import matplotlib (figure functions import it).

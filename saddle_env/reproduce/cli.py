@@ -18,6 +18,7 @@ def _figures() -> dict[str, tuple[Callable[[Context], None], str]]:
     Imported lazily so that ``--help`` and flag errors do not pay for numba and scipy.
     """
     from .analogy_fig import fig_analogy
+    from .damping_fig import fig_damping
     from .dynamics_figs import fig_feasible, fig_support, fig_trajectories, fig_trapping
     from .theory_figs import fig_asymmetric, fig_critical, fig_eigen
 
@@ -30,11 +31,12 @@ def _figures() -> dict[str, tuple[Callable[[Context], None], str]]:
         "feasible": (fig_feasible, "starting points that never detach, Omega = 35, 45"),
         "asymmetric": (fig_asymmetric, "stable band of Omega on an asymmetric saddle"),
         "analogy": (fig_analogy, "ball vs RRF ion and Paul trap: trajectories, thresholds"),
+        "damping": (fig_damping, "growth rate vs Omega with air drag; the stable band moves"),
     }
 
 
 FIGURE_NAMES = ("trajectories", "eigen", "critical", "trapping", "support", "feasible",
-                "asymmetric", "analogy")
+                "asymmetric", "analogy", "damping")
 
 
 class _Parser(argparse.ArgumentParser):
