@@ -499,7 +499,7 @@ def _integrate(deriv, s0, t_eval, rtol, atol, r_escape, method="DOP853", events=
 def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
                        spin_normal=0.0, theta0=0.0, rtol=None, atol=None,
                        drag_linear=0.0, drag_quadratic=0.0, mu=None, eps=1e-6,
-                       spin=None, method="Radau", slip_threshold=None):
+                       spin=None, method="LSODA", slip_threshold=None):
     """contact in {"rolling", "slipping", "point", "coulomb"} ("point" means R is treated
     as 0, slipping).
     omega, omega_dot: callables t -> float (Omega(t), dOmega/dt).
@@ -520,7 +520,7 @@ def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, 
       "N_over_mg" (normal force / (m g)),
       "theta".
     Slipping results have no "w": with a frictionless contact the spin is decoupled and constant.
-    rtol, atol: default 1e-12, 1e-14 (coulomb: 1e-10, 1e-13).
+    rtol, atol: default 1e-12, 1e-14 (coulomb: 1e-10, 1e-11; atol 1e-11 m/s is far below eps).
 
     contact="coulomb": regularised Coulomb friction f = -mu N v_s / sqrt(|v_s|^2 + eps^2),
     v_s the slip velocity [m/s] of the ball's material point at the contact relative to
@@ -546,7 +546,7 @@ def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, 
         return _simulate_coulomb(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
                                  spin_normal, spin, theta0,
                                  1e-10 if rtol is None else rtol,
-                                 1e-13 if atol is None else atol, drag, float(mu),
+                                 1e-11 if atol is None else atol, drag, float(mu),
                                  float(eps), method, slip_threshold)
     rtol = 1e-12 if rtol is None else rtol
     atol = 1e-14 if atol is None else atol
