@@ -6,13 +6,17 @@ algebra and no event scheme with it: it integrates, in the lab, a REGULARISED Co
 f = -mu N v_s / sqrt(|v_s|^2 + eps^2) with a stiff solver.  Regularisation has one
 coefficient, so the production scenes use mu_static = mu.
 
-Tolerances from eps: where the exact model sticks, the regularised one creeps at
-|v_s| = eps r / sqrt(1 - r^2) (r = |f|/(mu N) < 1); in slip the two laws differ by
-O(eps^2/|v_s|^2); at a transition the regularised friction is short of mu N only while
-|v_s| <~ eps.  So velocities differ by a few eps-sized creeps and positions by that creep
-integrated over the run, ~ eps T, amplified by whatever the orbit does to a small
-perturbation in T (the trap is stable, so modestly).  eps = 1e-6 m/s and T = 1.5 s here:
-positions within 2e-5 m... (see the numbers asserted and the measured ones printed).
+Tolerances from eps: where the exact model sticks the regularised one creeps at
+|v_s| = eps r / sqrt(1 - r^2) (r = |f|/(mu N) < 1): an O(eps) error.  The larger error
+is at stick -> slip: there r -> 1 and the exact slip grows as k (t - t*)^2, so the
+regularised friction falls short of mu N for a time ~ sqrt(eps / k), a velocity error
+~ mu g sqrt(eps / k), then carried by the orbit.  Measured (seed 1, T = 1.5 s): max
+velocity/R w difference 1.7e-3, 5.6e-4, 1.8e-4 m/s and positions 1.4e-4, 4.5e-5,
+1.5e-5 m for eps = 1e-6, 2.5e-7, 6.25e-8 m/s (error ~ eps^0.8: the reference converges
+to the production run as eps -> 0).  Bounds at eps = 1e-6: velocities 3e-3 m/s,
+positions 3e-4 m.  Transition times: slip -> stick where |v_s| falls through THRESH
+(< 1 ms off, measured 0.2-0.8 ms); stick -> slip the regularised |v_s| needs
+~ sqrt(2 THRESH / ((1 + 1/alpha) k)) ~ ms to reach THRESH (measured 4-7 ms late): 10 ms.
 """
 
 import os
@@ -35,7 +39,7 @@ def _find_case(seed, t_end, time_varying):
     """A random scene/start the PRODUCTION run keeps trapped with >= 2 stick/slip
     transitions (the search costs production runs only, each a few ms)."""
     rng = np.random.default_rng(seed)
-    for _ in range(400):
+    for _ in range(60):
         a = rng.uniform(0.15, 0.17)
         b = rng.uniform(0.17, 0.22)      # a != b
         R = rng.uniform(0.008, 0.03)
@@ -54,7 +58,10 @@ def _find_case(seed, t_end, time_varying):
         # rolling spin of that velocity plus a kick: the ball starts slipping
         spin = np.cross(n, J @ v0) / R + rng.uniform(-6, 6, 3) * [1, 1, 0.3]
         s0 = initial_state(sc, *q0, *v0, spin=spin)
-        tr = simulate(sc, s0, t_end, omega=profile, dt_out=0.01, rtol=1e-12)
+        try:
+            tr = simulate(sc, s0, t_end, omega=profile, dt_out=0.01, rtol=1e-10)
+        except Exception:    # a run the production refuses (e.g. step budget): next one
+            continue
         if (tr.event is None and np.max(np.hypot(tr.x, tr.y)) < 0.03
                 and len(tr.transitions) >= 2):
             return sc, profile, q0, v0, spin, tr
@@ -87,11 +94,26 @@ def test_coulomb_matches_the_regularised_lab_reference(seed, time_varying):
     t_end = 1.5
     sc, tr, ref, err, (tp, kind, tc, up) = _compare(seed, t_end, time_varying)
     assert len(tp) >= 2
-    # phases agree away from the transitions: production slip <=> reference |v_s| >> eps
-    slipping = tr.phase == 1
-    assert np.all(ref["slip"][~slipping] < THRESH) or True
-    assert max(err["x"], err["y"]) < 100 * EPS * t_end
-    assert max(err["vx"], err["vy"], err["Rw"]) < 1000 * EPS
+    # where production sticks, the reference creeps below the threshold (outputs within
+    # 1 ms of a transition excepted: the regularised onset of slip is gradual)
+    near = np.min(np.abs(tr.t[:, None] - tp[None, :]), axis=1) < 1e-3
+    assert np.all(ref["slip"][(tr.phase == 0) & ~near] < THRESH)
+    assert max(err["x"], err["y"]) < 3e-4
+    assert max(err["vx"], err["vy"], err["Rw"]) < 3e-3
     # same sequence of transitions, at nearly the same times
     assert len(tc) == len(tp) and np.array_equal(up, kind)
-    assert np.max(np.abs(tc - tp)) < 0.01
+    down = kind < 0
+    assert np.max(np.abs(tc - tp)[down]) < 1e-3
+    assert np.all(tc[~down] > tp[~down]) and np.max((tc - tp)[~down]) < 0.01
+
+
+@pytest.mark.slow
+def test_the_reference_converges_to_production_as_eps_shrinks(monkeypatch):
+    # 16x smaller eps: the differences shrink >= 4x (measured 9.4x on velocities), so
+    # what is left at eps = 1e-6 is regularisation, not a disagreement of the models.
+    errs = []
+    for eps in (1e-6, 1e-6 / 16):
+        monkeypatch.setattr(sys.modules[__name__], "EPS", eps)
+        errs.append(_compare(1, 1.5, False)[3])
+    for k in ("x", "y", "vx", "vy", "Rw"):
+        assert errs[1][k] < errs[0][k] / 4, k
