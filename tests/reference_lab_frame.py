@@ -12,6 +12,8 @@ vector v appears in the lab as Rz(theta) v.  m = 1 throughout (forces are per un
 
 Contact models
 --------------
+coulomb : the slipping model's holonomic orbit plus the absolute spin, coupled by a
+    regularised Coulomb friction force at the contact (see the section below).
 slipping / point : holonomic. The centre is a particle constrained to the moving offset
     surface c_lab(q, t) = Rz(theta(t)) c(q). Euler-Lagrange equations of the lab
     Lagrangian L = 1/2 |d c_lab/dt|^2 - g c_lab_z are derived with sympy.
@@ -61,12 +63,13 @@ def _body_geometry_sym(x, y, a, b, R):
 
 
 @lru_cache(maxsize=None)
-def _slipping_functions():
+def _slipping_symbolic():
     """Lab-frame Lagrangian -> M(q, ...) q'' = rhs, plus the lab acceleration of c.
 
     theta is a genuine function of time here (theta' = Omega, theta'' = Omegadot), so the
     time dependence of the constraint c_lab(q, t) enters exactly as in the inertial
     Lagrangian; nothing about rotating frames is assumed.
+    Returns the sympy expressions; _slipping_functions and _coulomb_functions lambdify them.
     """
     t = sp.Symbol("t")
     a, b, R, g = sp.symbols("a b R g", positive=True)
@@ -106,6 +109,14 @@ def _slipping_functions():
     J_sym = to_syms(c_lab.jacobian(sp.Matrix([xf, yf])))
 
     args = (x, y, vx, vy, th, Om, Omd, a, b, R, g)
+    c_sym = to_syms(c_lab)
+    return args, (ax, ay), M, rhs, acc_lab, n_lab, v_sym, J_sym, c_sym
+
+
+@lru_cache(maxsize=None)
+def _slipping_functions():
+    args, (ax, ay), M, rhs, acc_lab, n_lab, v_sym, J_sym, _ = _slipping_symbolic()
+    x, y, vx, vy, th, Om, Omd, a, b, R, g = args
     # M and rhs share most subexpressions: one flat function [M11, M12, M21, M22, r1, r2].
     f_Mrhs = sp.lambdify(args, list(M) + list(rhs), modules="math", cse=True)
     f_acc = sp.lambdify(args + (ax, ay), acc_lab, modules="numpy", cse=True)
@@ -113,6 +124,22 @@ def _slipping_functions():
     f_vJ = sp.lambdify((x, y, vx, vy, th, Om, a, b, R), list(v_sym) + list(J_sym),
                        modules="math", cse=True)
     return f_Mrhs, f_acc, f_n, f_vJ
+
+
+@lru_cache(maxsize=None)
+def _coulomb_functions():
+    """The slipping model's lab-frame Lagrangian terms, plus what friction needs.
+
+    One flat function of (x, y, vx, vy, th, Om, Omd, a, b, R, g) returning
+    [M (4), rhs (2), c'' at q'' = 0 (3), n (3), c' (3), J_lab = dc_lab/dq (3x2), c (3)],
+    lab axes.  c'' at q'' = 0 gives N: n . J_lab = 0, so q'' (hence the friction) does not
+    enter n . c''.
+    """
+    args, (ax, ay), M, rhs, acc_lab, n_lab, v_sym, J_sym, c_sym = _slipping_symbolic()
+    acc0 = acc_lab.subs({ax: 0, ay: 0})
+    flat = list(M) + list(rhs) + list(acc0) + list(n_lab) + list(v_sym) + list(J_sym) \
+        + list(c_sym)
+    return sp.lambdify(args, flat, modules="math", cse=True)
 
 
 def _drag(v, drag):
@@ -177,7 +204,7 @@ def body_geometry(a, b, R, x, y):
 
 
 def _check_params(contact, a, b, R):
-    if contact not in ("rolling", "slipping", "point"):
+    if contact not in ("rolling", "slipping", "point", "coulomb"):
         raise ValueError(f"unknown contact model {contact!r}")
     if a <= 0 or b <= 0:
         raise ValueError("a and b must be positive")
@@ -188,8 +215,8 @@ def _check_params(contact, a, b, R):
     # away from the ball, so b imposes no limit.  R >= a/2 makes c(q) singular.
     if R >= a / 2:
         raise ValueError(f"R={R} must be < a/2={a / 2} (offset surface singular)")
-    if contact == "rolling" and R == 0:
-        raise ValueError("rolling needs R > 0 (use contact='point' for a mass point)")
+    if contact in ("rolling", "coulomb") and R == 0:
+        raise ValueError(f"{contact} needs R > 0 (use contact='point' for a mass point)")
 
 
 # ----------------------------------------------------------------------------------
@@ -321,13 +348,127 @@ def _simulate_rolling(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
     }
 
 
+# ----------------------------------------------------------------------------------
+# Coulomb friction, regularised
+# ----------------------------------------------------------------------------------
+# Holonomic part as for slipping (the centre on the moving offset surface, q = (x, y)),
+# plus the absolute spin omega_lab (lab axes) as a state.  Forces per unit mass on the
+# ball: N n (normal), f (friction, tangential, at the contact point), drag (at the
+# centre), -g k.
+#   Slip velocity (ball material point at the contact minus the saddle's material point
+#   there, lab):  v_s = c' + omega x (-R n) - Omega k x o,   o = c - R n.
+#   Friction, regularised Coulomb:  f = -mu N v_s / sqrt(|v_s|^2 + eps^2).
+#   Normal force: n . (c'' + g k - drag) with c'' = J_lab q'' + (terms without q''), and
+#       n . J_lab = 0, so N needs no q''; n . f = 0 (v_s is tangent) so f does not enter.
+#   Orbit: Euler-Lagrange with the generalised force (f + drag) . dc_lab/dq.
+#   Spin (about the centre):  alpha R^2 omega' = (-R n) x f.
+# For |v_s| >> eps this is kinetic Coulomb friction; for |v_s| <~ eps it is a stiff
+# viscous law, so "stick" is a creep at |v_s| = eps r / sqrt(1 - r^2), r = |f| / (mu N)
+# the fraction of the friction cone the motion needs.  That makes the system stiff
+# (relaxation rate ~ mu g (1 + 1/alpha) / eps): integrated with an implicit method.
+def _coulomb_eval(t, s, a, b, R, alpha, g, mu, eps, omega, omega_dot, drag):
+    """(q'', omega', N, v_s, f) at one state s = (x, y, vx, vy, theta, omega_lab)."""
+    x, y, vx, vy, th = (float(v) for v in s[:5])
+    w = np.asarray(s[5:8], dtype=float)
+    Om = omega(t)
+    G = _coulomb_functions()(x, y, vx, vy, th, Om, omega_dot(t), a, b, R, g)
+    m11, m12, m21, m22, r1, r2 = G[0:6]
+    acc0 = np.array(G[6:9])
+    n = np.array(G[9:12])
+    v = np.array(G[12:15])
+    J = np.array(G[15:21]).reshape(3, 2)
+    o = np.array(G[21:24]) - R * n
+    fd = _drag(v, drag) if drag != (0.0, 0.0) else np.zeros(3)
+    N = n @ (acc0 + g * _K - fd)
+    vs = v - R * _cross(w, n) - Om * np.array([-o[1], o[0], 0.0])
+    f = -mu * N * vs / np.sqrt(vs @ vs + eps * eps)
+    F = f + fd
+    r1, r2 = r1 + F @ J[:, 0], r2 + F @ J[:, 1]
+    det = m11 * m22 - m12 * m21
+    qdd = ((m22 * r1 - m12 * r2) / det, (m11 * r2 - m21 * r1) / det)
+    wdot = -_cross(n, f) / (alpha * R)
+    return qdd, wdot, N, vs, f
+
+
+def _simulate_coulomb(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
+                      spin_normal, spin, theta0, rtol, atol, drag, mu, eps, method,
+                      slip_threshold):
+    # Initial relative spin: given, or rolling without slip (as the rolling model).
+    _, Jb, nb = body_geometry(a, b, R, q0[0], q0[1])
+    if spin is None:
+        w_rel = _cross(nb, Jb @ np.asarray(qdot0, dtype=float)) / R + spin_normal * nb
+    else:
+        w_rel = np.asarray(spin, dtype=float)
+    w_abs_lab = _rz_num(theta0) @ (w_rel + omega(0.0) * _K)
+    args = (a, b, R, alpha, g, mu, eps, omega, omega_dot, drag)
+
+    def deriv(t, s):
+        qdd, wdot, _, _, _ = _coulomb_eval(t, s, *args)
+        return [s[2], s[3], qdd[0], qdd[1], omega(t), wdot[0], wdot[1], wdot[2]]
+
+    events = []
+    if slip_threshold is not None:
+        def slip_crossing(t, s):
+            vs = _coulomb_eval(t, s, *args)[3]
+            return np.sqrt(vs @ vs) - slip_threshold
+        events.append(slip_crossing)
+
+    s0 = [q0[0], q0[1], qdot0[0], qdot0[1], theta0, *w_abs_lab]
+    record = {}
+    sol = _integrate(deriv, s0, t_eval, rtol, atol, ESCAPE_FACTOR * max(a, b),
+                     method=method, events=events, record=record)
+
+    n_out = len(t_eval)
+    N, slip = np.full(n_out, np.nan), np.full(n_out, np.nan)
+    cone = np.full(n_out, np.nan)
+    w_body = np.full((n_out, 3), np.nan)
+    for i, (t, s) in enumerate(zip(t_eval, sol.T)):
+        if np.isnan(s).any():      # after an escape
+            continue
+        _, _, Ni, vs, f = _coulomb_eval(t, s, *args)
+        N[i], slip[i] = Ni, np.sqrt(vs @ vs)
+        cone[i] = np.sqrt(f @ f) / (mu * abs(Ni)) if mu > 0 and Ni != 0 else 0.0
+        w_body[i] = _rz_num(-s[4]) @ s[5:8] - omega(t) * _K
+    out = {
+        "t": np.asarray(t_eval, dtype=float),
+        "x": sol[0], "y": sol[1], "vx": sol[2], "vy": sol[3],
+        "theta": sol[4],
+        "w": w_body,
+        "N_over_mg": N / g,
+        "slip": slip,
+        "friction_over_muN": cone,
+        "nfev": record.get("nfev"),
+    }
+    if slip_threshold is not None:
+        # Crossings of |v_s| = slip_threshold: +1 going up (stick -> slip), -1 down.
+        tc = np.asarray(record.get("t_events", [[]])[0], dtype=float)
+        ys = record.get("y_events", [[]])[0]
+        up = [np.sign(_slip_rate(t, y, args)) for t, y in zip(tc, ys)]
+        out["slip_crossings"] = (tc, np.asarray(up))
+    return out
+
+
+def _slip_rate(t, s, args, h=1e-9):
+    """d|v_s|/dt at (t, s) by a one-sided difference along the flow (sign only used)."""
+    def speed(t_, s_):
+        vs = _coulomb_eval(t_, s_, *args)[3]
+        return np.sqrt(vs @ vs)
+    qdd, wdot, _, _, _ = _coulomb_eval(t, s, *args)
+    omega = args[7]
+    ds = np.array([s[2], s[3], qdd[0], qdd[1], omega(t), *wdot])
+    return speed(t + h, np.asarray(s) + h * ds) - speed(t, s)
+
+
 # The model saddle is unbounded, so an escaping ball runs off to kilometres with ever
 # smaller steps (minutes of CPU).  Nothing physical happens that far out; stop there.
 ESCAPE_FACTOR = 10.0
 
 
-def _integrate(deriv, s0, t_eval, rtol, atol, r_escape):
-    """DOP853 on [0, t_eval[-1]]; states after an escape (|q| > r_escape) are NaN."""
+def _integrate(deriv, s0, t_eval, rtol, atol, r_escape, method="DOP853", events=(),
+               record=None):
+    """DOP853 (or `method`) on [0, t_eval[-1]]; states after an escape (|q| > r_escape)
+    are NaN.  Extra non-terminal `events` are located; with a dict `record`, their
+    t_events / y_events (escape excluded) and nfev are stored there."""
     t_eval = np.asarray(t_eval, dtype=float)
     if t_eval.ndim != 1 or t_eval.size == 0 or t_eval[0] != 0.0:
         raise ValueError("t_eval must be a non-empty 1-D array starting at 0")
@@ -342,10 +483,12 @@ def _integrate(deriv, s0, t_eval, rtol, atol, r_escape):
         return np.hypot(s[0], s[1]) - r_escape
     escaped.terminal = True
 
-    sol = solve_ivp(deriv, (0.0, float(t_eval[-1])), s0, method="DOP853",
-                    t_eval=t_eval, rtol=rtol, atol=atol, events=escaped)
+    sol = solve_ivp(deriv, (0.0, float(t_eval[-1])), s0, method=method,
+                    t_eval=t_eval, rtol=rtol, atol=atol, events=[escaped, *events])
     if sol.status < 0:
         raise RuntimeError(f"solve_ivp failed: {sol.message}")
+    if record is not None:
+        record.update(t_events=sol.t_events[1:], y_events=sol.y_events[1:], nfev=sol.nfev)
     out[:, :sol.t.size] = sol.y
     return out
 
@@ -354,9 +497,11 @@ def _integrate(deriv, s0, t_eval, rtol, atol, r_escape):
 # Public API
 # ----------------------------------------------------------------------------------
 def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
-                       spin_normal=0.0, theta0=0.0, rtol=1e-12, atol=1e-14,
-                       drag_linear=0.0, drag_quadratic=0.0):
-    """contact in {"rolling", "slipping", "point"} ("point" means R is treated as 0, slipping).
+                       spin_normal=0.0, theta0=0.0, rtol=None, atol=None,
+                       drag_linear=0.0, drag_quadratic=0.0, mu=None, eps=1e-6,
+                       spin=None, method="LSODA", slip_threshold=None):
+    """contact in {"rolling", "slipping", "point", "coulomb"} ("point" means R is treated
+    as 0, slipping).
     omega, omega_dot: callables t -> float (Omega(t), dOmega/dt).
     q0 = (x0, y0): contact point, body coords [m].
     qdot0 = (vx0, vy0): contact point velocity RELATIVE TO THE ROTATING SADDLE, body coords [m/s].
@@ -375,6 +520,17 @@ def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, 
       "N_over_mg" (normal force / (m g)),
       "theta".
     Slipping results have no "w": with a frictionless contact the spin is decoupled and constant.
+    rtol, atol: default 1e-12, 1e-14 (coulomb: 1e-10, 1e-11; atol 1e-11 m/s is far below eps).
+
+    contact="coulomb": regularised Coulomb friction f = -mu N v_s / sqrt(|v_s|^2 + eps^2),
+    v_s the slip velocity [m/s] of the ball's material point at the contact relative to
+    the saddle's material point there.  One coefficient mu (regularisation has no separate
+    static one).  Integrated with solve_ivp `method` (stiff: "Radau" or "LSODA").
+    spin: initial angular velocity RELATIVE to the saddle in body axes (3,) [rad/s];
+    None means rolling without slip, as for "rolling" (with spin_normal).
+    Extra outputs: "w" (as rolling), "slip" = |v_s| [m/s], "friction_over_muN" = |f|/(mu N)
+    (-> 1 when slipping), "nfev"; with slip_threshold [m/s], "slip_crossings" =
+    (times, +1 when |v_s| rises through it (stick -> slip) / -1 when it falls).
     If the ball escapes (|q| > ESCAPE_FACTOR * max(a, b)) integration stops and all
     later entries (except "t") are NaN.
     Mass m = 1 (results are independent of m).  Omega(t) should be smooth between output
@@ -384,6 +540,16 @@ def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, 
         R = 0.0
     _check_params(contact, a, b, R)
     drag = (float(drag_linear), float(drag_quadratic))
+    if contact == "coulomb":
+        if mu is None or mu < 0 or eps <= 0:
+            raise ValueError("coulomb needs mu >= 0 and eps > 0")
+        return _simulate_coulomb(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
+                                 spin_normal, spin, theta0,
+                                 1e-10 if rtol is None else rtol,
+                                 1e-11 if atol is None else atol, drag, float(mu),
+                                 float(eps), method, slip_threshold)
+    rtol = 1e-12 if rtol is None else rtol
+    atol = 1e-14 if atol is None else atol
     if contact == "rolling":
         return _simulate_rolling(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
                                  spin_normal, theta0, rtol, atol, drag)
