@@ -29,7 +29,7 @@ import numpy as np
 from scipy.integrate._ivp import dop853_coefficients as _dop853_tableau
 from scipy.integrate._ivp import rk as _scipy_rk
 
-from ._kernels import (ONSET, PHASE_SLOT, SLIP, STATE_WIDTH, STICK, coulomb_contact, integrated_size,
+from ._kernels import (ONSET, PHASE_SLOT, ROW_WIDTH, SLIP, STATE_WIDTH, STICK, coulomb_contact, integrated_size,
                        jit, rhs, rolling_velocity, serial_twin, stick_margin, stop_slip,
                        work_slot)
 from .scene import COULOMB, P_A, P_B, P_G, P_MU, P_R, P_RIM, ROLLING
@@ -186,6 +186,7 @@ def _stages(model, p, prof, t, y, h, d, tab, K, ytmp, ynew, want_normal=False):
     stage points (a by-product of the right-hand side) if ``want_normal``, else +inf."""
     C, A, B = tab.C, tab.A, tab.B
     s = B.shape[0]
+    full = model == COULOMB
     lowest = np.inf
     for i in range(1, s):
         for j in range(d):
@@ -193,8 +194,11 @@ def _stages(model, p, prof, t, y, h, d, tab, K, ytmp, ynew, want_normal=False):
             for l in range(i):
                 acc += A[i, l] * K[l, j]
             ytmp[j] = y[j] + h * acc
-        for j in range(d, STATE_WIDTH):
+        # Slots not integrated ride along (work slot; a coulomb ball's phase, which rhs reads).
+        for j in range(d, ROW_WIDTH):
             ytmp[j] = y[j]
+        if full:
+            ytmp[PHASE_SLOT] = y[PHASE_SLOT]
         n = rhs(model, p, prof, t + C[i] * h, ytmp, K[i], want_normal)
         if want_normal and n < lowest:
             lowest = n
@@ -203,8 +207,10 @@ def _stages(model, p, prof, t, y, h, d, tab, K, ytmp, ynew, want_normal=False):
         for l in range(s):
             acc += B[l] * K[l, j]
         ynew[j] = y[j] + h * acc
-    for j in range(d, STATE_WIDTH):
+    for j in range(d, ROW_WIDTH):
         ynew[j] = y[j]
+    if full:
+        ynew[PHASE_SLOT] = y[PHASE_SLOT]
     return lowest
 
 
@@ -605,9 +611,13 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
         t = target if clipped else t + hstep
         if want_normal:
             accepted_normal = normal
-        for j in range(STATE_WIDTH):
+        for j in range(ROW_WIDTH):  # constant length: see _kernels.ROW_WIDTH
             y[j] = ynew[j]
             K[0, j] = K[s, j]
+        if coulomb:
+            for j in range(ROW_WIDTH, STATE_WIDTH):
+                y[j] = ynew[j]
+                K[0, j] = K[s, j]
         if clipped:
             Y_out[k, :] = y
             k += 1

@@ -22,13 +22,15 @@ from collections import namedtuple
 
 import numpy as np
 
-from ._kernels import (DRIVE_WIDTH, STATE_WIDTH, frame_terms, jit, rolling_rates, sized,
-                       slipping_rates)
+from ._kernels import DRIVE_WIDTH, ROW_WIDTH, frame_terms, jit, rolling_rates, sized, slipping_rates
 from .integrators import ERR_EMBEDDED, EVENT_DETACH, EVENT_ESCAPE, step_factor
 from .scene import (N_PARAMS, P_A, P_ALPHA, P_B, P_DRAG_LINEAR, P_DRAG_QUADRATIC, P_DRILL, P_G, P_R,
                     P_RIM, ROLLING)
 
 LANES = 64  # balls per block: the stage arrays of a block stay in the L1 cache
+# The state slots a block steps: a rolling ball's five (a slipping ball's four) and the work
+# slot. Coulomb balls never enter a block (`saddle_env.envs._step`).
+BLOCK_WIDTH = ROW_WIDTH
 PARAM_WIDTH = N_PARAMS
 FRAME_WIDTH = 4  # Ω, Ω̇, fx, fy (saddle axes) at one stage time
 
@@ -39,8 +41,8 @@ Block = namedtuple("Block", "P D Y0 Ynew Ytmp Sc K Fr Nstart Nstage Nmin Nend Er
 @jit
 def block_size(stages):
     """Floats of scratch memory for one block with a method of ``stages`` stages."""
-    return LANES * (PARAM_WIDTH + DRIVE_WIDTH + 4 * STATE_WIDTH
-                    + (stages + 1) * (STATE_WIDTH + FRAME_WIDTH) + 8)
+    return LANES * (PARAM_WIDTH + DRIVE_WIDTH + 4 * BLOCK_WIDTH
+                    + (stages + 1) * (BLOCK_WIDTH + FRAME_WIDTH) + 8)
 
 
 @jit
@@ -60,17 +62,17 @@ def carve_block(buf, stages):
     L = LANES
     P, o = take(buf, 0, PARAM_WIDTH * L)
     D, o = take(buf, o, DRIVE_WIDTH * L)
-    Y0, o = take(buf, o, STATE_WIDTH * L)
-    Ynew, o = take(buf, o, STATE_WIDTH * L)
-    Ytmp, o = take(buf, o, STATE_WIDTH * L)
-    Sc, o = take(buf, o, STATE_WIDTH * L)
-    K, o = take(buf, o, (stages + 1) * STATE_WIDTH * L)
+    Y0, o = take(buf, o, BLOCK_WIDTH * L)
+    Ynew, o = take(buf, o, BLOCK_WIDTH * L)
+    Ytmp, o = take(buf, o, BLOCK_WIDTH * L)
+    Sc, o = take(buf, o, BLOCK_WIDTH * L)
+    K, o = take(buf, o, (stages + 1) * BLOCK_WIDTH * L)
     Fr, o = take(buf, o, (stages + 1) * FRAME_WIDTH * L)
     vec, o = take(buf, o, 8 * L)
     P, D, vec = P.reshape((PARAM_WIDTH, L)), D.reshape((L, DRIVE_WIDTH)), vec.reshape((8, L))
-    Y0, Ynew = Y0.reshape((STATE_WIDTH, L)), Ynew.reshape((STATE_WIDTH, L))
-    Ytmp, Sc = Ytmp.reshape((STATE_WIDTH, L)), Sc.reshape((STATE_WIDTH, L))
-    K = K.reshape((stages + 1, STATE_WIDTH, L))
+    Y0, Ynew = Y0.reshape((BLOCK_WIDTH, L)), Ynew.reshape((BLOCK_WIDTH, L))
+    Ytmp, Sc = Ytmp.reshape((BLOCK_WIDTH, L)), Sc.reshape((BLOCK_WIDTH, L))
+    K = K.reshape((stages + 1, BLOCK_WIDTH, L))
     Fr = Fr.reshape((stages + 1, FRAME_WIDTH, L))
     return Block(P, D, Y0, Ynew, Ytmp, Sc, K, Fr, vec[0], vec[1], vec[2], vec[3], vec[4], vec[5],
                  vec[6], vec[7])
@@ -133,7 +135,7 @@ def _combine(m, d, h, w, count, K, Y0, acc, Yout):
                 acc[q] += c * K[l, j, q]
         for q in range(m):
             Yout[j, q] = Y0[j, q] + h * acc[q]
-    for j in range(d, STATE_WIDTH):
+    for j in range(d, BLOCK_WIDTH):
         for q in range(m):
             Yout[j, q] = Y0[j, q]
 
