@@ -68,7 +68,7 @@ def quick_run(tmp_path_factory):
 def test_quick_bench_writes_csv_figures_and_summary(quick_run):
     rows = read_rows(quick_run / "bench.csv")
     tiers = {r["tier"] for r in rows}
-    assert tiers == {"rolling", "slipping", "point", "linear"}
+    assert tiers == {"rolling", "slipping", "point", "coulomb", "linear"}
     assert {r["solver"] for r in rows} == {"saddle_env", "scipy"}
     for r in rows:
         assert r["us_per_sim_s"] > 0 and math.isfinite(r["us_per_sim_s"])

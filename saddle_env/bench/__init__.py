@@ -28,7 +28,7 @@ from pathlib import Path
 
 from ..accuracy import AccuracyWarning
 from .blas import limit_blas_threads
-from .core import COLUMNS, TIERS, Case, measure_jacobi, reference, tasks, warm_up
+from .core import COLUMNS, MODEL_TIERS, TIERS, Case, measure_jacobi, reference, tasks, warm_up
 from .peer import PeerModel
 from .report import plot, read_rows, summarize
 
@@ -68,7 +68,7 @@ def _run(out, quick, tiers, peers, batch, figures, jacobi_periods, quiet, case):
     csv_path = out / "bench.csv"
     blas = limit_blas_threads(1)
     warm_up(case)
-    refs = {t: reference(case, t) for t in ("rolling", "slipping", "point")}
+    refs = {t: reference(case, t) for t in MODEL_TIERS if t == "rolling" or t in tiers}
     todo = list(tasks(case, quick, tuple(tiers), peers, batch))
     interrupted = False
     started = time.time()

@@ -12,7 +12,8 @@ Error definitions (the issue's):
   *same* model at rtol = atol = 1e-12 (`REFERENCE_RTOL`);
 * ``model_error_m`` — the same distance measured against the *rolling* reference: the
   total error of a cheaper tier (slipping, mass point, linearised) used in place of the
-  rolling model.
+  rolling model. (The coulomb tier is no cheaper model: it is a ball that sticks and slips,
+  so its run time per simulated second is what friction costs.)
 """
 
 from __future__ import annotations
@@ -32,7 +33,10 @@ from ..simulate import initial_state, simulate, simulate_batch
 from .peer import PeerModel
 
 REFERENCE_RTOL = 1e-12
-TIERS = ("rolling", "slipping", "point", "linear")
+TIERS = ("rolling", "slipping", "point", "coulomb", "linear")
+# The exact models, each measured against its own reference solve (the linearised tier
+# against the rolling one).
+MODEL_TIERS = TIERS[:-1]
 
 COLUMNS = (
     # what was run
@@ -63,9 +67,14 @@ class Case:
     dt_out: float = 0.1          # error sampled (and outputs landed on) every dt_out [s]
     batch_n: int = 1024
     batch_t_end: float = 2.0     # batch runs are shorter; cost is per simulated second
+    # The coulomb tier's friction: this release then sticks and slips, 82 changes of phase
+    # in 10 s (slipping 27 % of the time), and stays on the saddle.
+    mu: float = 0.022
 
     def scene(self, tier: str) -> Scene:
         contact = "rolling" if tier == "linear" else tier
+        if contact == "coulomb":
+            return Scene(a=self.a, R=self.R, contact=contact, rim_radius=0.1, mu=self.mu)
         return Scene(a=self.a, R=self.R, contact=contact, rim_radius=0.1)
 
     def state(self, tier: str, x0: float | None = None, y0: float | None = None) -> np.ndarray:
@@ -338,7 +347,7 @@ def tasks(case: Case, quick: bool, tiers: tuple[str, ...] = TIERS, peers: bool =
         for cfg in our_configs(quick):
             yield (f"{tier} {cfg.label} {cfg.rtol if cfg.kind == 'adaptive' else cfg.dt:g}",
                    lambda refs, tier=tier, cfg=cfg: measure_ours(case, tier, cfg, refs, batch))
-        if peers:
+        if peers and tier != "coulomb":  # the plain-numpy peer has no friction model
             for cfg in peer_configs(quick):
                 yield (f"{tier} {cfg.label} {cfg.rtol:g}",
                        lambda refs, tier=tier, cfg=cfg: measure_peer(case, tier, cfg, refs))

@@ -7,6 +7,7 @@ import math
 from collections import defaultdict
 from pathlib import Path
 
+from .core import MODEL_TIERS, TIERS
 
 TARGET_ERROR = 1e-9          # [m] target 1: one rolling ball at <= 1e-9 m over the run
 TARGET_SPEEDUP = 100.0
@@ -96,7 +97,7 @@ def summarize(rows: list[dict[str, object]], extra: dict[str, object] | None = N
             "single_ball_steps_per_s": r["steps"] / r["wall_s"],
             "met": bool(r["batch_ball_steps_per_s"] >= TARGET_BALL_STEPS)}
     fronts: dict[str, list[dict[str, object]]] = {}
-    for tier in ("rolling", "slipping", "point", "linear"):
+    for tier in TIERS:
         tier_rows = [r for r in rows if r["tier"] == tier and r["solver"] == "saddle_env"]
         if not tier_rows:
             continue
@@ -108,7 +109,7 @@ def summarize(rows: list[dict[str, object]], extra: dict[str, object] | None = N
                 fronts[tier].append({"error_at_most_m": tol, **_brief(r)})
     out["cheapest_setting_per_error"] = fronts
     tiers = {}
-    for tier in ("rolling", "slipping", "point", "linear"):
+    for tier in TIERS:
         tier_rows = [r for r in rows if r["tier"] == tier and _ok(r, "model_error_m")]
         if tier_rows:
             best = min(tier_rows, key=lambda r: r["model_error_m"])
@@ -151,9 +152,8 @@ def plot(rows: list[dict[str, object]], out_dir: str | Path, batch: bool = False
     import matplotlib.pyplot as plt
 
     cost = "batch_us_per_ball_sim_s" if batch else "us_per_sim_s"
-    fig, axes = plt.subplots(1, 4, figsize=(16, 4.2), sharey=True)
-    panels = [("rolling", "error_m"), ("slipping", "error_m"), ("point", "error_m"),
-              (None, "model_error_m")]
+    fig, axes = plt.subplots(1, len(MODEL_TIERS) + 1, figsize=(20, 4.2), sharey=True)
+    panels = [(tier, "error_m") for tier in MODEL_TIERS] + [(None, "model_error_m")]
     for ax, (tier, key) in zip(axes, panels):
         groups: dict[tuple[str, str], list] = defaultdict(list)
         for r in rows:
@@ -172,7 +172,8 @@ def plot(rows: list[dict[str, object]], out_dir: str | Path, batch: bool = False
             y = [r[cost] for r in grp]
             color, marker, ls = STYLE.get(label, ("0.5", ".", "-"))
             if tier is None:
-                color = {"rolling": "C0", "slipping": "C1", "point": "C2", "linear": "k"}[t]
+                color = {"rolling": "C0", "slipping": "C1", "point": "C2", "coulomb": "C5",
+                         "linear": "k"}[t]
                 label = f"{t}" + ("" if t == "linear" else f" ({label})")
             ax.plot(x, y, marker=marker, ls=ls, color=color, label=label, ms=4, lw=1)
         if tier is not None and default:
