@@ -318,12 +318,14 @@ def rolling_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, Om, Omd
 
 
 @inline
-def slipping_rates(a, b, R, g, drag_linear, drag_quadratic, Om, Omd, fx, fy, x, y, vx, vy):
-    """Time derivatives of a slipping ball's state (x, y, vx, vy), the dissipated power Ẇ
-    [W/kg] and N/m [m/s²]; the point model is R = 0. Inlined like `rolling_rates`."""
-    s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, x, y)
+def _centre_motion(a, b, R, g, drag_linear, drag_quadratic, Om, Omd, fx, fy, s, nx, ny, nz, cx,
+                   cy, J1x, J1y, J1z, J2x, J2y, J2z, vx, vy):
+    """What moving the contact point at (vx, vy) means for the centre, shared by the slipping
+    and coulomb rates: ċ = J q̇, ṅ, κ = J̇ q̇ (c̈ when q̈ = 0), the effective field g_eff with
+    the air drag in it, and the drag's power [W/kg]."""
     cdx = J1x * vx + J2x * vy
     cdy = J1y * vx + J2y * vy
+    cdz = J1z * vx + J2z * vy
     mdx, mdy, nm, ndx, ndy, ndz = _normal_rate(a, b, s, nx, ny, nz, vx, vy)
     ndm = ndx * mdx + ndy * mdy
     kR = R * nz  # R/s
@@ -333,9 +335,19 @@ def slipping_rates(a, b, R, g, drag_linear, drag_quadratic, Om, Omd, fx, fy, x, 
     gx, gy, gz = _effective_gravity(g, Om, Omd, fx, fy, cx, cy, cdx, cdy)
     power = 0.0
     if drag_linear != 0.0 or drag_quadratic != 0.0:
-        cdz = J1z * vx + J2z * vy
         dx, dy, dz, power = _air_drag(drag_linear, drag_quadratic, Om, cx, cy, cdx, cdy, cdz)
         gx, gy, gz = gx + dx, gy + dy, gz + dz
+    return cdx, cdy, cdz, ndx, ndy, ndz, kapx, kapy, kapz, gx, gy, gz, power
+
+
+@inline
+def slipping_rates(a, b, R, g, drag_linear, drag_quadratic, Om, Omd, fx, fy, x, y, vx, vy):
+    """Time derivatives of a slipping ball's state (x, y, vx, vy), the dissipated power Ẇ
+    [W/kg] and N/m [m/s²]; the point model is R = 0. Inlined like `rolling_rates`."""
+    s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, x, y)
+    (cdx, cdy, cdz, ndx, ndy, ndz, kapx, kapy, kapz, gx, gy, gz,
+     power) = _centre_motion(a, b, R, g, drag_linear, drag_quadratic, Om, Omd, fx, fy, s, nx, ny,
+                             nz, cx, cy, J1x, J1y, J1z, J2x, J2y, J2z, vx, vy)
     # The centre is a particle on the offset surface: q̈ = (JᵀJ)⁻¹ Jᵀ (g_eff - J̇ q̇).
     rx, ry, rz = gx - kapx, gy - kapy, gz - kapz
     ax, ay = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, rx, ry, rz)
@@ -366,20 +378,9 @@ def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, mu, pha
     wnz = wx * ny - wy * nx
     if not slipping:
         vx, vy = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, R * wnx, R * wny, R * wnz)
-    cdx = J1x * vx + J2x * vy
-    cdy = J1y * vx + J2y * vy
-    cdz = J1z * vx + J2z * vy
-    mdx, mdy, nm, ndx, ndy, ndz = _normal_rate(a, b, s, nx, ny, nz, vx, vy)
-    ndm = ndx * mdx + ndy * mdy
-    kR = R * nz
-    kapx = -kR * (2.0 * nm * ndx + ndm * nx)
-    kapy = -kR * (2.0 * nm * ndy + ndm * ny)
-    kapz = 2.0 * (vx * vx / a - vy * vy / b) - kR * (2.0 * nm * ndz + ndm * nz)
-    gx, gy, gz = _effective_gravity(g, Om, Omd, fx, fy, cx, cy, cdx, cdy)
-    power = 0.0
-    if drag_linear != 0.0 or drag_quadratic != 0.0:
-        dx, dy, dz, power = _air_drag(drag_linear, drag_quadratic, Om, cx, cy, cdx, cdy, cdz)
-        gx, gy, gz = gx + dx, gy + dy, gz + dz
+    (cdx, cdy, cdz, ndx, ndy, ndz, kapx, kapy, kapz, gx, gy, gz,
+     power) = _centre_motion(a, b, R, g, drag_linear, drag_quadratic, Om, Omd, fx, fy, s, nx, ny,
+                             nz, cx, cy, J1x, J1y, J1z, J2x, J2y, J2z, vx, vy)
     normal = nx * (kapx - gx) + ny * (kapy - gy) + nz * (kapz - gz)
     # e = Ω̇ k + Ω k×w; a0 = P g_eff + R e×n - R P(w×ṅ) (e×n is tangential already).
     ex, ey, ez = -Om * wy, Om * wx, Omd

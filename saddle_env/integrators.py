@@ -29,10 +29,10 @@ import numpy as np
 from scipy.integrate._ivp import dop853_coefficients as _dop853_tableau
 from scipy.integrate._ivp import rk as _scipy_rk
 
-from ._kernels import (ONSET, PHASE_SLOT, ROW_WIDTH, SLIP, STATE_WIDTH, STICK, coulomb_contact, integrated_size,
-                       jit, rhs, rolling_velocity, serial_twin, stick_margin, stop_slip,
-                       work_slot)
-from .scene import COULOMB, P_A, P_B, P_G, P_MU, P_R, P_RIM, ROLLING
+from ._kernels import (ONSET, PHASE_SLOT, ROW_WIDTH, SLIP, STATE_WIDTH, STICK, coulomb_contact,
+                       integrated_size, jit, rhs, rolling_velocity, serial_twin, stick_margin,
+                       stop_slip, work_slot)
+from .scene import COULOMB, P_A, P_B, P_G, P_R, P_RIM, ROLLING
 
 # Event flags (a bit mask) and the status codes `integrate` returns.
 EVENT_DETACH, EVENT_ESCAPE = 1, 2

@@ -20,9 +20,9 @@ import numpy as np
 
 from . import _kernels as K
 from .integrators import (EVENT_DETACH, EVENT_ESCAPE, EVENT_KINDS, LOG_PHASE, LOG_T, METHODS,
-                          STATUS_FAILED, integrate_h, log, workspace,
-                          STATUS_MAX_STEPS, Method, StepControl, integrate, integrate_batch,
-                          integrate_batch_serial, state_scale, step_control)
+                          STATUS_FAILED, STATUS_MAX_STEPS, Method, StepControl, integrate_batch,
+                          integrate_batch_serial, integrate_h, log, state_scale, step_control,
+                          workspace)
 from .omega import OmegaProfile
 from .scene import Scene, _finite_number
 

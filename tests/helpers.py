@@ -53,3 +53,28 @@ def fd_linearisation(scene: Scene, omega: float, spin_z: float = 0.0, eps: float
         F[:, col] = (rhs(scene, yp, omega)[idx] - rhs(scene, ym, omega)[idx]) / (2 * step)
         T[:, col] = (centre_state(scene, yp) - centre_state(scene, ym)) / (2 * step)
     return T @ F @ np.linalg.inv(T)
+
+
+def assert_matches_lab_frame(traj, ref: dict, rolling: bool) -> None:
+    """A trajectory equals the laboratory-frame reference's (tests/reference_lab_frame.py):
+    positions to 1e-9 m, velocities and N/mg to 1e-8, a rolling ball's spin to 1e-7 rad/s."""
+    assert np.max(np.abs(traj.x - ref["x"])) < 1e-9
+    assert np.max(np.abs(traj.y - ref["y"])) < 1e-9
+    assert np.max(np.abs(traj.vx - ref["vx"])) < 1e-8
+    assert np.max(np.abs(traj.vy - ref["vy"])) < 1e-8
+    assert np.max(np.abs(traj.N_over_mg - ref["N_over_mg"])) < 1e-8
+    if rolling:
+        assert np.max(np.abs(traj.state[:, 2:] - ref["w"])) < 1e-7
+
+
+def batch_and_singles(scenes: list[Scene], t_end: float = 1.0, omega: float = 25.0):
+    """The same balls (each released at (3, 1) mm) run as one `simulate_batch` and one by one
+    with `simulate`: (batch result, single trajectories)."""
+    from saddle_env import initial_state, simulate, simulate_batch
+
+    states = np.zeros((len(scenes), 5))
+    for i, sc in enumerate(scenes):
+        states[i, : sc.state_size] = initial_state(sc, 0.003, 0.001)
+    batch = simulate_batch(scenes, states, t_end, omega=omega)
+    return batch, [simulate(sc, states[i, : sc.state_size], t_end, omega=omega)
+                   for i, sc in enumerate(scenes)]

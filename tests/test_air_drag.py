@@ -12,13 +12,19 @@ import math
 import gymnasium as gym
 import numpy as np
 import pytest
-from helpers import centre_state, fd_linearisation
+from helpers import assert_matches_lab_frame, batch_and_singles, centre_state, fd_linearisation
 from reference_lab_frame import simulate_lab_frame
 
-from saddle_env import OmegaProfile, Scene, initial_state, simulate, simulate_batch
+from saddle_env import OmegaProfile, Scene, initial_state, simulate
 from saddle_env import _kernels as K
-from saddle_env.linear import (damped_band, growth_rate, is_stable, linear_trajectory,
-                               stable_band, system_matrix)
+from saddle_env.linear import (
+    damped_band,
+    growth_rate,
+    is_stable,
+    linear_trajectory,
+    stable_band,
+    system_matrix,
+)
 
 
 def _random_scene(rng, contact, drag=True):
@@ -74,12 +80,8 @@ def test_jacobi_change_equals_the_work_of_drag(contact):
 def test_batch_reports_the_same_work():
     scenes = [Scene(drag_linear=0.2), Scene(contact="slipping", drag_quadratic=1.0),
               Scene(contact="point", drag_linear=0.1)]
-    states = np.zeros((3, 5))
-    for i, sc in enumerate(scenes):
-        states[i, : sc.state_size] = initial_state(sc, 0.003, 0.001)
-    batch = simulate_batch(scenes, states, 1.0, omega=25.0)
-    for i, sc in enumerate(scenes):
-        single = simulate(sc, states[i, : sc.state_size], 1.0, omega=25.0)
+    batch, singles = batch_and_singles(scenes)
+    for i, (sc, single) in enumerate(zip(scenes, singles)):
         n = len(single.t)
         assert np.array_equal(batch.state[i, :n, : sc.state_size], single.state)
         assert np.array_equal(batch.work[i, :n], single.work)
@@ -107,13 +109,7 @@ def test_drag_matches_the_lab_frame_reference(contact, seed):
                              profile.rate_at, q0, v0, tr.t, spin_normal=spin, rtol=1e-12,
                              atol=1e-14, drag_linear=sc.drag_linear,
                              drag_quadratic=sc.drag_quadratic)
-    assert np.max(np.abs(tr.x - ref["x"])) < 1e-9
-    assert np.max(np.abs(tr.y - ref["y"])) < 1e-9
-    assert np.max(np.abs(tr.vx - ref["vx"])) < 1e-8
-    assert np.max(np.abs(tr.vy - ref["vy"])) < 1e-8
-    assert np.max(np.abs(tr.N_over_mg - ref["N_over_mg"])) < 1e-8
-    if sc.rolling:
-        assert np.max(np.abs(tr.state[:, 2:] - ref["w"])) < 1e-7
+    assert_matches_lab_frame(tr, ref, sc.rolling)
     # and the drag matters at this tolerance: the drag-free reference is far off
     free = simulate_lab_frame(contact, sc.a, sc.b, sc.radius, sc.alpha, sc.g, profile,
                               profile.rate_at, q0, v0, tr.t, spin_normal=spin)

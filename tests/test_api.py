@@ -2,6 +2,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import batch_and_singles
 
 import saddle_env as se
 from saddle_env import OmegaProfile, Scene, initial_state, simulate, simulate_batch
@@ -57,12 +58,8 @@ def test_batch_is_bit_identical_to_single(contact, method, kw):
 
 def test_batch_mixes_contact_models():
     scenes = [Scene(contact="rolling"), Scene(contact="slipping"), Scene(contact="point")]
-    states = np.zeros((3, 5))
-    for i, sc in enumerate(scenes):
-        states[i, : sc.state_size] = initial_state(sc, 0.003, 0.001)
-    batch = simulate_batch(scenes, states, 1.0, omega=25.0)
-    for i, sc in enumerate(scenes):
-        single = simulate(sc, states[i, : sc.state_size], 1.0, omega=25.0)
+    batch, singles = batch_and_singles(scenes)
+    for i, (sc, single) in enumerate(zip(scenes, singles)):
         assert np.array_equal(batch.state[i, : len(single.t), : sc.state_size], single.state)
 
 
