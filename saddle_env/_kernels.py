@@ -89,7 +89,8 @@ def threads_usable() -> bool:
         return True
 
 from .scene import (COULOMB, ION_PAUL, ION_RRF, P_A, P_ALPHA, P_B, P_DRAG_LINEAR,
-                    P_DRAG_QUADRATIC, P_DRILL, P_G, P_MU, P_MU_STATIC, P_R, ROLLING, SLIPPING)
+                    P_DRAG_QUADRATIC, P_DRILL, P_G, P_MU, P_MU_STATIC, P_R, P_RESIST, ROLLING,
+                    SLIPPING)
 
 STATE_WIDTH = 9
 # The longest state without its work slot (coulomb): the padded width of the public batch
@@ -226,14 +227,14 @@ def _effective_gravity(g, Om, Omd, fx, fy, cx, cy, cdx, cdy):
 
 
 @jit
-def sized(model, drill, drag_linear, drag_quadratic):
+def sized(model, drill, drag_linear, drag_quadratic, resist):
     """How many leading state slots the integrator advances: the dynamics (5 rolling, 4
     otherwise), plus the work slot W when the scene dissipates (air drag; drilling friction
-    on a rolling ball). From the scene's dissipation coefficients (`integrated_size` takes
-    the packed row)."""
+    or rolling resistance on a rolling ball). From the scene's dissipation coefficients
+    (`integrated_size` takes the packed row)."""
     drag = drag_linear != 0.0 or drag_quadratic != 0.0
     if model == ROLLING:
-        return 6 if (drag or drill != 0.0) else 5
+        return 6 if (drag or drill != 0.0 or resist != 0.0) else 5
     if model == COULOMB:
         return 8  # kinetic friction dissipates whenever the ball slips
     return 5 if (model == SLIPPING and drag) else 4
@@ -250,7 +251,7 @@ def work_slot(model):
 @jit
 def integrated_size(model, p):
     """`sized` for the packed parameter row ``p``."""
-    return sized(model, p[P_DRILL], p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC])
+    return sized(model, p[P_DRILL], p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC], p[P_RESIST])
 
 
 @inline
@@ -269,8 +270,20 @@ def _air_drag(drag_linear, drag_quadratic, Om, cx, cy, cdx, cdy, cdz):
 
 
 @inline
-def rolling_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, Om, Omd, fx, fy,
-                  x, y, wx, wy, wz):
+def _resistance(resist, R, normal, nx, ny, nz, nw, wx, wy, wz):
+    """Rolling resistance c_rr: the factor k with τ/(m R²) = k·w_t (w_t = w - (n·w) n, the
+    rolling part of the spin relative to the saddle; τ = -c_rr R N ŵ_t) and its power
+    τ·w/m = -c_rr R (N/m) |w_t| [W/kg]. None while the ball does not roll (w_t = 0)."""
+    wtx, wty, wtz = wx - nw * nx, wy - nw * ny, wz - nw * nz
+    wt = math.sqrt(wtx * wtx + wty * wty + wtz * wtz)
+    if wt == 0.0:
+        return 0.0, 0.0
+    return -resist * normal / (R * wt), -resist * R * normal * wt
+
+
+@inline
+def rolling_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist, Om, Omd, fx,
+                  fy, x, y, wx, wy, wz):
     """Time derivatives of a rolling ball's state (x, y, wx, wy, wz), the dissipated power
     Ẇ [W/kg] and N/m [m/s²].
 
@@ -310,6 +323,12 @@ def rolling_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, Om, Omd
     wny = wz * ndx - wx * ndz
     wnz = wx * ndy - wy * ndx
     normal = R * (nx * wnx + ny * wny + nz * wnz) - (nx * gx + ny * gy + nz * gz)
+    if resist != 0.0:
+        # Rolling resistance: the torque τ/m = -c_rr R (N/m) ŵ_t on the rolling part w_t of
+        # the spin joins Euler's equation as τ/(m R²) (tangential, so n·r is unchanged).
+        k, rpower = _resistance(resist, R, normal, nx, ny, nz, nw, wx, wy, wz)
+        rx, ry, rz = rx + k * (wx - nw * nx), ry + k * (wy - nw * ny), rz + k * (wz - nw * nz)
+        power += rpower
     # Drilling friction's power: α R² w·ẇ of its term -λ (n·w) n (the term is normal, so
     # the centre's acceleration does not see it).
     power -= alpha * R * R * drl * nw
@@ -357,8 +376,8 @@ def slipping_rates(a, b, R, g, drag_linear, drag_quadratic, Om, Omd, fx, fy, x, 
 
 
 @inline
-def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, mu, phase, Om, Omd,
-                  fx, fy, x, y, wx, wy, wz, vx, vy):
+def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist, mu, phase, Om,
+                  Omd, fx, fy, x, y, wx, wy, wz, vx, vy):
     """Time derivatives of a coulomb ball's state (x, y, wx, wy, wz, vx, vy), Ẇ [W/kg], N/m
     [m/s²], the friction per unit mass |f| [m/s²], the slip speed |v_s| [m/s] and the rate at
     which the slip speed grows [m/s²] (docs/physics.md, "Coulomb friction").
@@ -385,6 +404,14 @@ def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, mu, pha
     normal = nx * (kapx - gx) + ny * (kapy - gy) + nz * (kapz - gz)
     # e = Ω̇ k + Ω k×w; a0 = P g_eff + R e×n - R P(w×ṅ) (e×n is tangential already).
     ex, ey, ez = -Om * wy, Om * wx, Omd
+    nw = nx * wx + ny * wy + nz * wz
+    rpower = 0.0
+    if resist != 0.0:
+        # Rolling resistance: ẇ gains τ/(m α R²) = (k/α) w_t, which e carries like a frame
+        # term (so the slip's a0 and the sticking friction see it too).
+        k, rpower = _resistance(resist, R, normal, nx, ny, nz, nw, wx, wy, wz)
+        k = k / alpha
+        ex, ey, ez = ex - k * (wx - nw * nx), ey - k * (wy - nw * ny), ez - k * (wz - nw * nz)
     ux = gx + R * (ey * nz - ez * ny) - R * (wy * ndz - wz * ndy)
     uy = gy + R * (ez * nx - ex * nz) - R * (wz * ndx - wx * ndz)
     uz = gz + R * (ex * ny - ey * nx) - R * (wx * ndy - wy * ndx)
@@ -418,13 +445,12 @@ def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, mu, pha
                             gz + ffz - kapz)
     # The spin: -n×f/(αR) is the friction's torque.
     iaR = 1.0 / (alpha * R)
-    nw = nx * wx + ny * wy + nz * wz
     drl = drill * nw
     dwx = -ex - (ny * ffz - nz * ffy) * iaR - drl * nx
     dwy = -ey - (nz * ffx - nx * ffz) * iaR - drl * ny
     dwz = -ez - (nx * ffy - ny * ffx) * iaR - drl * nz
     # Friction's power in the rotating frame is f·v_s (0 while sticking); drilling's as rolling.
-    power += ffx * vsx + ffy * vsy + ffz * vsz - alpha * R * R * drl * nw
+    power += ffx * vsx + ffy * vsy + ffz * vsz - alpha * R * R * drl * nw + rpower
     friction = math.sqrt(ffx * ffx + ffy * ffy + ffz * ffz)
     return vx, vy, dwx, dwy, dwz, ax, ay, power, normal, friction, speed, growth
 
@@ -435,7 +461,7 @@ def coulomb_contact(p, prof, t, y):
     |v_s|) as `coulomb_rates` defines them, for the loop's phase decisions."""
     Om, Omd, fx, fy = frame_terms(prof, t)
     r = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
-                      p[P_DRAG_QUADRATIC], p[P_MU], y[PHASE_SLOT], Om, Omd, fx, fy,
+                      p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_MU], y[PHASE_SLOT], Om, Omd, fx, fy,
                       y[0], y[1], y[2], y[3], y[4], y[5], y[6])
     return r[8], r[9], r[10], r[11]
 
@@ -446,7 +472,7 @@ def stick_margin(p, prof, t, y):
     positive while static friction can hold it."""
     Om, Omd, fx, fy = frame_terms(prof, t)
     r = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
-                      p[P_DRAG_QUADRATIC], p[P_MU], STICK, Om, Omd, fx, fy,
+                      p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_MU], STICK, Om, Omd, fx, fy,
                       y[0], y[1], y[2], y[3], y[4], y[5], y[6])
     return p[P_MU_STATIC] * r[8] - r[9]
 
@@ -529,11 +555,12 @@ def rhs(model, p, prof, t, y, dy, want_normal):
     if model == ROLLING:
         dy[0], dy[1], dy[2], dy[3], dy[4], dy[5], normal = rolling_rates(
             p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
-            p[P_DRAG_QUADRATIC], Om, Omd, fx, fy, y[0], y[1], y[2], y[3], y[4])
+            p[P_DRAG_QUADRATIC], p[P_RESIST], Om, Omd, fx, fy, y[0], y[1], y[2], y[3], y[4])
     elif model == COULOMB:
         (dy[0], dy[1], dy[2], dy[3], dy[4], dy[5], dy[6], dy[7], normal, _, _,
          _) = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL],
-                            p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC], p[P_MU], y[PHASE_SLOT],
+                            p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_MU],
+                            y[PHASE_SLOT],
                             Om, Omd, fx, fy, y[0], y[1], y[2], y[3], y[4], y[5], y[6])
         dy[8] = 0.0
     elif model == ION_RRF or model == ION_PAUL:

@@ -56,6 +56,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "relative to the lab's still air")
     ap.add_argument("--drag-quadratic", type=float, default=d.drag_quadratic, metavar="K2",
                     help="quadratic air drag [1/m]: force/mass = -K2 |u| u")
+    ap.add_argument("--rolling-resistance", type=float, default=d.rolling_resistance,
+                    metavar="C_RR", help="rolling-resistance coefficient (rolling, coulomb): a "
+                    "torque C_RR·R·N against the rolling")
     ap.add_argument("--mu", type=float, default=None, metavar="MU",
                     help="coulomb: kinetic friction coefficient (needed with --contact coulomb)")
     ap.add_argument("--mu-static", type=float, default=None, metavar="MU_S",
@@ -94,7 +97,8 @@ def run(args: argparse.Namespace) -> Trajectory:
     scene = Scene(a=args.a, b=args.b, R=args.R, alpha=args.alpha, g=args.g,
                   contact=args.contact, rim_radius=args.rim,
                   drilling_friction=args.drilling_friction, drag_linear=args.drag_linear,
-                  drag_quadratic=args.drag_quadratic, mu=args.mu, mu_static=args.mu_static)
+                  drag_quadratic=args.drag_quadratic, rolling_resistance=args.rolling_resistance,
+                  mu=args.mu, mu_static=args.mu_static)
     profile = OmegaProfile(args.omega, args.omega_rate, args.omega_amp, args.omega_freq)
     state = initial_state(scene, args.x0, args.y0, args.vx0, args.vy0, start=args.start,
                           omega=profile, spin_normal=args.spin_n,

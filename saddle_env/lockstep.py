@@ -25,7 +25,7 @@ import numpy as np
 from ._kernels import DRIVE_WIDTH, ROW_WIDTH, frame_terms, jit, rolling_rates, sized, slipping_rates
 from .integrators import ERR_EMBEDDED, EVENT_DETACH, EVENT_ESCAPE, step_factor
 from .scene import (N_PARAMS, P_A, P_ALPHA, P_B, P_DRAG_LINEAR, P_DRAG_QUADRATIC, P_DRILL, P_G, P_R,
-                    P_RIM, ROLLING)
+                    P_RESIST, P_RIM, ROLLING)
 
 LANES = 64  # balls per block: the stage arrays of a block stay in the L1 cache
 # The state slots a block steps: a rolling ball's five (a slipping ball's four) and the work
@@ -82,7 +82,8 @@ def carve_block(buf, stages):
 def _rates(model, m, P, fr, Y, Kout, Nout, dragged, work):
     """Rates and N/m of lanes 0..m-1 (the loops the compiler vectorises).
 
-    ``dragged``: some lane has air drag; ``work``: the block integrates the work slot. The
+    ``dragged``: some lane has air drag or rolling resistance; ``work``: the block integrates
+    the work slot. The
     loops are written out per case because the compiler vectorises only what is constant
     across lanes: a block without drag passes the drag coefficients as the constant 0, so
     the inlined rates lose their drag branch (a branch that may differ between lanes made
@@ -93,22 +94,22 @@ def _rates(model, m, P, fr, Y, Kout, Nout, dragged, work):
             (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Kout[4, q], _,
              Nout[q]) = rolling_rates(
                 P[P_A, q], P[P_B, q], P[P_R, q], P[P_ALPHA, q], P[P_G, q], P[P_DRILL, q],
-                0.0, 0.0, fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q], Y[2, q],
-                Y[3, q], Y[4, q])
-    elif model == ROLLING and not dragged:  # drilling friction only
+                0.0, 0.0, 0.0, fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q],
+                Y[2, q], Y[3, q], Y[4, q])
+    elif model == ROLLING and not dragged:  # drilling friction only (of the dissipations)
         for q in range(m):
             (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Kout[4, q], Kout[5, q],
              Nout[q]) = rolling_rates(
                 P[P_A, q], P[P_B, q], P[P_R, q], P[P_ALPHA, q], P[P_G, q], P[P_DRILL, q],
-                0.0, 0.0, fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q], Y[2, q],
-                Y[3, q], Y[4, q])
+                0.0, 0.0, 0.0, fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q],
+                Y[2, q], Y[3, q], Y[4, q])
     elif model == ROLLING:
         for q in range(m):
             (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Kout[4, q], Kout[5, q],
              Nout[q]) = rolling_rates(
                 P[P_A, q], P[P_B, q], P[P_R, q], P[P_ALPHA, q], P[P_G, q], P[P_DRILL, q],
-                P[P_DRAG_LINEAR, q], P[P_DRAG_QUADRATIC, q], fr[0, q], fr[1, q], fr[2, q],
-                fr[3, q], Y[0, q], Y[1, q], Y[2, q], Y[3, q], Y[4, q])
+                P[P_DRAG_LINEAR, q], P[P_DRAG_QUADRATIC, q], P[P_RESIST, q], fr[0, q], fr[1, q],
+                fr[2, q], fr[3, q], Y[0, q], Y[1, q], Y[2, q], Y[3, q], Y[4, q])
     elif not dragged:
         for q in range(m):
             (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], _, Nout[q]) = slipping_rates(
@@ -155,9 +156,11 @@ def rk_step_block(model, m, h, tab, ctl, ws):
     d = 0
     dragged = False
     for q in range(m):
-        d = max(d, sized(model, P[P_DRILL, q], P[P_DRAG_LINEAR, q], P[P_DRAG_QUADRATIC, q]))
-        dragged |= P[P_DRAG_LINEAR, q] != 0.0 or P[P_DRAG_QUADRATIC, q] != 0.0
-    work = d > sized(model, 0.0, 0.0, 0.0)  # more than the dynamics
+        d = max(d, sized(model, P[P_DRILL, q], P[P_DRAG_LINEAR, q], P[P_DRAG_QUADRATIC, q],
+                         P[P_RESIST, q]))
+        dragged |= (P[P_DRAG_LINEAR, q] != 0.0 or P[P_DRAG_QUADRATIC, q] != 0.0
+                    or P[P_RESIST, q] != 0.0)
+    work = d > sized(model, 0.0, 0.0, 0.0, 0.0)  # more than the dynamics
     # Drive terms at the stage times (trigonometry only with ripple or an external force).
     for q in range(m):
         prof = D[q]
@@ -223,7 +226,8 @@ def accepted(q, model, d, adaptive, events, ws):
     is the integrated size `rk_step_block` returned."""
     P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3 = ws
     s = K.shape[0] - 1
-    if sized(model, P[P_DRILL, q], P[P_DRAG_LINEAR, q], P[P_DRAG_QUADRATIC, q]) != d:
+    if sized(model, P[P_DRILL, q], P[P_DRAG_LINEAR, q], P[P_DRAG_QUADRATIC, q],
+             P[P_RESIST, q]) != d:
         return False  # the block integrated the work slot this lane does not have
     for j in range(d):
         if not math.isfinite(Ynew[j, q]) or not math.isfinite(K[s, j, q]):

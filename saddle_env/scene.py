@@ -24,8 +24,8 @@ COULOMB = 4
 
 # Layout of the packed parameter vector read by the kernels (saddle_env._kernels).
 (P_A, P_B, P_R, P_ALPHA, P_G, P_DRILL, P_RIM, P_DRAG_LINEAR, P_DRAG_QUADRATIC, P_MU,
- P_MU_STATIC) = range(11)
-N_PARAMS = 11
+ P_MU_STATIC, P_RESIST) = range(12)
+N_PARAMS = 12
 
 
 def _finite_number(name: str, value: object) -> float:
@@ -75,6 +75,11 @@ class Scene:
         Quadratic air drag [1/m]: a force per unit mass ``-drag_quadratic · |u| · u`` (for a
         ball of density ρ_b in air of density ρ_a with drag coefficient C_d, this is
         3 C_d ρ_a / (8 ρ_b R)). Acts on every contact model. ``0`` disables it.
+    rolling_resistance : float
+        Rolling-resistance coefficient c_rr (dimensionless, ``>= 0``): a torque c_rr·R·N
+        about the centre against the rolling part of the spin (its component along the
+        surface, relative to the saddle), as a ball deforming at its contact feels. Acts on
+        rolling and coulomb balls (a frictionless ball does not roll). ``0`` disables it.
     mu : float
         ``contact="coulomb"`` only: the kinetic friction coefficient, ``>= 0``. ``0`` is the
         frictionless (slipping) ball; a large value keeps it rolling.
@@ -93,6 +98,7 @@ class Scene:
     drilling_friction: float = 0.0
     drag_linear: float = 0.0
     drag_quadratic: float = 0.0
+    rolling_resistance: float = 0.0
     mu: float | None = None
     mu_static: float | None = None
 
@@ -136,12 +142,16 @@ class Scene:
         drag_quadratic = _finite_number("drag_quadratic", self.drag_quadratic)
         if drag_quadratic < 0:
             raise ValueError(f"drag_quadratic must be >= 0 (1/m), got {drag_quadratic}")
+        resist = _finite_number("rolling_resistance", self.rolling_resistance)
+        if resist < 0:
+            raise ValueError(f"rolling_resistance must be >= 0 (dimensionless), got {resist}")
         mu, mu_static = self._friction_coefficients()
         # Normalise to plain floats so equality, hashing and pickling behave.
         for name, value in (("a", a), ("b", b), ("R", R), ("alpha", alpha), ("g", g),
                             ("rim_radius", rim), ("drilling_friction", drill),
                             ("drag_linear", drag_linear), ("drag_quadratic", drag_quadratic),
-                            ("mu", mu), ("mu_static", mu_static)):
+                            ("rolling_resistance", resist), ("mu", mu),
+                            ("mu_static", mu_static)):
             object.__setattr__(self, name, value)
 
     def _friction_coefficients(self) -> tuple[float | None, float | None]:
@@ -193,6 +203,8 @@ class Scene:
         p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC] = self.drag_linear, self.drag_quadratic
         p[P_MU] = 0.0 if self.mu is None else self.mu
         p[P_MU_STATIC] = 0.0 if self.mu_static is None else self.mu_static
+        # only a ball with friction at its contact rolls against resistance
+        p[P_RESIST] = self.rolling_resistance if self.contact in ("rolling", "coulomb") else 0.0
         return p
 
     def with_(self, **changes: object) -> Scene:

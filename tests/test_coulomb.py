@@ -70,7 +70,7 @@ def test_stick_phase_is_the_rolling_model():
     rng = np.random.default_rng(0)
     for _ in range(20):
         kw = {"drilling_friction": rng.uniform(0, 2), "drag_linear": rng.uniform(0, 0.5),
-              "drag_quadratic": rng.uniform(0, 2)}
+              "drag_quadratic": rng.uniform(0, 2), "rolling_resistance": rng.uniform(0, 0.05)}
         sc = _random_scene(rng, contact="coulomb", mu=0.3, **kw)
         roll = sc.with_(contact="rolling", mu=None, mu_static=None)
         y = np.zeros(7)
@@ -308,3 +308,46 @@ def test_a_ball_that_keeps_switching_converges_with_the_tolerance():
     runs = [simulate(sc, y0, 10.0, omega=20.0, dt_out=0.1, rtol=r) for r in (1e-10, 1e-12)]
     assert len(runs[0].transitions) == len(runs[1].transitions) > 50
     assert np.max(np.abs(runs[0].state[:, :2] - runs[1].state[:, :2])) < 1e-7
+
+
+# -- rolling resistance ----------------------------------------------------------------------
+@pytest.mark.parametrize("contact", ["rolling", "coulomb"])
+def test_rolling_resistance_slows_a_ball_on_flat_ground_as_theory_says(contact):
+    # A ball rolling at v0 on a plane (a = b = 10⁴ km, not turning): the torque c_rr R N
+    # against the rolling decelerates it at c_rr g/(1 + α), with friction keeping it rolling.
+    c_rr, v0, alpha = 0.02, 0.3, 0.4
+    kw = {"mu": 1.0} if contact == "coulomb" else {}
+    sc = Scene(a=1e7, R=0.02, alpha=alpha, contact=contact, rim_radius=100.0,
+               rolling_resistance=c_rr, **kw)
+    tr = simulate(sc, initial_state(sc, 0.0, 0.0, v0, 0.0), 1.0, omega=0.0, dt_out=0.1,
+                  rtol=1e-12, atol=1e-16)
+    # (to the plane's slope, which changes the speed by ~2e-7 m/s over the 0.23 m run)
+    np.testing.assert_allclose(tr.vx, v0 - c_rr * sc.g / (1 + alpha) * tr.t, rtol=0, atol=5e-7)
+    # its work is the Jacobi integral's change: the kinetic energy lost
+    np.testing.assert_allclose(tr.h - tr.h[0], tr.work, rtol=1e-9, atol=1e-12)
+    if contact == "coulomb":
+        assert np.all(tr.phase == K.STICK)
+
+
+def test_rolling_resistance_balances_the_jacobi_integral_on_the_saddle():
+    rng = np.random.default_rng(21)
+    for contact in ("rolling", "coulomb"):
+        kw = {"mu": 0.05, "mu_static": 0.06} if contact == "coulomb" else {}
+        sc = Scene(contact=contact, rolling_resistance=0.01, rim_radius=0.2, **kw)
+        tr = simulate(sc, initial_state(sc, *rng.uniform(-0.01, 0.01, 2)), 5.0, omega=20.0,
+                      dt_out=0.01)
+        scale = max(np.max(np.abs(tr.h)), np.max(np.abs(tr.work)))
+        assert np.max(np.abs(tr.work)) > 1e-6  # it did take energy
+        assert np.max(np.abs(tr.h - tr.h[0] - tr.work)) < 1e-9 * scale
+
+
+def test_rolling_resistance_is_checked_and_reaches_rolling_balls_only():
+    with pytest.raises(ValueError, match="rolling_resistance must be >= 0"):
+        Scene(rolling_resistance=-0.1)
+    from saddle_env.scene import P_RESIST
+
+    assert Scene(contact="slipping", rolling_resistance=0.1).params()[P_RESIST] == 0.0
+    assert Scene(rolling_resistance=0.1).params()[P_RESIST] == 0.1
+    env = gym.make("SaddleTrap-v0", rolling_resistance=0.01)
+    env.reset(seed=0)
+    assert env.unwrapped.scene.rolling_resistance == 0.01

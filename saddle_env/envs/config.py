@@ -43,7 +43,7 @@ class EnvConfig:
     """Options of `SaddleTrapEnv` (all are constructor keywords of the environment).
 
     Scene (see `saddle_env.Scene`): ``a, b, R, alpha, g, contact, rim_radius,
-    drilling_friction, drag_linear, drag_quadratic, mu, mu_static`` (the friction
+    drilling_friction, drag_linear, drag_quadratic, rolling_resistance, mu, mu_static`` (the friction
     coefficients apply to ``"coulomb"`` balls and are passed to no other).
 
     Control: ``control_period`` [s] (20 ms); ``max_accel`` [rad/s²], the motor's limit on
@@ -94,6 +94,7 @@ class EnvConfig:
     drilling_friction: float = Scene.drilling_friction
     drag_linear: float = Scene.drag_linear
     drag_quadratic: float = Scene.drag_quadratic
+    rolling_resistance: float = Scene.rolling_resistance
     mu: float | None = Scene.mu
     mu_static: float | None = Scene.mu_static
     control_period: float = 0.02
