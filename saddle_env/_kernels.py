@@ -106,9 +106,8 @@ ROW_WIDTH = 6
 # loop at a stick-slip transition (saddle_env.integrators) and read by `rhs`.
 PHASE_SLOT = 8
 # ONSET is slip that has just begun from v_s = 0 and is still below the integration's noise
-# level: the loop does not stop such a slip (it would stop it over and over, at the friction
-# limit), but lets the ball stick again once static friction can hold it. Users see it as
-# slip.
+# level: the friction then acts against the slip the other forces start (its direction cannot
+# be read off a slip velocity that small). Users see it as slip.
 STICK, SLIP, ONSET = 0.0, 1.0, 2.0
 
 # Layout of a drive row: the saddle speed Ω(t) = w0 + rate·t + amp·sin(freq·t + phase),
@@ -388,8 +387,8 @@ def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist,
     v̇_s = a0 + (1 + 1/α) f with a0 what the other forces give it. Sticking (``slipping``
     false): f = -P a0/(1 + 1/α), the friction that keeps v_s = 0, and the contact-point
     velocity is the rolling one, from w (the state's (vx, vy) are then only carried along),
-    so the stick phase is exactly the rolling model. Slipping: f = -μ N v_s/|v_s|; at the
-    instant slip starts (v_s = 0) the friction opposes the slip that a0 starts, -μ N a0/|a0|.
+    so the stick phase is exactly the rolling model. Slipping: f = -μ N v_s/|v_s|; as slip
+    starts (``phase`` ONSET) the friction opposes the slip that a0 starts, -μ N a0/|a0|.
     """
     slipping = phase != STICK
     s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, x, y)
@@ -424,14 +423,7 @@ def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist,
         ffx, ffy, ffz = -a0x / gain, -a0y / gain, -a0z / gain
         growth = 0.0
     else:
-        # A slip at the rounding level of the difference ċ - R w×n has no direction of its
-        # own: that is slip starting from v_s = 0, which grows along a0. Only there: a slip
-        # the integrator resolves follows Coulomb's law with its own direction, also while
-        # it is below the noise level. (Friction along a0 for as long as the slip was below
-        # the noise level left the benchmark run 9.3e-6 m from an rtol 1e-13 solve at
-        # rtol 1e-10, against 2.9e-8 m now.)
-        rolls = R * math.sqrt(wnx * wnx + wny * wny + wnz * wnz)
-        if speed > 1e-13 * (math.sqrt(cdx * cdx + cdy * cdy + cdz * cdz) + rolls):
+        if phase != ONSET and speed > 0.0:
             k = -mu * normal / speed
             ffx, ffy, ffz = k * vsx, k * vsy, k * vsz
             growth = (vsx * a0x + vsy * a0y + vsz * a0z) / speed - gain * mu * normal

@@ -297,17 +297,21 @@ def test_vector_env_equals_single_env_for_coulomb():
                 assert r_v[i] == r
 
 
-def test_a_ball_that_keeps_switching_converges_with_the_tolerance():
+def test_a_ball_that_keeps_switching_converges_with_the_tolerance_at_a_bounded_cost():
     # The benchmark's coulomb case (saddle-bench): 82 changes of phase in 10 s, at the
-    # friction limit (mu_s = mu_k). Between rtol 1e-10 and 1e-12 the contact point moves
-    # by 2.7e-8 m at most (measured); friction along the push for as long as a fresh slip
-    # was below the noise level had left 9.3e-6 m, and a fixed-step run still converges at
-    # first order only (docs/accuracy.md).
+    # friction limit (mu_s = mu_k). Between rtol 1e-10 and 1e-12 the contact point moves by
+    # 8.5e-6 m at most (measured; the rolling ball: 2e-10): the model converges, slowly (about
+    # as rtol^0.5; docs/accuracy.md). Following a fresh slip's own stiff direction instead
+    # converged faster but took 19x the steps, and dopri5 3.9 million steps for 10 s at rtol
+    # 1e-10; here both methods stay within a few thousand.
     sc = Scene(a=0.159, R=0.02, contact="coulomb", mu=0.022, rim_radius=0.1)
     y0 = initial_state(sc, 0.005, 0.0025, start="lab-rest", omega=20.0)
     runs = [simulate(sc, y0, 10.0, omega=20.0, dt_out=0.1, rtol=r) for r in (1e-10, 1e-12)]
     assert len(runs[0].transitions) == len(runs[1].transitions) > 50
-    assert np.max(np.abs(runs[0].state[:, :2] - runs[1].state[:, :2])) < 1e-7
+    assert np.max(np.abs(runs[0].state[:, :2] - runs[1].state[:, :2])) < 3e-5
+    assert runs[0].stats.steps < 5_000 and runs[1].stats.steps < 10_000
+    fifth = simulate(sc, y0, 10.0, omega=20.0, dt_out=0.1, method="dopri5", rtol=1e-10)
+    assert fifth.stats.steps < 20_000
 
 
 # -- rolling resistance ----------------------------------------------------------------------
