@@ -355,3 +355,17 @@ def test_rolling_resistance_is_checked_and_reaches_rolling_balls_only():
     env = gym.make("SaddleTrap-v0", rolling_resistance=0.01)
     env.reset(seed=0)
     assert env.unwrapped.scene.rolling_resistance == 0.01
+
+
+def test_saddle_sim_says_what_a_coulomb_ball_needs_and_writes_its_phases(tmp_path):
+    missing = subprocess.run([sys.executable, "-m", "saddle_env.cli", "--contact", "coulomb"],
+                             capture_output=True, text=True)
+    assert missing.returncode == 2 and "needs mu" in missing.stderr
+    csv = subprocess.run(
+        [sys.executable, "-m", "saddle_env.cli", "--contact", "coulomb", "--mu", "0.05",
+         "--omega", "16", "--x0", "0.01", "--y0", "0.005", "--t-end", "0.5",
+         "--rolling-resistance", "0.001"], capture_output=True, text=True, check=True).stdout
+    lines = csv.splitlines()
+    header = next(line for line in lines if not line.startswith("#"))
+    assert header.endswith(",slipping,work")
+    assert any(line.startswith("# transition: stick at t = ") for line in lines)
