@@ -38,6 +38,14 @@ def _finite_number(name: str, value: object) -> float:
     return value
 
 
+def _non_negative(name: str, value: object, unit: str) -> float:
+    """A finite number >= 0 as a float, or a ValueError that names ``name`` and its unit."""
+    v = _finite_number(name, value)
+    if v < 0:
+        raise ValueError(f"{name} must be >= 0 ({unit}), got {v}")
+    return v
+
+
 @dataclass(frozen=True)
 class Scene:
     """A ball on a rotating saddle ``z = x**2/a - y**2/b``.
@@ -133,18 +141,10 @@ class Scene:
         rim = float(rim)
         if not (rim > 0) or math.isnan(rim):
             raise ValueError(f"rim_radius must be > 0 (metres, or math.inf), got {rim}")
-        drill = _finite_number("drilling_friction", self.drilling_friction)
-        if drill < 0:
-            raise ValueError(f"drilling_friction must be >= 0 (1/s), got {drill}")
-        drag_linear = _finite_number("drag_linear", self.drag_linear)
-        if drag_linear < 0:
-            raise ValueError(f"drag_linear must be >= 0 (1/s), got {drag_linear}")
-        drag_quadratic = _finite_number("drag_quadratic", self.drag_quadratic)
-        if drag_quadratic < 0:
-            raise ValueError(f"drag_quadratic must be >= 0 (1/m), got {drag_quadratic}")
-        resist = _finite_number("rolling_resistance", self.rolling_resistance)
-        if resist < 0:
-            raise ValueError(f"rolling_resistance must be >= 0 (dimensionless), got {resist}")
+        drill = _non_negative("drilling_friction", self.drilling_friction, "1/s")
+        drag_linear = _non_negative("drag_linear", self.drag_linear, "1/s")
+        drag_quadratic = _non_negative("drag_quadratic", self.drag_quadratic, "1/m")
+        resist = _non_negative("rolling_resistance", self.rolling_resistance, "dimensionless")
         mu, mu_static = self._friction_coefficients()
         # Normalise to plain floats so equality, hashing and pickling behave.
         for name, value in (("a", a), ("b", b), ("R", R), ("alpha", alpha), ("g", g),
@@ -165,9 +165,7 @@ class Scene:
         if self.mu is None:
             raise ValueError("contact='coulomb' needs mu, the kinetic friction coefficient "
                              "(>= 0; e.g. Scene(contact='coulomb', mu=0.3))")
-        mu = _finite_number("mu", self.mu)
-        if mu < 0:
-            raise ValueError(f"mu must be >= 0 (kinetic friction coefficient), got {mu}")
+        mu = _non_negative("mu", self.mu, "kinetic friction coefficient")
         mu_static = mu if self.mu_static is None else _finite_number("mu_static", self.mu_static)
         if mu_static < mu:
             raise ValueError(f"mu_static must be >= mu = {mu:g} (static friction is at least "
