@@ -5,16 +5,19 @@ frame and its forces"), per unit mass, with the contact point ``q = (x, y)`` as 
 coordinates. Vectors are handled as scalar triples so that numba keeps them in registers;
 no arrays are allocated on the hot path.
 
-State vectors always have ``STATE_WIDTH = 6`` slots so that single balls and batches of
+State vectors always have ``STATE_WIDTH = 9`` slots so that single balls and batches of
 mixed contact models share one memory layout:
 
-* rolling:  ``(x, y, wx, wy, wz, W)`` — contact point [m] and the ball's angular velocity
-  relative to the saddle, in the saddle's axes [rad/s];
-* slipping / point: ``(x, y, vx, vy, W, 0)`` — contact point and its velocity [m/s]. The
-  spin is decoupled (docs/physics.md, "Frictionless slipping") and is not integrated.
+* rolling:  ``(x, y, wx, wy, wz, W, ...)`` — contact point [m] and the ball's angular
+  velocity relative to the saddle, in the saddle's axes [rad/s];
+* slipping / point: ``(x, y, vx, vy, W, ...)`` — contact point and its velocity [m/s]. The
+  spin is decoupled (docs/physics.md, "Frictionless slipping") and is not integrated;
+* coulomb: ``(x, y, wx, wy, wz, vx, vy, W, phase)`` — both, and the phase (STICK, SLIP or
+  ONSET) in PHASE_SLOT, switched by the integrator's loop and never integrated.
 
-W [J/kg], in the slot right after the dynamics, is the work per unit mass the dissipative
-forces (air drag, drilling friction) have done since the start: the Jacobi integral's
+Slots past a model's own are unused. W [J/kg], in the slot right after the dynamics
+(`work_slot`), is the work per unit mass the dissipative forces (air drag, drilling friction,
+rolling resistance, kinetic friction) have done since the start: the Jacobi integral's
 change. It is integrated only when the scene dissipates (`integrated_size`), so a
 conservative scene's step is the same arithmetic as without it.
 
@@ -384,8 +387,8 @@ def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist,
     The ball's centre obeys c̈ = g_eff + f + (N/m) n and its spin
     ẇ = -(Ω̇ k + Ω k×w) - n×f/(αR) (- drilling friction), with the friction f tangential. The
     material point at the contact slips at v_s = ċ - R w×n, and
-    v̇_s = a0 + (1 + 1/α) f with a0 what the other forces give it. Sticking (``slipping``
-    false): f = -P a0/(1 + 1/α), the friction that keeps v_s = 0, and the contact-point
+    v̇_s = a0 + (1 + 1/α) f with a0 what the other forces give it. Sticking (``phase``
+    STICK): f = -P a0/(1 + 1/α), the friction that keeps v_s = 0, and the contact-point
     velocity is the rolling one, from w (the state's (vx, vy) are then only carried along),
     so the stick phase is exactly the rolling model. Slipping: f = -μ N v_s/|v_s|; as slip
     starts (``phase`` ONSET) the friction opposes the slip that a0 starts, -μ N a0/|a0|.
@@ -489,7 +492,7 @@ def stop_slip(p, prof, t, y):
     rolling_velocity(p, y, y)
     phase = y[PHASE_SLOT]
     y[PHASE_SLOT] = STICK  # the velocity now follows from the spin
-    y[7] += jacobi(COULOMB, p, prof, t, y) - before
+    y[work_slot(COULOMB)] += jacobi(COULOMB, p, prof, t, y) - before
     y[PHASE_SLOT] = phase
 
 

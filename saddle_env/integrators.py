@@ -357,7 +357,7 @@ LOG_T, LOG_PHASE = 0, 1
 
 
 @jit
-def log(tab, work):
+def transition_log(tab, work):
     """The transitions a run with a logging `workspace` recorded: (count, rows); rows beyond
     the log's length are counted but not kept."""
     s = tab.B.shape[0]
@@ -393,8 +393,10 @@ def _snap_speed(p, y, atol, rtol, scale):
 
 @jit
 def _settle_coulomb(p, prof, t, y, speed_tol):
-    """Decide a coulomb ball's phase at (t, y) before a step; return the phase it switched
-    to, or -1 if it kept its phase. (The stick -> slip switch is an event inside a step.)
+    """Decide a coulomb ball's phase at (t, y) before a step; return ``(switched, speed,
+    growth)``: the phase it switched to, or -1 if it kept its phase, and the slip speed
+    [m/s] and its rate of growth [m/s²] in the phase it is in now (for the step's cut).
+    (The stick -> slip switch is an event inside a step.)
 
     Sticking, it stays stuck while static friction holds it and otherwise starts to slip
     (ONSET). Starting to slip, it sticks again as soon as static friction can hold it, and
@@ -402,25 +404,29 @@ def _settle_coulomb(p, prof, t, y, speed_tol):
     a slip that has fallen to the noise level and is still falling is stopped
     (`_kernels.stop_slip`), and it sticks if static friction can hold it, else starts again."""
     old = y[PHASE_SLOT]
-    speed, growth = coulomb_contact(p, prof, t, y)[2:]
     if old == STICK:
         rolling_velocity(p, y, y)
         new = STICK if stick_margin(p, prof, t, y) >= 0.0 else ONSET
-    elif old == ONSET:
-        if speed > speed_tol:
-            new = SLIP
-        elif stick_margin(p, prof, t, y) >= 0.0:
-            stop_slip(p, prof, t, y)
-            new = STICK
-        else:
-            new = ONSET
     else:
-        if speed > speed_tol or growth >= 0.0:
-            return -1.0
-        stop_slip(p, prof, t, y)
-        new = STICK if stick_margin(p, prof, t, y) >= 0.0 else ONSET
+        speed, growth = coulomb_contact(p, prof, t, y)[2:]
+        if old == ONSET:
+            if speed > speed_tol:
+                new = SLIP
+            elif stick_margin(p, prof, t, y) >= 0.0:
+                stop_slip(p, prof, t, y)
+                new = STICK
+            else:
+                return -1.0, speed, growth
+        elif speed > speed_tol or growth >= 0.0:
+            return -1.0, speed, growth
+        else:
+            stop_slip(p, prof, t, y)
+            new = STICK if stick_margin(p, prof, t, y) >= 0.0 else ONSET
     y[PHASE_SLOT] = new
-    return new if new != old else -1.0
+    if new == old:
+        return -1.0, 0.0, 0.0
+    return new, 0.0, 0.0
+
 
 @jit
 def integrate(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats):
@@ -439,7 +445,7 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
 
     Parameters
     ----------
-    model : int — ROLLING or SLIPPING.
+    model : int — ROLLING, SLIPPING or COULOMB (or an ion model, `saddle_env.iontrap`).
     p : (N_PARAMS,) — packed scene parameters.  prof : (8,) — drive row (DRIVE_* in _kernels).
     y : (STATE_WIDTH,) — state at t0; on return, the state at the final time (or at the event).
     t0 : float.  t_out : (m,) ascending output times, all ≥ t0.
@@ -513,13 +519,12 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
         if coulomb and y[PHASE_SLOT] != STICK:
             speed_tol = _snap_speed(p, y, atol, rtol, scale)
             before = y[PHASE_SLOT]
-            switched = _settle_coulomb(p, prof, t, y, speed_tol)
+            switched, speed, growth = _settle_coulomb(p, prof, t, y, speed_tol)
             if switched >= 0.0:
                 _log_switch(work, s, t, before, switched)
                 normal = rhs(model, p, prof, t, y, K[0], want_normal)
                 stats[2] += 1
                 continue
-            speed, growth = coulomb_contact(p, prof, t, y)[2:]
             if y[PHASE_SLOT] == SLIP and growth < 0.0 and hstep > SLIP_STOP_FRACTION * speed / -growth:
                 hstep = SLIP_STOP_FRACTION * speed / -growth
                 clipped, capped = False, True

@@ -23,8 +23,8 @@ import numpy as np
 
 from . import _kernels as K
 from .integrators import integrate_h, state_scale, workspace
-from .runner import DEFAULT_EVENTS, Settings, default_max_step
-from .scene import COULOMB, N_PARAMS
+from .runner import DEFAULT_EVENTS, Settings, default_max_step, padded_width
+from .scene import N_PARAMS
 
 
 @dataclass
@@ -34,8 +34,9 @@ class Prediction:
     Attributes
     ----------
     t : (n, S, m) time of each sample since the run's start [s].
-    state : (n, S, m, 5) state at each sample, padded as in `simulate_batch`; NaN where a segment has fewer samples, was
-        skipped (duration ≤ 0) or was not reached (an event came first).
+    state : (n, S, m, k) state at each sample, padded as in `simulate_batch` (`padded_width`);
+        NaN where a segment has fewer samples, was skipped (duration ≤ 0) or was not reached
+        (an event came first).
     normal : (n, S, m) N/m at each sample [m/s²] (NaN where ``state`` is).
     status : (n,) STATUS_* code of each run (an event, a failure or STATUS_DONE).
     final_state : (n, 5) the state where each run ended (at the event if one fired).
@@ -155,8 +156,7 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
     kernel(codes, P, np.ascontiguousarray(scales, dtype=float), Y, drives, durations,
            float(sample), settings.method.tableau, settings.control(max_step), t, state, normal,
            status)
-    # Padded as `simulate_batch` pads: to 5, or 7 with a coulomb ball among the runs.
-    width = K.DYNAMICS_WIDTH if np.any(codes == COULOMB) else 5
+    width = padded_width(codes)
     return Prediction(t, np.ascontiguousarray(state[..., :width]), normal, status,
                       np.ascontiguousarray(Y[:, :width]))
 

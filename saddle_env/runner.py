@@ -21,10 +21,10 @@ import numpy as np
 from . import _kernels as K
 from .integrators import (EVENT_DETACH, EVENT_ESCAPE, EVENT_KINDS, LOG_PHASE, LOG_T, METHODS,
                           STATUS_FAILED, STATUS_MAX_STEPS, Method, StepControl, integrate_batch,
-                          integrate_batch_serial, integrate_h, log, state_scale, step_control,
-                          workspace)
+                          integrate_batch_serial, integrate_h, state_scale, step_control,
+                          transition_log, workspace)
 from .omega import OmegaProfile
-from .scene import Scene, _finite_number
+from .scene import COULOMB, Scene, _finite_number
 
 # Default accuracy: DOP853 at this tolerance (see docs/accuracy.md).
 DEFAULT_METHOD = "dop853"
@@ -107,6 +107,12 @@ def initial_state(scene: Scene, x: float, y: float, vx: float = 0.0, vy: float =
         raise ValueError(f"initial state is not finite for x = {x:g}, y = {y:g}, vx = {vx:g}, "
                          f"vy = {vy:g} m: the position or velocity is too large for the saddle")
     return out[: scene.state_size].copy()
+
+
+def padded_width(models: np.ndarray) -> int:
+    """Width of a batch's public states (`BatchResult`, `Prediction`): a rolling ball's 5,
+    or a coulomb ball's 7 when the batch (model codes ``models``) has one."""
+    return K.DYNAMICS_WIDTH if np.any(np.asarray(models) == COULOMB) else 5
 
 
 def _check_force(force: object) -> tuple[float, float]:
@@ -453,7 +459,7 @@ def run(scene: Scene, state: np.ndarray, t_end: float, *,
         settings.control(settings.max_step_for(profile, float(t_out[-1]))),
         state_scale(p, scene.model_code), Y_out, stats, 0.0, work)[:2]
     _raise_on_failure(status, t_final, math.hypot(y[0], y[1]), scene)
-    total, rows = log(tab, work) if coulomb else (0, work[:0])
+    total, rows = transition_log(tab, work) if coulomb else (0, work[:0])
     n = int(stats[3])
     event = None
     if status in EVENT_KINDS:
@@ -569,8 +575,7 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
     batch(models, P, drives, Y, 0.0, t_out, m.tableau, settings.control(math.inf), scales,
           max_step_arr, np.ones(n, dtype=bool), Y_out, status, t_final, stats)
     work = np.array([Y_out[i, :, sc.state_size] for i, sc in enumerate(scene_list)])
-    # Padded to the longest state in the batch, and never narrower than a rolling ball's (5).
-    width = max(5, max(sc.state_size for sc in scene_list))
+    width = padded_width(models)
     return BatchResult(t_out, Y_out[..., :width], stats[:, 3].copy(), status, t_final,
                        Y[:, :width], stats, settings.describe(), work)
 
