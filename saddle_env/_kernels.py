@@ -447,18 +447,29 @@ def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist,
     # Friction's power in the rotating frame is f·v_s (0 while sticking); drilling's as rolling.
     power += ffx * vsx + ffy * vsy + ffz * vsz - alpha * R * R * drl * nw + rpower
     friction = math.sqrt(ffx * ffx + ffy * ffy + ffz * ffz)
-    return vx, vy, dwx, dwy, dwz, ax, ay, power, normal, friction, speed, growth
+    return (vx, vy, dwx, dwy, dwz, ax, ay, power, normal, friction, speed, growth, vsx, vsy, vsz,
+            a0x, a0y, a0z)
 
 
 @jit
 def coulomb_contact(p, prof, t, y):
-    """A coulomb ball's contact at (t, y) in its current phase: (N/m, |f|, |v_s|, growth of
-    |v_s|) as `coulomb_rates` defines them, for the loop's phase decisions."""
+    """A coulomb ball's contact at (t, y) in its current phase, for the loop's phase decisions:
+    (N/m, |f|, |v_s|, growth of |v_s|) as `coulomb_rates` defines them, the push |a0| [m/s²]
+    the other forces give the slip, and the slip's part across a0, |v_s - (v_s·â0) â0| [m/s]
+    (how far a slip that started along a0 lags behind a0's turning)."""
     Om, Omd, fx, fy = frame_terms(prof, t)
     r = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
                       p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_MU], y[PHASE_SLOT], Om, Omd, fx, fy,
                       y[0], y[1], y[2], y[3], y[4], y[5], y[6])
-    return r[8], r[9], r[10], r[11]
+    vsx, vsy, vsz, a0x, a0y, a0z = r[12], r[13], r[14], r[15], r[16], r[17]
+    push = math.sqrt(a0x * a0x + a0y * a0y + a0z * a0z)
+    lag = 0.0
+    if push > 0.0:  # |v_s × â0|: free of the cancellation in |v_s|² - (v_s·â0)²
+        kx = vsy * a0z - vsz * a0y
+        ky = vsz * a0x - vsx * a0z
+        kz = vsx * a0y - vsy * a0x
+        lag = math.sqrt(kx * kx + ky * ky + kz * kz) / push
+    return r[8], r[9], r[10], r[11], push, lag
 
 
 @jit
@@ -552,12 +563,16 @@ def rhs(model, p, prof, t, y, dy, want_normal):
             p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
             p[P_DRAG_QUADRATIC], p[P_RESIST], Om, Omd, fx, fy, y[0], y[1], y[2], y[3], y[4])
     elif model == COULOMB:
-        (dy[0], dy[1], dy[2], dy[3], dy[4], dy[5], dy[6], dy[7], normal, _, _,
-         _) = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL],
-                            p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_MU],
-                            y[PHASE_SLOT],
-                            Om, Omd, fx, fy, y[0], y[1], y[2], y[3], y[4], y[5], y[6])
-        dy[8] = 0.0
+        phase = y[PHASE_SLOT]
+        (dy[0], dy[1], dy[2], dy[3], dy[4], dy[5], dy[6], dy[7], normal, friction, _, _, _, _, _,
+         _, _, _) = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL],
+                                  p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_MU],
+                                  phase, Om, Omd, fx, fy, y[0], y[1], y[2], y[3], y[4], y[5],
+                                  y[6])
+        # The phase is not integrated: its slot carries the stick margin μ_s N/m - |f| instead
+        # (0 while slipping), for the loop to screen a step's stages for static friction
+        # giving way briefly inside it, at no extra cost (`integrators._stick_dip`).
+        dy[PHASE_SLOT] = p[P_MU_STATIC] * normal - friction if phase == STICK else 0.0
     elif model == ION_RRF or model == ION_PAUL:
         dy[0], dy[1] = y[2], y[3]
         dy[2], dy[3] = ion_rates(model, p, prof, t, Om, Omd, y[0], y[1], y[2], y[3])
