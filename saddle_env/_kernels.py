@@ -461,15 +461,22 @@ def coulomb_contact(p, prof, t, y):
     r = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
                       p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_MU], y[PHASE_SLOT], Om, Omd, fx, fy,
                       y[0], y[1], y[2], y[3], y[4], y[5], y[6])
-    vsx, vsy, vsz, a0x, a0y, a0z = r[12], r[13], r[14], r[15], r[16], r[17]
+    a0x, a0y, a0z = r[15], r[16], r[17]
+    return (r[8], r[9], r[10], r[11], math.sqrt(a0x * a0x + a0y * a0y + a0z * a0z),
+            slip_lag(r[12], r[13], r[14], a0x, a0y, a0z))
+
+
+@inline
+def slip_lag(vsx, vsy, vsz, a0x, a0y, a0z):
+    """The slip velocity's part across the push a0, |v_s × a0|/|a0| [m/s] (0 without a push):
+    computed as a cross product, free of the cancellation in |v_s|² - (v_s·â0)²."""
     push = math.sqrt(a0x * a0x + a0y * a0y + a0z * a0z)
-    lag = 0.0
-    if push > 0.0:  # |v_s × â0|: free of the cancellation in |v_s|² - (v_s·â0)²
-        kx = vsy * a0z - vsz * a0y
-        ky = vsz * a0x - vsx * a0z
-        kz = vsx * a0y - vsy * a0x
-        lag = math.sqrt(kx * kx + ky * ky + kz * kz) / push
-    return r[8], r[9], r[10], r[11], push, lag
+    if push == 0.0:
+        return 0.0
+    kx = vsy * a0z - vsz * a0y
+    ky = vsz * a0x - vsx * a0z
+    kz = vsx * a0y - vsy * a0x
+    return math.sqrt(kx * kx + ky * ky + kz * kz) / push
 
 
 @jit
@@ -564,15 +571,21 @@ def rhs(model, p, prof, t, y, dy, want_normal):
             p[P_DRAG_QUADRATIC], p[P_RESIST], Om, Omd, fx, fy, y[0], y[1], y[2], y[3], y[4])
     elif model == COULOMB:
         phase = y[PHASE_SLOT]
-        (dy[0], dy[1], dy[2], dy[3], dy[4], dy[5], dy[6], dy[7], normal, friction, _, _, _, _, _,
-         _, _, _) = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL],
-                                  p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_MU],
-                                  phase, Om, Omd, fx, fy, y[0], y[1], y[2], y[3], y[4], y[5],
-                                  y[6])
-        # The phase is not integrated: its slot carries the stick margin μ_s N/m - |f| instead
-        # (0 while slipping), for the loop to screen a step's stages for static friction
-        # giving way briefly inside it, at no extra cost (`integrators._stick_dip`).
-        dy[PHASE_SLOT] = p[P_MU_STATIC] * normal - friction if phase == STICK else 0.0
+        (dy[0], dy[1], dy[2], dy[3], dy[4], dy[5], dy[6], dy[7], normal, friction, _, _, vsx,
+         vsy, vsz, a0x, a0y, a0z) = coulomb_rates(
+            p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
+            p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_MU], phase, Om, Omd, fx, fy, y[0], y[1], y[2],
+            y[3], y[4], y[5], y[6])
+        # The phase is not integrated, so its slot carries what the loop checks a step with,
+        # at no extra cost: sticking, the stick margin μ_s N/m - |f| (at every stage, so that
+        # static friction giving way briefly inside a step is seen: `integrators._stick_dip`);
+        # at onset, the slip's lag behind the push (`integrators._onset_error`).
+        if phase == STICK:
+            dy[PHASE_SLOT] = p[P_MU_STATIC] * normal - friction
+        elif phase == ONSET:
+            dy[PHASE_SLOT] = slip_lag(vsx, vsy, vsz, a0x, a0y, a0z)
+        else:
+            dy[PHASE_SLOT] = 0.0
     elif model == ION_RRF or model == ION_PAUL:
         dy[0], dy[1] = y[2], y[3]
         dy[2], dy[3] = ion_rates(model, p, prof, t, Om, Omd, y[0], y[1], y[2], y[3])

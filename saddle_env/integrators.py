@@ -414,10 +414,9 @@ def _snap_speed(p, y, atol, rtol, scale):
 
 
 @jit
-def _onset_error(p, prof, t, y, h, atol, rtol, scale):
-    """An ONSET step's error from the slip's lag behind a0 (see ONSET above): q·h/2 against
-    the position tolerance."""
-    lag = coulomb_contact(p, prof, t, y)[5]
+def _onset_error(lag, y, h, atol, rtol, scale):
+    """An ONSET step's error from the slip's lag ``lag`` [m/s] behind a0 at its end state
+    ``y`` (see ONSET above): q·h/2 against the position tolerance."""
     return 0.5 * lag * h / (atol * scale[1] + rtol * math.sqrt(y[0] * y[0] + y[1] * y[1]))
 
 
@@ -575,8 +574,8 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
                 sc[j] = atol * scale[j] + rtol * max(abs(y[j]), abs(ynew[j]))
             err = _error_norm(tab, hstep, d, K, sc) if finite else np.inf
             if coulomb and y[PHASE_SLOT] == ONSET and finite:
-                err = max(err, _onset_error(p, prof, t + hstep, ynew, hstep, atol, rtol, scale))
-                stats[2] += 1
+                # the lag at the end is in the phase slot of the end's rates (see `rhs`)
+                err = max(err, _onset_error(K[s, PHASE_SLOT], ynew, hstep, atol, rtol, scale))
             if not err <= 1.0:
                 # Rejected: shrink and retry (an infinite/NaN error shrinks by the maximum).
                 factor = MIN_FACTOR if not math.isfinite(err) else max(
