@@ -13,7 +13,8 @@ mixed contact models share one memory layout:
 * slipping / point: ``(x, y, vx, vy, W, ...)`` — contact point and its velocity [m/s]. The
   spin is decoupled (docs/physics.md, "Frictionless slipping") and is not integrated;
 * coulomb: ``(x, y, wx, wy, wz, vx, vy, W, phase)`` — both, and the phase (STICK, SLIP or
-  ONSET) in PHASE_SLOT, switched by the integrator's loop and never integrated.
+  ONSET) in PHASE_SLOT, switched by the integrator's loop and never integrated (the same
+  slot of the rates carries what the loop checks a step with: see `rhs`).
 
 Slots past a model's own are unused. W [J/kg], in the slot right after the dynamics
 (`work_slot`), is the work per unit mass the dissipative forces (air drag, drilling friction,
@@ -561,7 +562,9 @@ def rhs(model, p, prof, t, y, dy, want_normal):
     prof : (8,) float64 — drive row (Ω profile, θ0, external force).
     t : float — time [s].
     y, dy : (STATE_WIDTH,) float64 — state and its derivative (the work slot's derivative
-        is the dissipated power; 0 when nothing dissipates).
+        is the dissipated power; 0 when nothing dissipates). A coulomb ball's phase slot
+        of ``dy`` gets the stick margin μ_s N/m - |f| [m/s²] while it sticks, the slip's
+        lag behind the push [m/s] at onset, else 0.
     want_normal : bool — whether to return the normal force per unit mass.
     """
     Om, Omd, fx, fy = frame_terms(prof, t)
