@@ -160,3 +160,34 @@ def test_every_scene_parameter_is_an_env_option_with_the_scenes_default_and_chec
         with pytest.raises(ValueError) as scene_err:
             se.Scene(**{name: bad})
         assert str(env_err.value) == str(scene_err.value)
+
+
+def test_slippery_level_draws_coulomb_balls_whose_low_friction_makes_them_slip():
+    level = get_level("SaddleTrap-Slippery-v0")
+    lo, hi = level.options["mu_range"]
+    env = gym.make(level.id)
+    mus = []
+    for seed in range(40):
+        env.reset(seed=seed)
+        scene = env.unwrapped.engine.scenes[0]
+        assert scene.contact == "coulomb" and scene.drag_quadratic == 0.2
+        assert lo <= scene.mu <= hi and scene.mu_static in (None, scene.mu)
+        assert scene.R in level.options["ball_radii"]
+        mus.append(scene.mu)
+    assert min(mus) < lo + 0.2 * (hi - lo) and max(mus) > hi - 0.2 * (hi - lo)  # uniform-ish
+
+    # The same start as a rolling ball: at the range's top the ball sticks all the way
+    # (stick is the rolling model), at its bottom it slips and goes its own way.
+    start = {"x": 0.008, "y": 0.004, "omega": 20.0, "R": 0.0265}
+
+    def position_after(steps, **kw):
+        e = gym.make(level.id, **kw)
+        obs, _ = e.reset(seed=3, options=start)
+        for _ in range(steps):
+            obs, _, te, tr, _ = e.step(np.zeros(1, dtype=np.float32))
+            assert not (te or tr)
+        return obs[:2]
+
+    rolling = position_after(100, contact="rolling", mu_range=None)
+    assert np.abs(position_after(100, mu_range=[hi, hi]) - rolling).max() < 1e-5
+    assert np.abs(position_after(100, mu_range=[lo, lo]) - rolling).max() > 0.05
