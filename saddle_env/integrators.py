@@ -65,12 +65,16 @@ EVENT_TIME_TOL = 1e-12  # [s] width of the final bracket around an event time
 #   would turn it within that stiff time, so the ball ends up about q·h/2 from where it
 #   would be after a step of h. An adaptive ONSET step counts that distance in its error
 #   (`_onset_error`, measured: without it the benchmark's rtol 1e-10 run was 9e-6 m off,
-#   with it 3e-10 m, at twice the steps). ONSET gives way to SLIP once the slip is above the
-#   noise level and, with a fixed step, once the step can follow its direction
-#   (|v_s| ≥ |a0| dt).
+#   with it 3e-10 m, at twice the steps). ONSET gives way to SLIP once the slip is ONSET_SPAN
+#   times above the noise level (so its direction is known to 1e-4: handing over at the
+#   noise level itself left an error in the slip that stayed, up to 1e-8 m/s with steps
+#   capped at 10 µs) and, with a fixed step, once the step can follow its direction
+#   (|v_s| ≥ |a0| dt); and at once when the slip decelerates, since a slip that shrinks is
+#   no longer turned towards a0 and is stopped as a slip is (the cut above).
 TRANSITION = 16
 SLIP_STOP_FRACTION = 0.99
 SLIP_SNAP = 100.0
+ONSET_SPAN = 100.0
 
 # Error-estimate kinds.
 ERR_NONE, ERR_EMBEDDED, ERR_DOP853 = 0, 1, 2
@@ -424,8 +428,9 @@ def _onset_error(lag, y, h, atol, rtol, scale):
 def _settle_coulomb(p, prof, t, y, speed_tol, hold):
     """Decide a coulomb ball's phase at (t, y) before a step; return ``(switched, speed,
     growth)``: the phase it switched to, or -1 if it kept its phase, and the slip speed
-    [m/s] and its rate of growth [m/s²] in the phase it is in now (for the step's cut).
-    (The stick -> slip switch is an event inside a step.)
+    [m/s] and its rate of growth [m/s²] it saw (before a stop; for the step's cut, and for
+    the time a stopped slip would have reached 0). (The stick -> slip switch is an event
+    inside a step.)
 
     Sticking, it stays stuck while static friction holds it and otherwise starts to slip
     (ONSET). Starting to slip, it sticks again as soon as static friction can hold it, and
@@ -441,9 +446,10 @@ def _settle_coulomb(p, prof, t, y, speed_tol, hold):
         contact = coulomb_contact(p, prof, t, y)
         speed, growth = contact[2], contact[3]
         if old == ONSET:
-            if speed > speed_tol and speed >= contact[4] * hold:
+            if speed > speed_tol and (growth < 0.0 or (speed > ONSET_SPAN * speed_tol
+                                                        and speed >= contact[4] * hold)):
                 new = SLIP
-            elif stick_margin(p, prof, t, y) >= 0.0:
+            elif speed <= speed_tol and stick_margin(p, prof, t, y) >= 0.0:
                 stop_slip(p, prof, t, y)
                 new = STICK
             else:
@@ -456,7 +462,9 @@ def _settle_coulomb(p, prof, t, y, speed_tol, hold):
     y[PHASE_SLOT] = new
     if new == old:
         return -1.0, 0.0, 0.0
-    return new, 0.0, 0.0
+    if old == STICK:
+        return new, 0.0, 0.0
+    return new, speed, growth
 
 
 @jit
@@ -553,11 +561,15 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
             before = y[PHASE_SLOT]
             switched, speed, growth = _settle_coulomb(p, prof, t, y, speed_tol, hold)
             if switched >= 0.0:
-                _log_switch(work, s, t, before, switched)
+                # A slip stopped at the noise level is logged where it would have reached 0,
+                # |v_s|/(-d|v_s|/dt) later (measured: up to 7e-9 s at rtol 1e-12 otherwise).
+                _log_switch(work, s, t + speed / -growth if growth < 0.0 else t, before,
+                            switched)
                 normal = rhs(model, p, prof, t, y, K[0], want_normal)
                 stats[2] += 1
                 continue
-            if y[PHASE_SLOT] == SLIP and growth < 0.0 and hstep > SLIP_STOP_FRACTION * speed / -growth:
+            if (growth < 0.0 and speed > speed_tol
+                    and hstep > SLIP_STOP_FRACTION * speed / -growth):
                 hstep = SLIP_STOP_FRACTION * speed / -growth
                 clipped, capped = False, True
         if not (hstep > 1e-14 * max(1.0, abs(t))):
