@@ -328,6 +328,22 @@ def test_a_ball_that_keeps_switching_converges_with_the_tolerance_at_a_bounded_c
 
 
 # -- rolling resistance ----------------------------------------------------------------------
+def test_rolling_resistance_undoes_the_trap():
+    # Dissipation relative to the turning saddle destroys its gyroscopic hold
+    # (Kelvin-Tait-Chetaev): with c_rr = 0.001 the orbit grows at each of three speeds
+    # (measured: largest distance 16 -> 35 mm, 15 -> 28, 20 -> 34 over 20 s), without it it
+    # does not (16, 16, 20 mm throughout).
+    for omega in (16.3, 20.0, 30.0):
+        grown = []
+        for c_rr in (0.0, 0.001):
+            sc = Scene(R=0.0265, rolling_resistance=c_rr, rim_radius=0.1)
+            tr = simulate(sc, initial_state(sc, 0.003, 0.002, start="rotating-rest"), 16.0,
+                          omega=omega, dt_out=0.01, rtol=1e-9)
+            r = np.hypot(tr.x, tr.y)
+            grown.append(r[tr.t >= 12.0].max() / r[tr.t < 4.0].max())
+        assert grown[0] < 1.05 and grown[1] > 1.3, (omega, grown)
+
+
 @pytest.mark.parametrize("contact", ["rolling", "coulomb"])
 def test_rolling_resistance_slows_a_ball_on_flat_ground_as_theory_says(contact):
     # A ball rolling at v0 on a plane (a = b = 10⁴ km, not turning): the torque c_rr R N
