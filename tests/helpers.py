@@ -78,3 +78,46 @@ def batch_and_singles(scenes: list[Scene], t_end: float = 1.0, omega: float = 25
     batch = simulate_batch(scenes, states, t_end, omega=omega)
     return batch, [simulate(sc, states[i, : sc.state_size], t_end, omega=omega)
                    for i, sc in enumerate(scenes)]
+
+
+def coulomb_case(seed: int, *, t_end: float, time_varying: bool, static_ratio: float = 1.0,
+                 min_transitions: int = 2, rtol: float = 1e-10):
+    """A random coulomb scene (a != b) and start that the PRODUCTION run keeps trapped with at
+    least ``min_transitions`` stick/slip transitions, for the comparisons with the lab-frame
+    reference: ``(scene, profile, q0, v0, spin, trajectory)``. mu_static = static_ratio * mu;
+    the search costs production runs only, each a few ms."""
+    from reference_lab_frame import body_geometry
+
+    from saddle_env import OmegaProfile, initial_state, simulate
+
+    z = np.array([0.0, 0.0, 1.0])
+    rng = np.random.default_rng(seed)
+    for _ in range(60):
+        a = rng.uniform(0.15, 0.17)
+        b = rng.uniform(0.17, 0.22)
+        R = rng.uniform(0.008, 0.03)
+        alpha = float(rng.choice([0.4, 2 / 3]))
+        mu = rng.uniform(0.03, 0.15)
+        sc = Scene(contact="coulomb", mu=mu, mu_static=static_ratio * mu, a=a, b=b, R=R,
+                   alpha=alpha)
+        if time_varying:
+            profile = OmegaProfile(rng.uniform(20, 24), rng.uniform(-2, 2), rng.uniform(0, 2),
+                                   rng.uniform(3, 8), rng.uniform(0, 6))
+        else:
+            profile = OmegaProfile(rng.uniform(20, 24))
+        q0 = rng.uniform(-0.006, 0.006, 2)
+        # half of "at rest in the lab" (a bounded orbit), and the rolling spin of that
+        # velocity plus a kick: the ball starts slipping
+        c, J, n = body_geometry(a, b, R, *q0)
+        v0 = 0.5 * np.linalg.solve(J.T @ J, J.T @ (-profile(0.0) * np.cross(z, c)))
+        spin = np.cross(n, J @ v0) / R + rng.uniform(-6, 6, 3) * [1, 1, 0.3]
+        s0 = initial_state(sc, *q0, *v0, spin=spin)
+        try:
+            tr = simulate(sc, s0, t_end, omega=profile, dt_out=0.01, rtol=rtol)
+        except Exception:  # noqa: BLE001, S112 -- a run production refuses (step budget): next
+            continue
+        if (tr.event is None and np.max(np.hypot(tr.x, tr.y)) < 0.03
+                and len(tr.transitions) >= min_transitions):
+            return sc, profile, q0, v0, spin, tr
+    raise AssertionError("no trapped run with enough transitions found")
+

@@ -393,16 +393,22 @@ def _coulomb_eval(t, s, a, b, R, alpha, g, mu, eps, omega, omega_dot, drag):
     return qdd, wdot, N, vs, f
 
 
-def _simulate_coulomb(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
-                      spin_normal, spin, theta0, rtol, atol, drag, mu, eps, method,
-                      slip_threshold):
-    # Initial relative spin: given, or rolling without slip (as the rolling model).
+def _initial_lab_spin(a, b, R, q0, qdot0, spin, spin_normal, theta0, omega):
+    """The ball's absolute spin at t = 0 in lab axes: ``spin`` (relative to the saddle, in its
+    axes) if given, else the rolling spin of the start plus ``spin_normal`` about the normal
+    (as the rolling model starts)."""
     _, Jb, nb = body_geometry(a, b, R, q0[0], q0[1])
     if spin is None:
         w_rel = _cross(nb, Jb @ np.asarray(qdot0, dtype=float)) / R + spin_normal * nb
     else:
         w_rel = np.asarray(spin, dtype=float)
-    w_abs_lab = _rz_num(theta0) @ (w_rel + omega(0.0) * _K)
+    return _rz_num(theta0) @ (w_rel + omega(0.0) * _K)
+
+
+def _simulate_coulomb(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
+                      spin_normal, spin, theta0, rtol, atol, drag, mu, eps, method,
+                      slip_threshold):
+    w_abs_lab = _initial_lab_spin(a, b, R, q0, qdot0, spin, spin_normal, theta0, omega)
     args = (a, b, R, alpha, g, mu, eps, omega, omega_dot, drag)
 
     def deriv(t, s):
@@ -633,12 +639,7 @@ def _simulate_coulomb_exact(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_ev
         return begin_slip(t, s_roll)
 
     # the start: the given spin (slip unless it is the rolling one) or the rolling spin
-    _, Jb, nb = body_geometry(a, b, R, q0[0], q0[1])
-    if spin is None:
-        w_rel = _cross(nb, Jb @ np.asarray(qdot0, dtype=float)) / R + spin_normal * nb
-    else:
-        w_rel = np.asarray(spin, dtype=float)
-    w_lab = _rz_num(theta0) @ (w_rel + omega(0.0) * _K)
+    w_lab = _initial_lab_spin(a, b, R, q0, qdot0, spin, spin_normal, theta0, omega)
     s = np.array([q0[0], q0[1], qdot0[0], qdot0[1], theta0, *w_lab], dtype=float)
     vs0 = slip_velocity(0.0, s)
     transitions = []

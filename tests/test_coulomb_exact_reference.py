@@ -50,9 +50,10 @@ import sys
 import numpy as np
 import pytest
 
-from saddle_env import OmegaProfile, Scene, initial_state, simulate
+from saddle_env import initial_state, simulate
 
 sys.path.insert(0, os.path.dirname(__file__))
+from helpers import coulomb_case
 from reference_lab_frame import body_geometry, simulate_lab_frame
 
 K = np.array([0.0, 0.0, 1.0])
@@ -60,36 +61,8 @@ RTOL = 1e-12         # production's tolerance in these comparisons
 
 
 def _find_case(seed, time_varying, static_ratio, t_end=1.0, min_transitions=3):
-    """A random scene (a != b) and start that the PRODUCTION run keeps trapped with
-    >= `min_transitions` stick/slip transitions; mu_static = static_ratio * mu."""
-    rng = np.random.default_rng(seed)
-    for _ in range(60):
-        a = rng.uniform(0.15, 0.17)
-        b = rng.uniform(0.17, 0.22)
-        R = rng.uniform(0.008, 0.03)
-        alpha = float(rng.choice([0.4, 2 / 3]))
-        mu = rng.uniform(0.03, 0.15)
-        sc = Scene(contact="coulomb", mu=mu, mu_static=static_ratio * mu, a=a, b=b, R=R,
-                   alpha=alpha)
-        if time_varying:
-            profile = OmegaProfile(rng.uniform(20, 24), rng.uniform(-2, 2), rng.uniform(0, 2),
-                                   rng.uniform(3, 8), rng.uniform(0, 6))
-        else:
-            profile = OmegaProfile(rng.uniform(20, 24))
-        q0 = rng.uniform(-0.006, 0.006, 2)
-        # half of "at rest in the lab", and a kicked spin: the ball starts slipping
-        c, J, n = body_geometry(a, b, R, *q0)
-        v0 = 0.5 * np.linalg.solve(J.T @ J, J.T @ (-profile(0.0) * np.cross(K, c)))
-        spin = np.cross(n, J @ v0) / R + rng.uniform(-6, 6, 3) * [1, 1, 0.3]
-        s0 = initial_state(sc, *q0, *v0, spin=spin)
-        try:
-            tr = simulate(sc, s0, t_end, omega=profile, dt_out=0.01, rtol=RTOL)
-        except Exception:  # noqa: BLE001, S112 -- a run production refuses (step budget): next
-            continue
-        if (tr.event is None and np.max(np.hypot(tr.x, tr.y)) < 0.03
-                and len(tr.transitions) >= min_transitions):
-            return sc, profile, q0, v0, spin, tr
-    raise AssertionError("no trapped run with enough transitions found")
+    return coulomb_case(seed, t_end=t_end, time_varying=time_varying,
+                        static_ratio=static_ratio, min_transitions=min_transitions, rtol=RTOL)
 
 
 def _reference(sc, profile, q0, v0, spin, t, **kw):

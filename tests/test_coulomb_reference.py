@@ -25,47 +25,16 @@ import sys
 import numpy as np
 import pytest
 
-from saddle_env import OmegaProfile, Scene, initial_state, simulate
-
 sys.path.insert(0, os.path.dirname(__file__))
-from reference_lab_frame import body_geometry, simulate_lab_frame  # noqa: E402
+from helpers import coulomb_case
+from reference_lab_frame import simulate_lab_frame
 
 EPS = 1e-6          # the reference's regularisation speed [m/s]
 THRESH = 1e-4       # |v_s| the reference must cross for a phase change to count (100 eps)
-K = np.array([0.0, 0.0, 1.0])
 
 
 def _find_case(seed, t_end, time_varying):
-    """A random scene/start the PRODUCTION run keeps trapped with >= 2 stick/slip
-    transitions (the search costs production runs only, each a few ms)."""
-    rng = np.random.default_rng(seed)
-    for _ in range(60):
-        a = rng.uniform(0.15, 0.17)
-        b = rng.uniform(0.17, 0.22)      # a != b
-        R = rng.uniform(0.008, 0.03)
-        alpha = float(rng.choice([0.4, 2 / 3]))
-        mu = rng.uniform(0.03, 0.15)
-        sc = Scene(contact="coulomb", mu=mu, mu_static=mu, a=a, b=b, R=R, alpha=alpha)
-        if time_varying:
-            profile = OmegaProfile(rng.uniform(20, 24), rng.uniform(-2, 2), rng.uniform(0, 2),
-                                   rng.uniform(3, 8), rng.uniform(0, 6))
-        else:
-            profile = OmegaProfile(rng.uniform(20, 24))
-        q0 = rng.uniform(-0.006, 0.006, 2)
-        # half of "at rest in the lab": a bounded orbit for every model tried
-        c, J, n = body_geometry(a, b, R, *q0)
-        v0 = 0.5 * np.linalg.solve(J.T @ J, J.T @ (-profile(0.0) * np.cross(K, c)))
-        # rolling spin of that velocity plus a kick: the ball starts slipping
-        spin = np.cross(n, J @ v0) / R + rng.uniform(-6, 6, 3) * [1, 1, 0.3]
-        s0 = initial_state(sc, *q0, *v0, spin=spin)
-        try:
-            tr = simulate(sc, s0, t_end, omega=profile, dt_out=0.01, rtol=1e-10)
-        except Exception:    # a run the production refuses (e.g. step budget): next one
-            continue
-        if (tr.event is None and np.max(np.hypot(tr.x, tr.y)) < 0.03
-                and len(tr.transitions) >= 2):
-            return sc, profile, q0, v0, spin, tr
-    raise AssertionError("no trapped run with >= 2 transitions found")
+    return coulomb_case(seed, t_end=t_end, time_varying=time_varying)
 
 
 def _compare(seed, t_end, time_varying):
