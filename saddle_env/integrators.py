@@ -425,7 +425,7 @@ def _onset_error(lag, y, h, atol, rtol, scale):
 
 
 @jit
-def _settle_coulomb(p, prof, t, y, speed_tol, hold):
+def _settle_coulomb(p, prof, t, y, speed_tol, hold, lag_limit):
     """Decide a coulomb ball's phase at (t, y) before a step; return ``(switched, speed,
     growth)``: the phase it switched to, or -1 if it kept its phase, and the slip speed
     [m/s] and its rate of growth [m/s²] it saw (before a stop; for the step's cut, and for
@@ -434,7 +434,9 @@ def _settle_coulomb(p, prof, t, y, speed_tol, hold):
 
     Sticking, it stays stuck while static friction holds it and otherwise starts to slip
     (ONSET). Starting to slip, it sticks again as soon as static friction can hold it, and
-    counts as slipping once its slip is above the noise level ``speed_tol`` [m/s] and above
+    counts as slipping once its slip is above the noise level ``speed_tol`` [m/s] and: it
+    decelerates, or its lag behind a0 exceeds ``lag_limit`` [m/s] (where onset's error would
+    cut the next step), or it is ONSET_SPAN times above the noise level and above
     |a0|·``hold`` (the fixed step [s]; 0 when adaptive). Slipping,
     a slip that has fallen to the noise level and is still falling is stopped
     (`_kernels.stop_slip`), and it sticks if static friction can hold it, else starts again."""
@@ -446,8 +448,9 @@ def _settle_coulomb(p, prof, t, y, speed_tol, hold):
         contact = coulomb_contact(p, prof, t, y)
         speed, growth = contact[2], contact[3]
         if old == ONSET:
-            if speed > speed_tol and (growth < 0.0 or (speed > ONSET_SPAN * speed_tol
-                                                        and speed >= contact[4] * hold)):
+            if speed > speed_tol and (growth < 0.0 or contact[5] > lag_limit
+                                      or (speed > ONSET_SPAN * speed_tol
+                                          and speed >= contact[4] * hold)):
                 new = SLIP
             elif speed <= speed_tol and stick_margin(p, prof, t, y) >= 0.0:
                 stop_slip(p, prof, t, y)
@@ -523,7 +526,7 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
     coulomb = model == COULOMB
     hold = 0.0 if adaptive else dt  # how long an ONSET slip must be able to follow itself
     if coulomb:  # the starting phase (not logged: it is no change)
-        _settle_coulomb(p, prof, t, y, _snap_speed(p, y, atol, rtol, scale), hold)
+        _settle_coulomb(p, prof, t, y, _snap_speed(p, y, atol, rtol, scale), hold, np.inf)
     normal = rhs(model, p, prof, t, y, K[0], want_normal)
     stats[2] += 1
     accepted_normal = normal if want_normal else np.nan  # N/m at the last accepted state
@@ -559,7 +562,11 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
         if coulomb and y[PHASE_SLOT] != STICK:
             speed_tol = _snap_speed(p, y, atol, rtol, scale)
             before = y[PHASE_SLOT]
-            switched, speed, growth = _settle_coulomb(p, prof, t, y, speed_tol, hold)
+            # the lag at which an ONSET step of hstep would spend half its error on it
+            lag_limit = ((atol * scale[1] + rtol * math.sqrt(y[0] * y[0] + y[1] * y[1]))
+                         / hstep if adaptive else np.inf)
+            switched, speed, growth = _settle_coulomb(p, prof, t, y, speed_tol, hold,
+                                                      lag_limit)
             if switched >= 0.0:
                 # A slip stopped at the noise level is logged where it would have reached 0,
                 # |v_s|/(-d|v_s|/dt) later (measured: up to 7e-9 s at rtol 1e-12 otherwise).
