@@ -138,7 +138,7 @@ def test_shipped_models_load_and_act_in_the_task_they_were_trained_on():
     from saddle_env.envs import level_config
     models = sorted((ROOT / "agents" / "models").glob("*.zip"))
     assert {m.stem for m in models} >= {"ppo_default", "sac_default", "ppo_gusty",
-                                        "ppo_capture", "ppo_storm"}
+                                        "ppo_capture", "ppo_storm", "ppo_slippery"}
     for path in models:
         side = json.loads(path.with_suffix(".json").read_text())
         env_id = side.get("env_id", "SaddleTrap-v0")
