@@ -275,13 +275,42 @@ def _air_drag(drag_linear, drag_quadratic, Om, cx, cy, cdx, cdy, cdz):
 @inline
 def _resistance(resist, R, normal, nx, ny, nz, nw, wx, wy, wz):
     """Rolling resistance c_rr: the factor k with τ/(m R²) = k·w_t (w_t = w - (n·w) n, the
-    rolling part of the spin relative to the saddle; τ = -c_rr R N ŵ_t) and its power
-    τ·w/m = -c_rr R (N/m) |w_t| [W/kg]. None while the ball does not roll (w_t = 0)."""
+    rolling part of the spin relative to the saddle; τ = -c_rr R N ŵ_t), its power
+    τ·w/m = -c_rr R (N/m) |w_t| [W/kg], and whether the ball does not roll (`_resting`: k and
+    the power are then 0, and the torque is the static one, `_static_resistance`)."""
     wtx, wty, wtz = wx - nw * nx, wy - nw * ny, wz - nw * nz
     wt = math.sqrt(wtx * wtx + wty * wty + wtz * wtz)
-    if wt == 0.0:
-        return 0.0, 0.0
-    return -resist * normal / (R * wt), -resist * R * normal * wt
+    if _resting(R, wt, wx, wy, wz):
+        return 0.0, 0.0, True
+    return -resist * normal / (R * wt), -resist * R * normal * wt, False
+
+
+# A ball whose rolling spin w_t is this small (against its spin, or against sqrt(1 m/s² / R)
+# when it barely spins) does not roll: it rests on the saddle, or only spins about the normal.
+# Rolling resistance then holds it so, as static friction would, while the torque that takes
+# stays within c_rr R N (`_static_resistance`). A ball started at rest has w_t = 0 exactly; held,
+# its w_t stays at the rounding level of the torque balance (1e-16 of the terms, which grows
+# it by about 1e-14 rad/s per second), far below this.
+REST_SPIN = 1e-12
+
+
+@inline
+def _resting(R, wt, wx, wy, wz):
+    """Whether a ball with rolling spin |w_t| = ``wt`` [rad/s] does not roll (REST_SPIN)."""
+    return wt <= REST_SPIN * (math.sqrt(wx * wx + wy * wy + wz * wz) + 1.0 / math.sqrt(R))
+
+
+@inline
+def _static_resistance(cap, hx, hy, hz):
+    """The resistance on a ball that does not roll, as a term in the rolling equation: the
+    term ``h`` that would keep it so, if it is within ``cap`` (c_rr N/m / R, the most the
+    resistance gives), else ``cap`` along ``h`` (the ball starts to roll against it); and
+    whether it holds."""
+    need = math.sqrt(hx * hx + hy * hy + hz * hz)
+    if need <= cap:
+        return hx, hy, hz, True
+    k = cap / need
+    return k * hx, k * hy, k * hz, False
 
 
 @inline
@@ -329,8 +358,19 @@ def rolling_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist,
     if resist != 0.0:
         # Rolling resistance: the torque τ/m = -c_rr R (N/m) ŵ_t on the rolling part w_t of
         # the spin joins Euler's equation as τ/(m R²) (tangential, so n·r is unchanged).
-        k, rpower = _resistance(resist, R, normal, nx, ny, nz, nw, wx, wy, wz)
-        rx, ry, rz = rx + k * (wx - nw * nx), ry + k * (wy - nw * ny), rz + k * (wz - nw * nz)
+        k, rpower, resting = _resistance(resist, R, normal, nx, ny, nz, nw, wx, wy, wz)
+        if not resting:
+            rx, ry, rz = (rx + k * (wx - nw * nx), ry + k * (wy - nw * ny),
+                          rz + k * (wz - nw * nz))
+        else:
+            # Not rolling: the static torque keeps P ẇ = (n·w) ṅ (w_t stays 0) if it can. The
+            # tangential ẇ is P r/(1+α), so the term it needs is (1+α)(n·w) ṅ - P r.
+            nr = nx * rx + ny * ry + nz * rz
+            hx, hy, hz, _ = _static_resistance(
+                max(resist * normal * iR, 0.0), (1.0 + alpha) * nw * ndx - (rx - nr * nx),
+                (1.0 + alpha) * nw * ndy - (ry - nr * ny), (1.0 + alpha) * nw * ndz - (rz - nr * nz))
+            rx, ry, rz = rx + hx, ry + hy, rz + hz
+            power += R * R * (hx * wx + hy * wy + hz * wz)  # τ·w/m, τ/m = R² h
         power += rpower
     # Drilling friction's power: α R² w·ẇ of its term -λ (n·w) n (the term is normal, so
     # the centre's acceleration does not see it).
@@ -379,6 +419,33 @@ def slipping_rates(a, b, R, g, drag_linear, drag_quadratic, Om, Omd, fx, fy, x, 
 
 
 @inline
+def _push(R, gx, gy, gz, ex, ey, ez, wx, wy, wz, nx, ny, nz, ndx, ndy, ndz):
+    """The push a0 = P g_eff + R e×n - R P(w×ṅ) the forces but friction give a coulomb ball's
+    slip (e×n is tangential already)."""
+    ux = gx + R * (ey * nz - ez * ny) - R * (wy * ndz - wz * ndy)
+    uy = gy + R * (ez * nx - ex * nz) - R * (wz * ndx - wx * ndz)
+    uz = gz + R * (ex * ny - ey * nx) - R * (wx * ndy - wy * ndx)
+    un = nx * ux + ny * uy + nz * uz
+    return ux - un * nx, uy - un * ny, uz - un * nz
+
+
+@inline
+def _friction(phase, mu, normal, gain, a0x, a0y, a0z, vsx, vsy, vsz, speed):
+    """A coulomb ball's friction per unit mass and the growth of its slip speed [m/s²], given
+    the push a0 and the slip v_s, with v̇_s = a0 + ``gain``·f: sticking, the friction that keeps
+    v_s = 0; slipping, -μ N v̂_s; at onset, -μ N â0 (see `coulomb_rates`)."""
+    if phase == STICK:
+        return -a0x / gain, -a0y / gain, -a0z / gain, 0.0
+    if phase != ONSET and speed > 0.0:
+        k = -mu * normal / speed
+        return (k * vsx, k * vsy, k * vsz,
+                (vsx * a0x + vsy * a0y + vsz * a0z) / speed - gain * mu * normal)
+    a0 = math.sqrt(a0x * a0x + a0y * a0y + a0z * a0z)
+    k = -mu * normal / a0 if a0 > 0.0 else 0.0
+    return k * a0x, k * a0y, k * a0z, a0 - gain * mu * normal
+
+
+@inline
 def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist, mu, phase, Om,
                   Omd, fx, fy, x, y, wx, wy, wz, vx, vy):
     """Time derivatives of a coulomb ball's state (x, y, wx, wy, wz, vx, vy), Ẇ [W/kg], N/m
@@ -409,33 +476,45 @@ def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist,
     ex, ey, ez = -Om * wy, Om * wx, Omd
     nw = nx * wx + ny * wy + nz * wz
     rpower = 0.0
+    resting = False
     if resist != 0.0:
         # Rolling resistance: ẇ gains τ/(m α R²) = (k/α) w_t, which e carries like a frame
         # term (so the slip's a0 and the sticking friction see it too).
-        k, rpower = _resistance(resist, R, normal, nx, ny, nz, nw, wx, wy, wz)
+        k, rpower, resting = _resistance(resist, R, normal, nx, ny, nz, nw, wx, wy, wz)
         k = k / alpha
         ex, ey, ez = ex - k * (wx - nw * nx), ey - k * (wy - nw * ny), ez - k * (wz - nw * nz)
-    ux = gx + R * (ey * nz - ez * ny) - R * (wy * ndz - wz * ndy)
-    uy = gy + R * (ez * nx - ex * nz) - R * (wz * ndx - wx * ndz)
-    uz = gz + R * (ex * ny - ey * nx) - R * (wx * ndy - wy * ndx)
-    un = nx * ux + ny * uy + nz * uz
-    a0x, a0y, a0z = ux - un * nx, uy - un * ny, uz - un * nz
+    a0x, a0y, a0z = _push(R, gx, gy, gz, ex, ey, ez, wx, wy, wz, nx, ny, nz, ndx, ndy, ndz)
     vsx, vsy, vsz = cdx - R * wnx, cdy - R * wny, cdz - R * wnz
     speed = math.sqrt(vsx * vsx + vsy * vsy + vsz * vsz)
     gain = 1.0 + 1.0 / alpha
-    if not slipping:
-        ffx, ffy, ffz = -a0x / gain, -a0y / gain, -a0z / gain
-        growth = 0.0
+    if resting:
+        # A ball that does not roll (`_resting`): the static resistance term h in ẇ keeps
+        # P ẇ = (n·w) ṅ if it can, so the spin stays locked and the contact moves like a
+        # slider's, v̇_s = b + f with the push b = a0 - R ((n·w) ṅ + P e)×n (gain 1). The
+        # term that takes is h = (n·w) ṅ + P e + n×f/(αR), within c_rr N/m/(αR).
+        pe = nx * ex + ny * ey + nz * ez
+        tx, ty, tz = nw * ndx + ex - pe * nx, nw * ndy + ey - pe * ny, nw * ndz + ez - pe * nz
+        bx = a0x - R * (ty * nz - tz * ny)
+        by = a0y - R * (tz * nx - tx * nz)
+        bz = a0z - R * (tx * ny - ty * nx)
+        ffx, ffy, ffz, growth = _friction(phase, mu, normal, 1.0, bx, by, bz, vsx, vsy, vsz,
+                                          speed)
+        iaR = 1.0 / (alpha * R)
+        hx, hy, hz, held = _static_resistance(
+            max(resist * normal * iaR, 0.0), tx + (ny * ffz - nz * ffy) * iaR,
+            ty + (nz * ffx - nx * ffz) * iaR, tz + (nx * ffy - ny * ffx) * iaR)
+        ex, ey, ez = ex - hx, ey - hy, ez - hz
+        rpower = alpha * R * R * (hx * wx + hy * wy + hz * wz)  # τ·w/m, τ/m = α R² h
+        a0x, a0y, a0z = bx, by, bz
+        if not held:
+            # held only up to its limit: the ball starts to roll, and friction acts as usual
+            a0x, a0y, a0z = _push(R, gx, gy, gz, ex, ey, ez, wx, wy, wz, nx, ny, nz, ndx, ndy,
+                                  ndz)
+            ffx, ffy, ffz, growth = _friction(phase, mu, normal, gain, a0x, a0y, a0z, vsx,
+                                              vsy, vsz, speed)
     else:
-        if phase != ONSET and speed > 0.0:
-            k = -mu * normal / speed
-            ffx, ffy, ffz = k * vsx, k * vsy, k * vsz
-            growth = (vsx * a0x + vsy * a0y + vsz * a0z) / speed - gain * mu * normal
-        else:
-            a0 = math.sqrt(a0x * a0x + a0y * a0y + a0z * a0z)
-            k = -mu * normal / a0 if a0 > 0.0 else 0.0
-            ffx, ffy, ffz = k * a0x, k * a0y, k * a0z
-            growth = a0 - gain * mu * normal
+        ffx, ffy, ffz, growth = _friction(phase, mu, normal, gain, a0x, a0y, a0z, vsx, vsy,
+                                          vsz, speed)
     # The centre: q̈ = (JᵀJ)⁻¹ Jᵀ (g_eff + f - J̇ q̇).
     ax, ay = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, gx + ffx - kapx, gy + ffy - kapy,
                             gz + ffz - kapz)
@@ -494,17 +573,25 @@ def stick_margin(p, prof, t, y):
 @jit
 def stop_slip(p, prof, t, y):
     """Stop a coulomb ball's (small) slip with the friction impulse that does it: Δċ = P,
-    Δw = -n×P/(αR), P = -α v_s/(1 + α), so v_s becomes 0 exactly; the kinetic energy this
-    takes, of order |v_s|², is added to the work slot."""
+    Δw = -n×P/(αR), P = -α v_s/(1 + α), so v_s becomes 0 exactly (P = -v_s and Δw = 0 for a
+    ball that rolling resistance keeps from rolling); the kinetic energy this takes, of order
+    |v_s|², is added to the work slot."""
     a, b, R, alpha = p[P_A], p[P_B], p[P_R], p[P_ALPHA]
     before = jacobi(COULOMB, p, prof, t, y)
     s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, y[0], y[1])
     wx, wy, wz = y[2], y[3], y[4]
     k = -alpha / (1.0 + alpha)
+    iaR = 1.0 / (alpha * R)
+    if p[P_RESIST] != 0.0:
+        nw = nx * wx + ny * wy + nz * wz
+        wtx, wty, wtz = wx - nw * nx, wy - nw * ny, wz - nw * nz
+        if _resting(R, math.sqrt(wtx * wtx + wty * wty + wtz * wtz), wx, wy, wz):
+            # A ball that does not roll slides like a slider (`coulomb_rates`): its slip stops
+            # with its spin as it is (Δċ = -v_s; P = -v_s, and no Δw below).
+            k, iaR = -1.0, 0.0
     Px = k * (J1x * y[5] + J2x * y[6] - R * (wy * nz - wz * ny))
     Py = k * (J1y * y[5] + J2y * y[6] - R * (wz * nx - wx * nz))
     Pz = k * (J1z * y[5] + J2z * y[6] - R * (wx * ny - wy * nx))
-    iaR = 1.0 / (alpha * R)
     y[2] -= (ny * Pz - nz * Py) * iaR
     y[3] -= (nz * Px - nx * Pz) * iaR
     y[4] -= (nx * Py - ny * Px) * iaR
