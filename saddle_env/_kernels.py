@@ -366,9 +366,10 @@ def rolling_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist,
             # Not rolling: the static torque keeps P ẇ = (n·w) ṅ (w_t stays 0) if it can. The
             # tangential ẇ is P r/(1+α), so the term it needs is (1+α)(n·w) ṅ - P r.
             nr = nx * rx + ny * ry + nz * rz
+            spun = 1.0 + alpha
             hx, hy, hz, _ = _static_resistance(
-                max(resist * normal * iR, 0.0), (1.0 + alpha) * nw * ndx - (rx - nr * nx),
-                (1.0 + alpha) * nw * ndy - (ry - nr * ny), (1.0 + alpha) * nw * ndz - (rz - nr * nz))
+                max(resist * normal * iR, 0.0), spun * nw * ndx - (rx - nr * nx),
+                spun * nw * ndy - (ry - nr * ny), spun * nw * ndz - (rz - nr * nz))
             rx, ry, rz = rx + hx, ry + hy, rz + hz
             power += R * R * (hx * wx + hy * wy + hz * wz)  # τ·w/m, τ/m = R² h
         power += rpower

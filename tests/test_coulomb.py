@@ -458,11 +458,12 @@ def test_rolling_resistance_release_from_rest_is_the_same_for_rolling_and_sticki
 
 @pytest.mark.parametrize("c_rr", [0.02, 0.005])
 def test_a_ball_that_resistance_keeps_from_rolling_slides_like_a_block(c_rr):
-    # Flat ground (a = 1e8 km), a coulomb ball sliding at v0 without spin, μ_k = 0.01. Friction's torque
-    # μ R N would start it rolling; with c_rr = 0.02 > μ the resistance holds its spin at 0,
-    # so it slides like a block, slowing at μ g until it stops (and stays), its spin 0 all
-    # along. With c_rr = 0.005 it starts to roll at once. Before the static torque was
-    # modelled, the held case chattered (500,000 steps for 0.52 s on the saddle).
+    # Flat ground (a = 1e8 km), a coulomb ball sliding at v0 without spin, μ_k = 0.01.
+    # Friction's torque μ R N would start it rolling; with c_rr = 0.02 > μ the resistance
+    # holds its spin at 0, so it slides like a block, slowing at μ g until it stops (and
+    # stays), its spin 0 all along. With c_rr = 0.005 it starts to roll at once. Before the
+    # static torque was modelled, the held case chattered (500,000 steps for 0.52 s on the
+    # saddle).
     mu, v0 = 0.01, 0.3
     sc = Scene(a=1e11, R=0.02, contact="coulomb", mu=mu, rolling_resistance=c_rr,
                rim_radius=100.0)
