@@ -604,6 +604,60 @@ def stop_slip(p, prof, t, y):
 
 
 @jit
+def rolling_spin(p, y, dy):
+    """A rolling or coulomb ball's rolling spin |w_t| [rad/s] (w_t = w - (n·w) n) and its
+    rate d|w_t|/dt = ŵ_t·(ẇ - (n·w) ṅ) [rad/s²], from the state and its rates ``dy``
+    (whose first two slots are the contact-point velocity for both models); (0, 0) for a
+    ball that does not roll."""
+    a, b, R = p[P_A], p[P_B], p[P_R]
+    s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, y[0], y[1])
+    wx, wy, wz = y[2], y[3], y[4]
+    nw = nx * wx + ny * wy + nz * wz
+    wtx, wty, wtz = wx - nw * nx, wy - nw * ny, wz - nw * nz
+    wt = math.sqrt(wtx * wtx + wty * wty + wtz * wtz)
+    if wt == 0.0:
+        return 0.0, 0.0
+    mdx, mdy, nm, ndx, ndy, ndz = _normal_rate(a, b, s, nx, ny, nz, dy[0], dy[1])
+    return wt, (wtx * (dy[2] - nw * ndx) + wty * (dy[3] - nw * ndy)
+                + wtz * (dy[4] - nw * ndz)) / wt
+
+
+# The part of c_rr N/m / R (the most the static resistance gives, in ẇ's units) that a
+# held ball's rolling spin may still change at (rounding), for `spin_held`.
+HELD_SPIN_DRIFT = 1e-9
+
+
+@jit
+def spin_held(p, y, dy, normal):
+    """Whether rolling resistance holds the ball at (y, its rates ``dy``, N/m ``normal``)
+    from rolling: its rolling spin does not change, to HELD_SPIN_DRIFT of what the static
+    torque can give."""
+    a, b, R = p[P_A], p[P_B], p[P_R]
+    s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, y[0], y[1])
+    mdx, mdy, nm, ndx, ndy, ndz = _normal_rate(a, b, s, nx, ny, nz, dy[0], dy[1])
+    nw = nx * y[2] + ny * y[3] + nz * y[4]
+    nd = nx * dy[2] + ny * dy[3] + nz * dy[4]
+    ux, uy, uz = dy[2] - nd * nx - nw * ndx, dy[3] - nd * ny - nw * ndy, dy[4] - nd * nz - nw * ndz
+    return (normal > 0.0 and math.sqrt(ux * ux + uy * uy + uz * uz)
+            <= HELD_SPIN_DRIFT * p[P_RESIST] * normal / R)
+
+
+@jit
+def stop_rolling(model, p, prof, t, y):
+    """Stop a (slow) rolling spin: w_t becomes 0, the spin about the normal is kept; the
+    kinetic energy this takes, of order |w_t|², is added to the work slot. A sticking coulomb
+    ball's contact-point velocity follows (it is then at rest)."""
+    before = jacobi(model, p, prof, t, y)
+    s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(p[P_A], p[P_B], p[P_R],
+                                                                      y[0], y[1])
+    nw = nx * y[2] + ny * y[3] + nz * y[4]
+    y[2], y[3], y[4] = nw * nx, nw * ny, nw * nz
+    if model == COULOMB and y[PHASE_SLOT] == STICK:
+        rolling_velocity(p, y, y)
+    y[work_slot(model)] += jacobi(model, p, prof, t, y) - before
+
+
+@jit
 def rolling_velocity(p, y, out):
     """Write the rolling contact-point velocity, from the spin, into a coulomb state's (vx, vy)
     slots: the slip velocity is then exactly 0."""

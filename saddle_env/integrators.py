@@ -30,9 +30,9 @@ from scipy.integrate._ivp import dop853_coefficients as _dop853_tableau
 from scipy.integrate._ivp import rk as _scipy_rk
 
 from ._kernels import (ONSET, PHASE_SLOT, ROW_WIDTH, SLIP, STATE_WIDTH, STICK, coulomb_contact,
-                       integrated_size, jit, rhs, rolling_velocity, serial_twin, stick_margin,
-                       stop_slip, work_slot)
-from .scene import COULOMB, P_A, P_B, P_G, P_R, P_RIM, ROLLING
+                       integrated_size, jit, rhs, rolling_spin, rolling_velocity, serial_twin,
+                       spin_held, stick_margin, stop_rolling, stop_slip, work_slot)
+from .scene import COULOMB, P_A, P_B, P_G, P_R, P_RESIST, P_RIM, ROLLING
 
 # Event flags (a bit mask) and the status codes `integrate` returns.
 EVENT_DETACH, EVENT_ESCAPE = 1, 2
@@ -71,6 +71,16 @@ EVENT_TIME_TOL = 1e-12  # [s] width of the final bracket around an event time
 #   capped at 10 µs) and, with a fixed step, once the step can follow its direction
 #   (|v_s| ≥ |a0| dt); and at once when the slip decelerates, since a slip that shrinks is
 #   no longer turned towards a0 and is stopped as a slip is (the cut above).
+# * roll stop: rolling resistance stops a rolling spin w_t in finite time, and its torque
+#   -c_rr R N ŵ_t flips there, so a step across the stop is wrong by up to c_rr R N times the
+#   step (measured: a ball on flat ground that should roll to rest came out moving at up to
+#   3 mm/s). Where the ball will be held once stopped (`_kernels.spin_held`, judged on the
+#   state with its spin stopped), no step goes past the stop that the spin's deceleration
+#   predicts, and at the noise level w_t is snapped to 0 (`_kernels.stop_rolling`, its energy
+#   booked as work); the static torque then holds it (`_kernels.rolling_rates`,
+#   `coulomb_rates`). Where it will not be held, the spin passes zero and turns, and the
+#   step is left alone: a spin starting from zero is tiny and its direction stiff (it turns
+#   towards the push at c_rr N/(m R |w_t|)), so it would look like a stop every step.
 TRANSITION = 16
 SLIP_STOP_FRACTION = 0.99
 SLIP_SNAP = 100.0
@@ -524,6 +534,8 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
     k = 0
     t = t0
     coulomb = model == COULOMB
+    resisted = (model == ROLLING or coulomb) and p[P_RESIST] != 0.0
+    just_stopped = False  # a spin was just stopped: take a step before stopping one again
     hold = 0.0 if adaptive else dt  # how long an ONSET slip must be able to follow itself
     if coulomb:  # the starting phase (not logged: it is no change)
         _settle_coulomb(p, prof, t, y, _snap_speed(p, y, atol, rtol, scale), hold, np.inf)
@@ -579,6 +591,28 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
                     and hstep > SLIP_STOP_FRACTION * speed / -growth):
                 hstep = SLIP_STOP_FRACTION * speed / -growth
                 clipped, capped = False, True
+        if resisted and not just_stopped:
+            # A rolling spin that rolling resistance stops and then holds (see roll stop
+            # above): cut the step at the stop, snap the spin to 0 at the noise level.
+            spin, rate = rolling_spin(p, y, K[0])
+            if rate < 0.0:
+                at_stop = spin <= SLIP_SNAP * (atol * scale[2] + rtol * math.sqrt(
+                    y[2] * y[2] + y[3] * y[3] + y[4] * y[4]))
+                cut = SLIP_STOP_FRACTION * spin / -rate
+                if at_stop or hstep > cut:
+                    ytmp[:] = y
+                    stop_rolling(model, p, prof, t, ytmp)
+                    stats[2] += 1
+                    if spin_held(p, ytmp, dy, rhs(model, p, prof, t, ytmp, dy, True)):
+                        if at_stop:
+                            y[:] = ytmp
+                            normal = rhs(model, p, prof, t, y, K[0], want_normal)
+                            stats[2] += 1
+                            just_stopped = True
+                            continue
+                        hstep = cut
+                        clipped, capped = False, True
+        just_stopped = False
         if not (hstep > 1e-14 * max(1.0, abs(t))):
             return Outcome(STATUS_FAILED, t, h_start, accepted_normal)
         stage_normal = _stages(model, p, prof, t, y, hstep, d, tab, K, ytmp, ynew, want_normal)

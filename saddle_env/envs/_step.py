@@ -55,7 +55,7 @@ from .._kernels import (DRIVE_AMP, DRIVE_FREQ, DRIVE_FX, DRIVE_FY, DRIVE_PHASE, 
 from ..integrators import EVENT_DETACH, STATUS_DETACH, StepControl, Tableau, integrate_h, reaches
 from ..lockstep import (BLOCK_WIDTH, LANES, PARAM_WIDTH, accepted, block_size, carve_block,
                         next_step, rk_step_block, take)
-from ..scene import COULOMB, P_A, P_B, P_G, P_R, P_RIM, ROLLING, SLIPPING
+from ..scene import COULOMB, P_A, P_B, P_G, P_R, P_RESIST, P_RIM, ROLLING, SLIPPING
 from .observation import OBS_MAX, OMEGA_HIGH, OMEGA_LOW, POS_BOUND, VEL_BOUND
 
 # The slots of the module's table: the only way into the engine's per-ball rows. The rows are
@@ -333,7 +333,9 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
             if not active[i] or models[i] != model:
                 continue
             _load(i, ROW_WIDTH, P, scales, Y, balls, noise, record)
-            if lockstep and reaches(0.0, _first_step(ball, ctl), dt):
+            # A ball with rolling resistance takes the scalar path: its loop may cut a step at
+            # a rolling spin's stop (`integrators`, roll stop), which a block's lanes do not.
+            if lockstep and p[P_RESIST] == 0.0 and reaches(0.0, _first_step(ball, ctl), dt):
                 lanes[m] = i
                 rates[m] = _drive(ball, cfg, actions[i], D[m])
                 for k in range(PARAM_WIDTH):
