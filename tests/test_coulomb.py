@@ -465,6 +465,26 @@ def test_a_ball_that_resistance_keeps_from_rolling_slides_like_a_block(c_rr):
     np.testing.assert_allclose(tr.h - tr.h[0], tr.work, rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.parametrize("spin", [(0.0, 5.0, 0.0), (0.0, -5.0, 0.0)])
+def test_a_sliding_ball_whose_spin_resistance_stops_then_slides_like_a_block(spin):
+    # Flat ground, μ_k = 0.01 < c_rr = 0.02, a ball sliding at 0.3 m/s with top- or backspin:
+    # the resistance stops the spin (the roll stop, on a slipping ball), then holds it, and
+    # the ball slides like a block to rest; measured: spin 0 from 0.45 / 0.15 s, 88 steps.
+    mu, v0 = 0.01, 0.3
+    sc = Scene(a=1e11, R=0.02, contact="coulomb", mu=mu, rolling_resistance=0.02,
+               rim_radius=100.0)
+    tr = simulate(sc, initial_state(sc, 0.0, 0.0, v0, 0.0, spin=spin), 4.0, omega=0.0,
+                  dt_out=0.05, rtol=1e-10, atol=1e-16, max_steps=2_000)
+    after = tr.t > 0.5
+    assert np.max(np.abs(tr.state[after, 2:5])) == 0.0
+    # from then on a block: its speed falls at μ g, until it rests
+    v = tr.vx[after]
+    moving = v > 0.0
+    np.testing.assert_allclose(np.diff(v[moving]), -mu * sc.g * 0.05, rtol=1e-9)
+    assert tr.vx[-1] == 0.0 and tr.phase[-1] == K.STICK
+    np.testing.assert_allclose(tr.h - tr.h[0], tr.work, rtol=1e-9, atol=1e-12)
+
+
 def test_a_slipping_ball_held_from_rolling_on_the_saddle_runs_at_normal_cost():
     # The case that chattered: μ = 0.01, c_rr = 0.02, released at rest 3.6 mm out at 16.3
     # rad/s: it slides without rolling (measured 113 steps for 1 s), its work balanced.
