@@ -28,6 +28,8 @@ rolling : nonholonomic. Newton + Euler about the centre in the lab, with the rol
 Air drag (both models): a force per unit mass f = -(k1 + k2 |v|) v on the centre, v the
 centre's velocity in the laboratory (the air is still there). Slipping: the generalised
 force f . dc_lab/dq joins the Euler-Lagrange equations. Rolling: f joins Newton's law.
+Rolling resistance (rolling): a torque -c_rr R N w_t/|w_t| about the centre joins Euler's
+law, w_t the spin relative to the turning saddle without its part along n.
 
 Only numpy / scipy / sympy are used; nothing is imported from the production package.
 """
@@ -274,9 +276,10 @@ def _simulate_slipping(a, b, R, g, omega, omega_dot, q0, qdot0, t_eval, theta0,
 # ----------------------------------------------------------------------------------
 # Rolling
 # ----------------------------------------------------------------------------------
-def _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot, drag=(0.0, 0.0)):
+def _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot, drag=(0.0, 0.0), c_rr=0.0):
     """Everything the rolling model needs at one state: returns (qdot, wdot, F, n), F the
-    contact force per unit mass."""
+    contact force per unit mass. ``c_rr``: rolling resistance, a torque c_rr R N against
+    the rolling part of the spin relative to the saddle (undefined at zero: not used there)."""
     x, y, th = s[0], s[1], s[2]
     w = np.asarray(s[3:6], dtype=float)          # absolute spin, lab axes
     Om, Omd = omega(t), omega_dot(t)
@@ -310,13 +313,21 @@ def _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot, drag=(0.0, 0.0)):
     #   n x (w' x n) = w' - n (n.w')  =>
     #   [(alpha+1) R^2 1 - R^2 n n^T] w' = -R n x (known + g k - f)
     A = (alpha + 1.0) * R**2 * np.eye(3) - R**2 * np.outer(n, n)
-    wdot = np.linalg.solve(A, -R * _cross(n, known + g * _K - f))
+    torque = -R * _cross(n, known + g * _K - f)
+    if c_rr:
+        # Rolling resistance: tau = -c_rr R N w_t/|w_t| about the centre, with N = F.n, which
+        # w' does not enter ((w' x n).n = 0), and w_t the spin relative to the turning saddle
+        # (lab axes) without its part along n.
+        w_rel = w - Om * _K
+        w_t = w_rel - (n @ w_rel) * n
+        torque = torque - c_rr * R * ((known + g * _K - f) @ n) * w_t / np.linalg.norm(w_t)
+    wdot = np.linalg.solve(A, torque)
     F = R * _cross(wdot, n) + known + g * _K - f
     return qdot, wdot, F, n
 
 
 def _simulate_rolling(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
-                      spin_normal, theta0, rtol, atol, drag):
+                      spin_normal, theta0, rtol, atol, drag, c_rr=0.0):
     # Initial spin: relative to the saddle, rolling needs R w_rel x n = c_rot'.
     # w_rel = n x c_rot'/R satisfies it (c_rot' is tangent); spin about n is free.
     _, Jb, nb = body_geometry(a, b, R, q0[0], q0[1])
@@ -325,7 +336,8 @@ def _simulate_rolling(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
     w_abs_lab = _rz_num(theta0) @ (w_rel + omega(0.0) * _K)
 
     def deriv(t, s):
-        qdot, wdot, _, _ = _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot, drag)
+        qdot, wdot, _, _ = _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot, drag,
+                                         c_rr)
         return [qdot[0], qdot[1], omega(t), wdot[0], wdot[1], wdot[2]]
 
     s0 = [q0[0], q0[1], theta0, *w_abs_lab]
@@ -337,7 +349,7 @@ def _simulate_rolling(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
     for i, (t, s) in enumerate(zip(t_eval, sol.T)):
         if np.isnan(s).any():      # after an escape
             continue
-        qdot, _, F, n = _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot, drag)
+        qdot, _, F, n = _rolling_eval(t, s, a, b, R, alpha, g, omega, omega_dot, drag, c_rr)
         vx[i], vy[i] = qdot
         N[i] = F @ n
         # Back to saddle axes and subtract the saddle's own rotation.
@@ -759,7 +771,7 @@ def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, 
                        drag_linear=0.0, drag_quadratic=0.0, mu=None, eps=1e-6,
                        spin=None, method=None, slip_threshold=None, mu_static=None,
                        delta=1e-9, delta0=1e-10, v_switch=1e-6, onset_method="Radau",
-                       onset="delayed"):
+                       onset="delayed", rolling_resistance=0.0):
     """contact in {"rolling", "slipping", "point", "coulomb"} ("point" means R is treated
     as 0, slipping).
     omega, omega_dot: callables t -> float (Omega(t), dOmega/dt).
@@ -772,6 +784,8 @@ def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, 
     t_eval: 1-D array of output times starting at 0.
     drag_linear [1/s], drag_quadratic [1/m]: air drag per unit mass -(k1 + k2 |v|) v on the
     centre, v its velocity in the laboratory.
+    rolling_resistance (rolling only): c_rr, a torque c_rr R N against the rolling part of
+    the spin relative to the saddle, for a ball that keeps rolling (no static hold).
     Returns dict of arrays, one entry per t_eval, all expressed back in the ROTATING (body) frame:
       "t", "x", "y" (contact point, body coords),
       "vx", "vy" (contact point velocity relative to the saddle, body coords),
@@ -841,7 +855,8 @@ def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, 
     atol = 1e-14 if atol is None else atol
     if contact == "rolling":
         return _simulate_rolling(a, b, R, alpha, g, omega, omega_dot, q0, qdot0, t_eval,
-                                 spin_normal, theta0, rtol, atol, drag)
+                                 spin_normal, theta0, rtol, atol, drag,
+                                 float(rolling_resistance))
     return _simulate_slipping(a, b, R, g, omega, omega_dot, q0, qdot0, t_eval, theta0,
                               rtol, atol, drag)
 

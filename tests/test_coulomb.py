@@ -17,6 +17,8 @@ import warnings
 import gymnasium as gym
 import numpy as np
 import pytest
+from helpers import assert_matches_lab_frame
+from reference_lab_frame import simulate_lab_frame
 
 from saddle_env import OmegaProfile, Scene, initial_state, simulate
 from saddle_env.accuracy import AccuracyWarning
@@ -342,6 +344,31 @@ def test_rolling_resistance_undoes_the_trap():
             r = np.hypot(tr.x, tr.y)
             grown.append(r[tr.t >= 12.0].max() / r[tr.t < 4.0].max())
         assert grown[0] < 1.05 and grown[1] > 1.3, (omega, grown)
+
+
+@pytest.mark.parametrize("seed", [31, 32, 33])
+def test_rolling_resistance_matches_the_lab_frame_reference(seed):
+    # Random scenes (a != b), Ω ramping with a ripple, a rolling ball that keeps moving: the
+    # independent lab-frame model (the torque in Euler's law about the centre, no frame
+    # forces) agrees, and without the resistance it would not.
+    rng = np.random.default_rng(seed)
+    while True:  # a run that stays on the saddle, so the comparison lasts its whole length
+        sc = _random_scene(rng, rolling_resistance=rng.uniform(0.001, 0.005), rim_radius=0.05)
+        profile = OmegaProfile(rng.uniform(18, 24), rng.uniform(-2, 2), rng.uniform(0, 2),
+                               rng.uniform(3, 8), rng.uniform(0, 6))
+        q0 = tuple(rng.uniform(-0.004, 0.004, 2))
+        v0 = tuple(rng.uniform(-0.02, 0.02, 2))
+        tr = simulate(sc, initial_state(sc, *q0, *v0), 2.0, omega=profile, dt_out=0.05,
+                      rtol=1e-13)
+        if tr.event is None:
+            break
+    ref = simulate_lab_frame("rolling", sc.a, sc.b, sc.radius, sc.alpha, sc.g, profile,
+                             profile.rate_at, q0, v0, tr.t, rtol=1e-12, atol=1e-14,
+                             rolling_resistance=sc.rolling_resistance)
+    assert_matches_lab_frame(tr, ref, True)
+    free = simulate_lab_frame("rolling", sc.a, sc.b, sc.radius, sc.alpha, sc.g, profile,
+                              profile.rate_at, q0, v0, tr.t, rtol=1e-12, atol=1e-14)
+    assert np.max(np.abs(free["x"] - ref["x"])) > 1e-6
 
 
 def test_rolling_resistance_balances_the_jacobi_integral_on_the_saddle():
