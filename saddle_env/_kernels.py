@@ -93,8 +93,8 @@ def threads_usable() -> bool:
         return True
 
 from .scene import (COULOMB, ION_PAUL, ION_RRF, P_A, P_ALPHA, P_B, P_DRAG_LINEAR,
-                    P_DRAG_QUADRATIC, P_DRILL, P_G, P_MU, P_MU_STATIC, P_R, P_RESIST, ROLLING,
-                    SLIPPING)
+                    P_DRAG_QUADRATIC, P_DRILL, P_G, P_MU, P_MU_STATIC, P_R, P_RESIST, P_SPIN_BAND,
+                    ROLLING, SLIPPING)
 
 STATE_WIDTH = 9
 # The longest state without its work slot (coulomb): the padded width of the public batch
@@ -273,14 +273,15 @@ def _air_drag(drag_linear, drag_quadratic, Om, cx, cy, cdx, cdy, cdz):
 
 
 @inline
-def _resistance(resist, R, normal, nx, ny, nz, nw, wx, wy, wz):
+def _resistance(resist, band, R, normal, nx, ny, nz, nw, wx, wy, wz):
     """Rolling resistance c_rr: the factor k with τ/(m R²) = k·w_t (w_t = w - (n·w) n, the
     rolling part of the spin relative to the saddle; τ = -c_rr R N ŵ_t), its power
     τ·w/m = -c_rr R (N/m) |w_t| [W/kg], and whether the ball does not roll (`_resting`: k and
-    the power are then 0, and the torque is the static one, `_static_resistance`)."""
+    the power are then 0, and the torque is the static one, `_static_resistance`): w_t is
+    within ``band`` [rad/s] (the integration's noise, `scene.P_SPIN_BAND`) or `_resting`."""
     wtx, wty, wtz = wx - nw * nx, wy - nw * ny, wz - nw * nz
     wt = math.sqrt(wtx * wtx + wty * wty + wtz * wtz)
-    if _resting(R, wt, wx, wy, wz):
+    if wt <= band or _resting(R, wt, wx, wy, wz):
         return 0.0, 0.0, True
     return -resist * normal / (R * wt), -resist * R * normal * wt, False
 
@@ -314,8 +315,8 @@ def _static_resistance(cap, hx, hy, hz):
 
 
 @inline
-def rolling_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist, Om, Omd, fx,
-                  fy, x, y, wx, wy, wz):
+def rolling_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist, band, Om, Omd,
+                  fx, fy, x, y, wx, wy, wz):
     """Time derivatives of a rolling ball's state (x, y, wx, wy, wz), the dissipated power
     Ẇ [W/kg] and N/m [m/s²].
 
@@ -358,7 +359,7 @@ def rolling_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist,
     if resist != 0.0:
         # Rolling resistance: the torque τ/m = -c_rr R (N/m) ŵ_t on the rolling part w_t of
         # the spin joins Euler's equation as τ/(m R²) (tangential, so n·r is unchanged).
-        k, rpower, resting = _resistance(resist, R, normal, nx, ny, nz, nw, wx, wy, wz)
+        k, rpower, resting = _resistance(resist, band, R, normal, nx, ny, nz, nw, wx, wy, wz)
         if not resting:
             rx, ry, rz = (rx + k * (wx - nw * nx), ry + k * (wy - nw * ny),
                           rz + k * (wz - nw * nz))
@@ -447,8 +448,8 @@ def _friction(phase, mu, normal, gain, a0x, a0y, a0z, vsx, vsy, vsz, speed):
 
 
 @inline
-def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist, mu, phase, Om,
-                  Omd, fx, fy, x, y, wx, wy, wz, vx, vy):
+def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist, band, mu, phase,
+                  Om, Omd, fx, fy, x, y, wx, wy, wz, vx, vy):
     """Time derivatives of a coulomb ball's state (x, y, wx, wy, wz, vx, vy), Ẇ [W/kg], N/m
     [m/s²], the friction per unit mass |f| [m/s²], the slip speed |v_s| [m/s] and the rate at
     which the slip speed grows [m/s²] (docs/physics.md, "Coulomb friction").
@@ -481,7 +482,7 @@ def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist,
     if resist != 0.0:
         # Rolling resistance: ẇ gains τ/(m α R²) = (k/α) w_t, which e carries like a frame
         # term (so the slip's a0 and the sticking friction see it too).
-        k, rpower, resting = _resistance(resist, R, normal, nx, ny, nz, nw, wx, wy, wz)
+        k, rpower, resting = _resistance(resist, band, R, normal, nx, ny, nz, nw, wx, wy, wz)
         k = k / alpha
         ex, ey, ez = ex - k * (wx - nw * nx), ey - k * (wy - nw * ny), ez - k * (wz - nw * nz)
     a0x, a0y, a0z = _push(R, gx, gy, gz, ex, ey, ez, wx, wy, wz, nx, ny, nz, ndx, ndy, ndz)
@@ -540,7 +541,8 @@ def coulomb_contact(p, prof, t, y):
     (how far a slip that started along a0 lags behind a0's turning)."""
     Om, Omd, fx, fy = frame_terms(prof, t)
     r = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
-                      p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_MU], y[PHASE_SLOT], Om, Omd, fx, fy,
+                      p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_SPIN_BAND], p[P_MU], y[PHASE_SLOT], Om,
+                      Omd, fx, fy,
                       y[0], y[1], y[2], y[3], y[4], y[5], y[6])
     a0x, a0y, a0z = r[15], r[16], r[17]
     return (r[8], r[9], r[10], r[11], math.sqrt(a0x * a0x + a0y * a0y + a0z * a0z),
@@ -566,7 +568,8 @@ def stick_margin(p, prof, t, y):
     positive while static friction can hold it."""
     Om, Omd, fx, fy = frame_terms(prof, t)
     r = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
-                      p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_MU], STICK, Om, Omd, fx, fy,
+                      p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_SPIN_BAND], p[P_MU], STICK, Om, Omd,
+                      fx, fy,
                       y[0], y[1], y[2], y[3], y[4], y[5], y[6])
     return p[P_MU_STATIC] * r[8] - r[9]
 
@@ -586,7 +589,8 @@ def stop_slip(p, prof, t, y):
     if p[P_RESIST] != 0.0:
         nw = nx * wx + ny * wy + nz * wz
         wtx, wty, wtz = wx - nw * nx, wy - nw * ny, wz - nw * nz
-        if _resting(R, math.sqrt(wtx * wtx + wty * wty + wtz * wtz), wx, wy, wz):
+        wt = math.sqrt(wtx * wtx + wty * wty + wtz * wtz)
+        if wt <= p[P_SPIN_BAND] or _resting(R, wt, wx, wy, wz):
             # A ball that does not roll slides like a slider (`coulomb_rates`): its slip stops
             # with its spin as it is (Δċ = -v_s; P = -v_s, and no Δw below).
             k, iaR = -1.0, 0.0
@@ -713,13 +717,15 @@ def rhs(model, p, prof, t, y, dy, want_normal):
     if model == ROLLING:
         dy[0], dy[1], dy[2], dy[3], dy[4], dy[5], normal = rolling_rates(
             p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
-            p[P_DRAG_QUADRATIC], p[P_RESIST], Om, Omd, fx, fy, y[0], y[1], y[2], y[3], y[4])
+            p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_SPIN_BAND], Om, Omd, fx, fy, y[0], y[1], y[2],
+            y[3], y[4])
     elif model == COULOMB:
         phase = y[PHASE_SLOT]
         (dy[0], dy[1], dy[2], dy[3], dy[4], dy[5], dy[6], dy[7], normal, friction, _, _, vsx,
          vsy, vsz, a0x, a0y, a0z) = coulomb_rates(
             p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
-            p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_MU], phase, Om, Omd, fx, fy, y[0], y[1], y[2],
+            p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_SPIN_BAND], p[P_MU], phase, Om, Omd, fx, fy,
+            y[0], y[1], y[2],
             y[3], y[4], y[5], y[6])
         # The phase is not integrated, so its slot carries what the loop checks a step with,
         # at no extra cost: sticking, the stick margin μ_s N/m - |f| (at every stage, so that

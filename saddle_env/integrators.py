@@ -32,7 +32,7 @@ from scipy.integrate._ivp import rk as _scipy_rk
 from ._kernels import (ONSET, PHASE_SLOT, ROW_WIDTH, SLIP, STATE_WIDTH, STICK, coulomb_contact,
                        integrated_size, jit, rhs, rolling_spin, rolling_velocity, serial_twin,
                        spin_held, stick_margin, stop_rolling, stop_slip, work_slot)
-from .scene import COULOMB, P_A, P_B, P_G, P_R, P_RESIST, P_RIM, ROLLING
+from .scene import COULOMB, P_A, P_B, P_G, P_R, P_RESIST, P_RIM, P_SPIN_BAND, ROLLING
 
 # Event flags (a bit mask) and the status codes `integrate` returns.
 EVENT_DETACH, EVENT_ESCAPE = 1, 2
@@ -74,13 +74,16 @@ EVENT_TIME_TOL = 1e-12  # [s] width of the final bracket around an event time
 # * roll stop: rolling resistance stops a rolling spin w_t in finite time, and its torque
 #   -c_rr R N ŵ_t flips there, so a step across the stop is wrong by up to c_rr R N times the
 #   step (measured: a ball on flat ground that should roll to rest came out moving at up to
-#   3 mm/s). Where the ball will be held once stopped (`_kernels.spin_held`, judged on the
-#   state with its spin stopped), no step goes past the stop that the spin's deceleration
-#   predicts, and at the noise level w_t is snapped to 0 (`_kernels.stop_rolling`, its energy
-#   booked as work); the static torque then holds it (`_kernels.rolling_rates`,
-#   `coulomb_rates`). Where it will not be held, the spin passes zero and turns, and the
-#   step is left alone: a spin starting from zero is tiny and its direction stiff (it turns
-#   towards the push at c_rr N/(m R |w_t|)), so it would look like a stop every step.
+#   3 mm/s). The loop writes the spin its tolerance cannot tell from 0,
+#   SLIP_SNAP·(atol·scale + rtol·|w|) (the band, `scene.P_SPIN_BAND`), and the rates treat a
+#   spin within it as not rolling: held by the static torque if it can be, else starting to
+#   roll against the push that starts it (the spin's own direction is stiff while it is
+#   small: it turns towards the push at c_rr N/(m R |w_t|), faster than a step can follow;
+#   measured before the band: the release from rest 1 % past the holding edge was 1e-4 m off
+#   at rtol 1e-8). Where the ball will be held once stopped (`_kernels.spin_held`, judged on
+#   the state with its spin stopped), no step goes past the stop that the spin's
+#   deceleration predicts, and within the band w_t is snapped to 0 (`_kernels.stop_rolling`,
+#   its energy booked as work). Where it will not be held, the spin passes zero and turns.
 TRANSITION = 16
 SLIP_STOP_FRACTION = 0.99
 SLIP_SNAP = 100.0
@@ -428,6 +431,15 @@ def _snap_speed(p, y, atol, rtol, scale):
 
 
 @jit
+def _set_spin_band(p, y, atol, rtol, scale):
+    """Write the rolling spin [rad/s] that the integration cannot tell from 0 at ``y`` into
+    the parameter row (`scene.P_SPIN_BAND`; see roll stop above): SLIP_SNAP times the
+    spin's tolerance, as `_snap_speed` does for a slip."""
+    p[P_SPIN_BAND] = SLIP_SNAP * (atol * scale[2] + rtol * math.sqrt(
+        y[2] * y[2] + y[3] * y[3] + y[4] * y[4]))
+
+
+@jit
 def _onset_error(lag, y, h, atol, rtol, scale):
     """An ONSET step's error from the slip's lag ``lag`` [m/s] behind a0 at its end state
     ``y`` (see ONSET above): q·h/2 against the position tolerance."""
@@ -536,6 +548,8 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
     coulomb = model == COULOMB
     resisted = (model == ROLLING or coulomb) and p[P_RESIST] != 0.0
     just_stopped = False  # a spin was just stopped: take a step before stopping one again
+    if resisted:
+        _set_spin_band(p, y, atol, rtol, scale)
     hold = 0.0 if adaptive else dt  # how long an ONSET slip must be able to follow itself
     if coulomb:  # the starting phase (not logged: it is no change)
         _settle_coulomb(p, prof, t, y, _snap_speed(p, y, atol, rtol, scale), hold, np.inf)
@@ -594,11 +608,11 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
         if resisted and not just_stopped:
             # A rolling spin that rolling resistance stops and then holds (see roll stop
             # above): cut the step at the stop, snap the spin to 0 at the noise level.
+            _set_spin_band(p, y, atol, rtol, scale)
             spin, rate = rolling_spin(p, y, K[0])
-            if rate < 0.0:
-                at_stop = spin <= SLIP_SNAP * (atol * scale[2] + rtol * math.sqrt(
-                    y[2] * y[2] + y[3] * y[3] + y[4] * y[4]))
-                cut = SLIP_STOP_FRACTION * spin / -rate
+            at_stop = 0.0 < spin <= p[P_SPIN_BAND]
+            if at_stop or rate < 0.0:
+                cut = SLIP_STOP_FRACTION * spin / -rate if rate < 0.0 else np.inf
                 if at_stop or hstep > cut:
                     ytmp[:] = y
                     stop_rolling(model, p, prof, t, ytmp)

@@ -25,7 +25,7 @@ import numpy as np
 from ._kernels import DRIVE_WIDTH, ROW_WIDTH, frame_terms, jit, rolling_rates, sized, slipping_rates
 from .integrators import ERR_EMBEDDED, EVENT_DETACH, EVENT_ESCAPE, step_factor
 from .scene import (N_PARAMS, P_A, P_ALPHA, P_B, P_DRAG_LINEAR, P_DRAG_QUADRATIC, P_DRILL, P_G, P_R,
-                    P_RESIST, P_RIM, ROLLING)
+                    P_RESIST, P_RIM, P_SPIN_BAND, ROLLING)
 
 LANES = 64  # balls per block: the stage arrays of a block stay in the L1 cache
 # The state slots a block steps: a rolling ball's five (a slipping ball's four) and the work
@@ -94,22 +94,23 @@ def _rates(model, m, P, fr, Y, Kout, Nout, dragged, work):
             (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Kout[4, q], _,
              Nout[q]) = rolling_rates(
                 P[P_A, q], P[P_B, q], P[P_R, q], P[P_ALPHA, q], P[P_G, q], P[P_DRILL, q],
-                0.0, 0.0, 0.0, fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q],
+                0.0, 0.0, 0.0, 0.0, fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q],
                 Y[2, q], Y[3, q], Y[4, q])
     elif model == ROLLING and not dragged:  # drilling friction only (of the dissipations)
         for q in range(m):
             (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Kout[4, q], Kout[5, q],
              Nout[q]) = rolling_rates(
                 P[P_A, q], P[P_B, q], P[P_R, q], P[P_ALPHA, q], P[P_G, q], P[P_DRILL, q],
-                0.0, 0.0, 0.0, fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q],
+                0.0, 0.0, 0.0, 0.0, fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q],
                 Y[2, q], Y[3, q], Y[4, q])
     elif model == ROLLING:
         for q in range(m):
             (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Kout[4, q], Kout[5, q],
              Nout[q]) = rolling_rates(
                 P[P_A, q], P[P_B, q], P[P_R, q], P[P_ALPHA, q], P[P_G, q], P[P_DRILL, q],
-                P[P_DRAG_LINEAR, q], P[P_DRAG_QUADRATIC, q], P[P_RESIST, q], fr[0, q], fr[1, q],
-                fr[2, q], fr[3, q], Y[0, q], Y[1, q], Y[2, q], Y[3, q], Y[4, q])
+                P[P_DRAG_LINEAR, q], P[P_DRAG_QUADRATIC, q], P[P_RESIST, q], P[P_SPIN_BAND, q],
+                fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q], Y[2, q], Y[3, q],
+                Y[4, q])
     elif not dragged:
         for q in range(m):
             (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], _, Nout[q]) = slipping_rates(

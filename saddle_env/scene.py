@@ -24,8 +24,8 @@ COULOMB = 4
 
 # Layout of the packed parameter vector read by the kernels (saddle_env._kernels).
 (P_A, P_B, P_R, P_ALPHA, P_G, P_DRILL, P_RIM, P_DRAG_LINEAR, P_DRAG_QUADRATIC, P_MU,
- P_MU_STATIC, P_RESIST) = range(12)
-N_PARAMS = 12
+ P_MU_STATIC, P_RESIST, P_SPIN_BAND) = range(13)
+N_PARAMS = 13
 
 
 def _finite_number(name: str, value: object) -> float:
@@ -203,6 +203,10 @@ class Scene:
         p[P_MU_STATIC] = 0.0 if self.mu_static is None else self.mu_static
         # only a ball with friction at its contact rolls against resistance
         p[P_RESIST] = self.rolling_resistance if self.contact in ("rolling", "coulomb") else 0.0
+        # Not the scene's: the integrator's loop writes the rolling spin its tolerance cannot
+        # tell from 0 (`integrators`, roll stop); rolling resistance treats a ball spinning
+        # less as not rolling. 0 until a run sets it.
+        p[P_SPIN_BAND] = 0.0
         return p
 
     def with_(self, **changes: object) -> Scene:
