@@ -277,13 +277,18 @@ def _resistance(resist, band, R, normal, nx, ny, nz, nw, wx, wy, wz):
     """Rolling resistance c_rr: the factor k with τ/(m R²) = k·w_t (w_t = w - (n·w) n, the
     rolling part of the spin relative to the saddle; τ = -c_rr R N ŵ_t), its power
     τ·w/m = -c_rr R (N/m) |w_t| [W/kg], and whether the ball does not roll (`_resting`: k and
-    the power are then 0, and the torque is the static one, `_static_resistance`): w_t is
-    within ``band`` [rad/s] (the integration's noise, `scene.P_SPIN_BAND`) or `_resting`."""
-    wtx, wty, wtz = wx - nw * nx, wy - nw * ny, wz - nw * nz
-    wt = math.sqrt(wtx * wtx + wty * wty + wtz * wtz)
-    if wt <= band or _resting(R, wt, wx, wy, wz):
+    the power are then 0, and the torque is the static one, `_static_resistance`)."""
+    wt = _rolling_part(nx, ny, nz, nw, wx, wy, wz)[3]
+    if _resting(R, band, wt, wx, wy, wz):
         return 0.0, 0.0, True
     return -resist * normal / (R * wt), -resist * R * normal * wt, False
+
+
+@inline
+def _rolling_part(nx, ny, nz, nw, wx, wy, wz):
+    """The rolling part of the spin, w_t = w - (n·w) n (``nw`` = n·w), and its size |w_t|."""
+    wtx, wty, wtz = wx - nw * nx, wy - nw * ny, wz - nw * nz
+    return wtx, wty, wtz, math.sqrt(wtx * wtx + wty * wty + wtz * wtz)
 
 
 # A ball whose rolling spin w_t is this small (against its spin, or against sqrt(1 m/s² / R)
@@ -296,9 +301,11 @@ REST_SPIN = 1e-12
 
 
 @inline
-def _resting(R, wt, wx, wy, wz):
-    """Whether a ball with rolling spin |w_t| = ``wt`` [rad/s] does not roll (REST_SPIN)."""
-    return wt <= REST_SPIN * (math.sqrt(wx * wx + wy * wy + wz * wz) + 1.0 / math.sqrt(R))
+def _resting(R, band, wt, wx, wy, wz):
+    """Whether a ball with rolling spin |w_t| = ``wt`` [rad/s] does not roll: within ``band``
+    (the integration's noise, `scene.P_SPIN_BAND`) or rounding (REST_SPIN)."""
+    return wt <= band or wt <= REST_SPIN * (math.sqrt(wx * wx + wy * wy + wz * wz)
+                                            + 1.0 / math.sqrt(R))
 
 
 @inline
@@ -542,8 +549,7 @@ def coulomb_contact(p, prof, t, y):
     Om, Omd, fx, fy = frame_terms(prof, t)
     r = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
                       p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_SPIN_BAND], p[P_MU], y[PHASE_SLOT], Om,
-                      Omd, fx, fy,
-                      y[0], y[1], y[2], y[3], y[4], y[5], y[6])
+                      Omd, fx, fy, y[0], y[1], y[2], y[3], y[4], y[5], y[6])
     a0x, a0y, a0z = r[15], r[16], r[17]
     return (r[8], r[9], r[10], r[11], math.sqrt(a0x * a0x + a0y * a0y + a0z * a0z),
             slip_lag(r[12], r[13], r[14], a0x, a0y, a0z))
@@ -569,8 +575,7 @@ def stick_margin(p, prof, t, y):
     Om, Omd, fx, fy = frame_terms(prof, t)
     r = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
                       p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_SPIN_BAND], p[P_MU], STICK, Om, Omd,
-                      fx, fy,
-                      y[0], y[1], y[2], y[3], y[4], y[5], y[6])
+                      fx, fy, y[0], y[1], y[2], y[3], y[4], y[5], y[6])
     return p[P_MU_STATIC] * r[8] - r[9]
 
 
@@ -587,10 +592,8 @@ def stop_slip(p, prof, t, y):
     k = -alpha / (1.0 + alpha)
     iaR = 1.0 / (alpha * R)
     if p[P_RESIST] != 0.0:
-        nw = nx * wx + ny * wy + nz * wz
-        wtx, wty, wtz = wx - nw * nx, wy - nw * ny, wz - nw * nz
-        wt = math.sqrt(wtx * wtx + wty * wty + wtz * wtz)
-        if wt <= p[P_SPIN_BAND] or _resting(R, wt, wx, wy, wz):
+        wt = _rolling_part(nx, ny, nz, nx * wx + ny * wy + nz * wz, wx, wy, wz)[3]
+        if _resting(R, p[P_SPIN_BAND], wt, wx, wy, wz):
             # A ball that does not roll slides like a slider (`coulomb_rates`): its slip stops
             # with its spin as it is (Δċ = -v_s; P = -v_s, and no Δw below).
             k, iaR = -1.0, 0.0
@@ -617,8 +620,7 @@ def rolling_spin(p, y, dy):
     s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, y[0], y[1])
     wx, wy, wz = y[2], y[3], y[4]
     nw = nx * wx + ny * wy + nz * wz
-    wtx, wty, wtz = wx - nw * nx, wy - nw * ny, wz - nw * nz
-    wt = math.sqrt(wtx * wtx + wty * wty + wtz * wtz)
+    wtx, wty, wtz, wt = _rolling_part(nx, ny, nz, nw, wx, wy, wz)
     if wt == 0.0:
         return 0.0, 0.0
     mdx, mdy, nm, ndx, ndy, ndz = _normal_rate(a, b, s, nx, ny, nz, dy[0], dy[1])
@@ -725,8 +727,7 @@ def rhs(model, p, prof, t, y, dy, want_normal):
          vsy, vsz, a0x, a0y, a0z) = coulomb_rates(
             p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
             p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_SPIN_BAND], p[P_MU], phase, Om, Omd, fx, fy,
-            y[0], y[1], y[2],
-            y[3], y[4], y[5], y[6])
+            y[0], y[1], y[2], y[3], y[4], y[5], y[6])
         # The phase is not integrated, so its slot carries what the loop checks a step with,
         # at no extra cost: sticking, the stick margin μ_s N/m - |f| (at every stage, so that
         # static friction giving way briefly inside a step is seen: `integrators._stick_dip`);
