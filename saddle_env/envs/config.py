@@ -159,6 +159,9 @@ class EnvConfig:
                      "air_force", "ripple_amp", "ripple_freq"):
             set_(name, _positive(name, getattr(self, name), allow_zero=True))
         set_("air_force_tau", _positive("air_force_tau", self.air_force_tau))
+        if self.init_speed > self.max_start_speed:
+            raise ValueError(f"init_speed must be <= omega_max * rim_radius = "
+                             f"{self.max_start_speed:g} m/s, got {self.init_speed}")
         if self.init_offset >= self.rim_radius:
             raise ValueError(f"init_offset must be < rim_radius = {self.rim_radius}, got {self.init_offset}")
         if self.init_start not in ("lab-rest", "rotating-rest"):
@@ -213,6 +216,14 @@ class EnvConfig:
         if unknown:
             raise ValueError(f"unknown SaddleTrap option(s) {unknown}; known options: {sorted(known)}")
         return cls(**kwargs)  # type: ignore[arg-type]
+
+    @property
+    def max_start_speed(self) -> float:
+        """The largest start speed [m/s] a reset accepts (options ``vx, vy``, ``init_speed``,
+        a spin's surface speed): the rim's own speed at the motor's top speed,
+        ``omega_max * rim_radius``. A ball faster than the saddle's rim is not a trapping
+        problem."""
+        return self.omega_max * self.rim_radius
 
     def as_dict(self) -> dict[str, object]:
         return asdict(self)

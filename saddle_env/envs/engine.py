@@ -155,6 +155,7 @@ class TrapEngine:
         opts = _check_options(options)
         c = self.config
         check_reset_omega(opts, c.omega_max)
+        check_reset_start(opts, c)
         idx = np.atleast_1d(idx)
         k = idx.size
         # Draws per ball, from its own generator and in a fixed order; the states follow
@@ -168,6 +169,11 @@ class TrapEngine:
         for j, i in enumerate(idx):
             rng = rngs[i]
             scene, params, scale = self._draw_scene(rng, opts)
+            if abs(spin) * scene.R > c.max_start_speed:
+                raise ValueError(f"reset option 'spin_normal' must satisfy |spin_normal| R <= "
+                                 f"{c.max_start_speed:g} m/s (|spin_normal| <= "
+                                 f"{c.max_start_speed / scene.R:g} rad/s for R = "
+                                 f"{scene.R:g} m), got {spin:g} rad/s")
             omega0 = opts["omega"] if "omega" in opts else rng.uniform(*c.omega0_range)
             if placed:
                 x[j], y[j] = opts.get("x", 0.0), opts.get("y", 0.0)
@@ -206,6 +212,20 @@ class TrapEngine:
             raise ValueError(
                 f"initial state is not finite for x = {x[j]:g}, y = {y[j]:g}, vx = {vx[j]:g}, "
                 f"vy = {vy[j]:g} m: the position or velocity is too large for the saddle")
+        normal = self.out[idx, S.O_NORMAL]
+        lifted = ~(normal > 0)
+        if lifted.any():
+            # The ball would leave the surface at t = 0: no episode to play. The options (or
+            # the level's start ranges) asked for a start the physics does not allow.
+            j = int(np.flatnonzero(lifted)[0])
+            i = int(idx[j])
+            given = "reset options" if opts else ("the level's start options (init_offset, "
+                                                  "init_speed, omega0_range)")
+            raise ValueError(
+                f"{given} give a start where the normal force is N/mg = {normal[j]:.3g} <= 0 "
+                f"(x = {x[j]:g}, y = {y[j]:g} m, vx = {vx[j]:g}, vy = {vy[j]:g} m/s, omega = "
+                f"{self.balls[i, S.B_OMEGA]:g} rad/s): the ball would leave the surface at "
+                f"once; start nearer the centre, slower, or at a lower omega")
 
     def _draw_scene(self, rng: np.random.Generator,
                     opts: Mapping[str, object]) -> tuple[Scene, np.ndarray, np.ndarray]:
@@ -318,6 +338,23 @@ def _check_options(options: Mapping[str, object] | None) -> dict[str, object]:
         raise ValueError(f"reset option 'start' must be 'lab-rest' or 'rotating-rest', "
                          f"got {out['start']!r}")
     return out
+
+
+def check_reset_start(opts: Mapping[str, object], c: EnvConfig) -> None:
+    """ValueError for a placed start outside the rim or faster than the config's
+    ``max_start_speed``."""
+    if "x" in opts or "y" in opts:
+        x, y = float(opts.get("x", 0.0)), float(opts.get("y", 0.0))  # type: ignore[arg-type]
+        if not math.hypot(x, y) < c.rim_radius:
+            raise ValueError(f"reset options 'x', 'y' must place the ball inside the rim, "
+                             f"sqrt(x² + y²) < rim_radius = {c.rim_radius:g} m, got "
+                             f"x = {x:g}, y = {y:g} (r = {math.hypot(x, y):g} m)")
+    if "vx" in opts or "vy" in opts:
+        u, v = float(opts.get("vx", 0.0)), float(opts.get("vy", 0.0))  # type: ignore[arg-type]
+        if math.hypot(u, v) > c.max_start_speed:
+            raise ValueError(f"reset options 'vx', 'vy' must give a speed sqrt(vx² + vy²) <= "
+                             f"omega_max * rim_radius = {c.max_start_speed:g} m/s, got "
+                             f"vx = {u:g}, vy = {v:g} m/s")
 
 
 def check_reset_omega(opts: Mapping[str, object], omega_max: float) -> None:
