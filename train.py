@@ -59,6 +59,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--resume", default=None, metavar="CHECKPOINT",
                     help="continue a run from a checkpoint (its config.json supplies the rest): "
                          "a .zip (sb3) or an RLlib checkpoint directory (rllib)")
+    ap.add_argument("--trust-model", action="store_true",
+                    help="--resume from a checkpoint whose reading needs unpickling (SB3's own "
+                         "files, older runs' pickled statistics or buffers, RLlib's "
+                         "checkpoints), which runs code it carries: only for files you trust "
+                         "(docs/security.md). Default: checkpoints are read as data")
     rl = ap.add_argument_group("Ray RLlib (--backend rllib; docs/scaling.md)")
     rl.add_argument("--backend", choices=("sb3", "rllib"), default="sb3",
                     help="sb3: Stable-Baselines3 in this process; rllib: Ray RLlib, on a local "
@@ -121,7 +126,8 @@ def _main_rllib(parser: argparse.ArgumentParser, args: argparse.Namespace) -> in
                              else args.num_env_runners),
             address=args.address, num_cpus=args.num_cpus).validate()
 
-    return _run(parser, prepare, lambda settings: rb.train(settings, resume=args.resume))
+    return _run(parser, prepare, lambda settings: rb.train(settings, resume=args.resume,
+                                                           trust=args.trust_model))
 
 
 def _is_rllib_checkpoint(path: str) -> bool:
@@ -154,7 +160,8 @@ def main(argv: list[str] | None = None) -> int:
             progress_bar=not args.no_progress_bar, torch_threads=args.torch_threads,
             compare_episodes=args.compare_episodes).validate()
 
-    return _run(parser, prepare, lambda settings: train(settings, resume=args.resume))
+    return _run(parser, prepare, lambda settings: train(settings, resume=args.resume,
+                                                        trust=args.trust_model))
 
 
 if __name__ == "__main__":

@@ -59,6 +59,7 @@ from .cli_args import (
     parse_env_kwargs,
     resolve_env,
 )
+from .model_files import TRUST_FLAG
 from .policies import load_policy, model_sidecar, policy_sidecar  # noqa: F401
 from .rollout import CHUNK, Actor, PolicyActor, policy_actor, run_episodes  # noqa: F401
 
@@ -133,13 +134,14 @@ def policy_label(policy: Any, spec: str) -> tuple[str, str]:
 
 def evaluate(specs: Sequence[str | tuple[str, Any]], config: EnvConfig, episodes: int, seed: int,
              max_episode_steps: int = DEFAULT_EPISODE_STEPS, progress: bool = False,
-             examples: int = N_EXAMPLES, env_id: str | None = None
+             examples: int = N_EXAMPLES, env_id: str | None = None, trust: bool = False
              ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Evaluate every policy on episodes ``seed .. seed + episodes − 1``.
 
     ``specs``: baseline names or model paths (see `load_policy`), or (spec, policy) pairs of
     already loaded policies. ``env_id``: the level ``config`` was built from (recorded with
     the options that override it; default: the options over `EnvConfig`'s defaults).
+    ``trust``: load model files with their pickles (see `load_policy`); default: as data.
     Returns (table, details): the table is what ``--json`` prints; details hold the
     per-episode arrays and traces for files and plots.
     """
@@ -156,7 +158,7 @@ def evaluate(specs: Sequence[str | tuple[str, Any]], config: EnvConfig, episodes
     seeds = seed + np.arange(episodes)
     for item in specs:
         spec, policy = item if isinstance(item, tuple) else \
-            (item, load_policy(item, config, max_episode_steps=max_episode_steps))
+            (item, load_policy(item, config, max_episode_steps=max_episode_steps, trust=trust))
         _check_compatible(policy, config, spec)
         label, kind = policy_label(policy, spec)
         act, row_independent = policy_actor(policy)
@@ -327,6 +329,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print the table as JSON on stdout and write no files")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG plots")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument(TRUST_FLAG, action="store_true",
+                   help="also load model files whose reading needs unpickling (SB3's own "
+                        "loader, pickled normaliser statistics, RLlib's pickled checkpoints): "
+                        "this runs code the file carries; only for files you trust "
+                        "(docs/security.md). Default: files are read as data")
     return p
 
 
@@ -376,7 +383,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     policies = []
     for spec in args.policy:  # fail on a bad name or file before any work
         try:
-            policy = load_policy(spec, config, max_episode_steps=steps)
+            policy = load_policy(spec, config, max_episode_steps=steps, trust=args.trust_model)
             _check_compatible(policy, config, spec)
         except (ValueError, OSError, MissingExtra) as exc:
             parser.error(str(exc))

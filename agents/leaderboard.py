@@ -29,6 +29,7 @@ import numpy as np
 
 from saddle_env.envs import LEVELS, get_level
 
+from .model_files import TRUST_FLAG
 from .seeds import SEARCH_SEED, TEST_SEED, VALIDATION_SEED
 
 MODELS_DIR = Path(__file__).parent / "models"
@@ -47,14 +48,15 @@ def shipped_agents(env_id: str, models_dir: Path = MODELS_DIR) -> list[Path]:
             side = json.loads(path.with_suffix(".json").read_text())
         except (OSError, ValueError):
             continue
-        if side.get("env_id") == env_id and not side.get("env_kwargs"):
+        if isinstance(side, dict) and side.get("env_id") == env_id and not side.get("env_kwargs"):
             out.append(path)
     return out
 
 
-def policy_specs(env_id: str) -> list[str]:
-    """What the leaderboard runs on ``env_id``: every baseline, then the shipped agents."""
-    return list(BASELINE_POLICIES) + [str(p) for p in shipped_agents(env_id)]
+def policy_specs(env_id: str, models_dir: Path = MODELS_DIR) -> list[str]:
+    """What the leaderboard runs on ``env_id``: every baseline, then the agents in
+    ``models_dir`` (the shipped ones by default)."""
+    return list(BASELINE_POLICIES) + [str(p) for p in shipped_agents(env_id, models_dir)]
 
 
 def policy_key(spec: str) -> str:
@@ -66,15 +68,16 @@ def policy_key(spec: str) -> str:
     return spec
 
 
-def evaluate_policy(env_id: str, spec: str, episodes: int, seed: int,
-                    progress: bool = True) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """(table row, per-episode results) of one policy on level ``env_id``'s test episodes."""
+def evaluate_policy(env_id: str, spec: str, episodes: int, seed: int, progress: bool = True,
+                    trust: bool = False) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """(table row, per-episode results) of one policy on level ``env_id``'s test episodes
+    (model files read as data unless ``trust``, see `agents.policies.load_policy`)."""
     from .evaluation import evaluate
 
     level = get_level(env_id)
     table, details = evaluate([spec], level.config(), episodes, seed,
                               max_episode_steps=level.max_episode_steps, progress=progress,
-                              examples=0, env_id=env_id)
+                              examples=0, env_id=env_id, trust=trust)
     return table["policies"][0], details[table["policies"][0]["policy"]]
 
 
@@ -194,6 +197,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="keep the results already in DIR/leaderboard.json with the same "
                         "episodes and seed (per level and policy)")
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--models", default=str(MODELS_DIR), metavar="DIR",
+                   help="the agents to rank: every .zip in DIR whose JSON sidecar names the "
+                        "level (default: the shipped agents). Read as data, never unpickled")
+    p.add_argument(TRUST_FLAG, action="store_true",
+                   help="also load agents whose reading needs unpickling, which runs code they "
+                        "carry: only for files you trust (docs/security.md)")
     p.add_argument("--levels-doc", action="store_true",
                    help="only (re)write DIR/levels.md from the registry, evaluating nothing")
     return p
@@ -263,14 +272,19 @@ def main(argv: Sequence[str] | None = None) -> int:
             episodes = dict(results["episode_results"].get(lid, {}))
             results["episode_results"][lid] = episodes
             results["levels"][lid] = table
-            for spec in policy_specs(lid):
+            for spec in policy_specs(lid, Path(args.models)):
                 key = policy_key(spec)
                 if key in done.get(lid, {}):
                     row, eps = done[lid][key]
                 else:
                     print(f"{lid}: {spec}, {args.episodes} episodes", file=sys.stderr, flush=True)
-                    row, res = evaluate_policy(lid, spec, args.episodes, args.seed,
-                                               progress=not args.no_progress)
+                    try:
+                        row, res = evaluate_policy(lid, spec, args.episodes, args.seed,
+                                                   progress=not args.no_progress,
+                                                   trust=args.trust_model)
+                    except ValueError as exc:   # one bad submission does not stop the board
+                        print(f"{lid}: skipped {spec}: {exc}", file=sys.stderr, flush=True)
+                        continue
                     row = {**row, "key": key}
                     eps = {"time": np.round(np.asarray(res["time"], float), 6).tolist(),
                            "kept": np.asarray(res["kept"], bool).tolist()}

@@ -7,6 +7,11 @@ sidecar (the ``.json`` next to it that ``train.py`` writes) says training stacke
 (``frame_stack``) or normalised observations (``normalize``, statistics in the
 ``.vecnormalize.pkl`` next to the model), the returned policy does the same to the raw
 observations it is given, so it can be evaluated on the plain environment.
+
+Model files are read as data (`agents.model_files`): the network is rebuilt from JSON and
+tensors, nothing is unpickled. ``trust=True`` (``--trust-model`` on the command line) opts
+in to Stable-Baselines3's own loader and to pickled statistics, for files from a trusted
+source that the safe reader refuses.
 """
 
 from __future__ import annotations
@@ -33,6 +38,14 @@ from .controllers import (
     mass_point,
     parse_constant,
 )
+from .model_files import (
+    ObservationNormalizer,
+    UntrustedFileError,
+    build_policy,
+    read_archive,
+    read_normalizer,
+    untrusted,
+)
 from .mpc import ModelPredictiveController
 
 BASELINES: dict[str, Callable[..., Controller]] = {
@@ -44,8 +57,10 @@ BASELINES: dict[str, Callable[..., Controller]] = {
     "random": UniformRandom,
 }
 SB3_ALGOS = ("PPO", "SAC", "TD3", "A2C", "DDPG")
-# Statistics of observation normalisation saved next to a model: <model>.vecnormalize.pkl
-VECNORMALIZE_SUFFIX = ".vecnormalize.pkl"
+# Statistics of observation normalisation saved next to a model: <model>.vecnormalize.json
+# (JSON, `agents.model_files.save_normalizer`); the older pickle is read only with trust.
+VECNORMALIZE_SUFFIX = ".vecnormalize.json"
+VECNORMALIZE_PICKLE_SUFFIX = ".vecnormalize.pkl"
 
 
 def model_sidecar(path: str | os.PathLike) -> dict[str, Any] | None:
@@ -71,21 +86,20 @@ def policy_sidecar(spec: str | os.PathLike) -> dict[str, Any] | None:
     return model_sidecar(text if text.endswith(".zip") else text + ".zip")
 
 
-def vecnormalize_path(model_path: str | os.PathLike) -> Path:
-    """Where the observation-normalisation statistics of a model file are kept."""
+def vecnormalize_path(model_path: str | os.PathLike, pickled: bool = False) -> Path:
+    """Where the observation-normalisation statistics of a model file are kept (the JSON
+    file; ``pickled=True``: the pickle older runs wrote)."""
     p = Path(model_path)
-    return p.with_name(p.stem + VECNORMALIZE_SUFFIX)
+    return p.with_name(p.stem + (VECNORMALIZE_PICKLE_SUFFIX if pickled else VECNORMALIZE_SUFFIX))
 
 
-def sb3_algorithm(path: str | os.PathLike) -> str:
-    """Name of the SB3 algorithm that saved ``path``: from the sidecar if there is one,
-    else read from the zip's ``data`` (the policy class and algorithm-specific fields)."""
-    side = model_sidecar(path)
+def _algorithm(side: dict[str, Any] | None, data: dict[str, Any]) -> str:
+    """The SB3 algorithm: the sidecar's ``algo``, else told by the zip's JSON ``data`` (the
+    policy class's module, noted in plain text, and algorithm-specific fields)."""
     if side and str(side.get("algo", "")).upper() in SB3_ALGOS:
         return str(side["algo"]).upper()
-    with zipfile.ZipFile(path) as z:
-        data = json.loads(z.read("data").decode())
-    module = str(data.get("policy_class", {}).get("__module__", ""))
+    policy_class = data.get("policy_class")
+    module = str(policy_class.get("__module__", "")) if isinstance(policy_class, dict) else ""
     if ".sac." in module:
         return "SAC"
     if ".td3." in module:  # DDPG is TD3 with one critic update per actor update, no smoothing
@@ -95,20 +109,51 @@ def sb3_algorithm(path: str | os.PathLike) -> str:
     return "PPO" if "clip_range" in data else "A2C"
 
 
-def load_model(path: str | os.PathLike) -> Any:
-    """Load a Stable-Baselines3 model file on the CPU, detecting its algorithm (set as the
-    model's ``algo_name``). The bare model: see `load_policy` for the observation
-    pipeline (frame stacking, normalisation) its sidecar asks for."""
+def sb3_algorithm(path: str | os.PathLike) -> str:
+    """Name of the SB3 algorithm that saved ``path``: from the sidecar if there is one,
+    else read from the zip's JSON ``data``."""
+    side = model_sidecar(path)
+    if side and str(side.get("algo", "")).upper() in SB3_ALGOS:
+        return str(side["algo"]).upper()
+    archive = read_archive(path)
+    return _algorithm(None, {**archive.data, **archive.serialized})
+
+
+def load_model(path: str | os.PathLike, config: EnvConfig | None = None, frame_stack: int = 1,
+               trust: bool = False) -> Any:
+    """A Stable-Baselines3 model file's policy on the CPU, its algorithm detected (set as
+    ``algo_name``). The bare network: see `load_policy` for the observation pipeline
+    (frame stacking, normalisation) its sidecar asks for.
+
+    By default the network is rebuilt from the file's JSON and tensors for the observations
+    of ``config`` (``frame_stack`` frames of them); nothing is unpickled and a file that
+    would need it raises `UntrustedFileError`. ``trust=True`` loads with SB3's own loader,
+    which unpickles what the file carries (the full model object, optimiser included)."""
     from .cli_args import require
 
     sb3 = require("stable_baselines3", "train", "loading model files")
-    try:
-        algo = sb3_algorithm(path)
-    except (KeyError, ValueError, zipfile.BadZipFile) as exc:
-        raise ValueError(f"{path}: not a Stable-Baselines3 model file ({exc})") from None
-    model = getattr(sb3, algo).load(path, device="cpu")
-    model.algo_name = algo
-    return model
+    if trust:
+        try:
+            algo = sb3_algorithm(path)
+        except (KeyError, ValueError, zipfile.BadZipFile) as exc:
+            raise ValueError(f"{path}: not a Stable-Baselines3 model file ({exc})") from None
+        model = getattr(sb3, algo).load(path, device="cpu")
+        model.algo_name = algo
+        return model
+    import gymnasium as gym
+
+    from saddle_env.envs.saddle_trap import action_space
+
+    archive = read_archive(path)
+    side = model_sidecar(path)
+    algo = _algorithm(side, {**archive.data, **archive.serialized})
+    obs = observation_space(EnvConfig() if config is None else config)
+    if frame_stack > 1:
+        obs = gym.spaces.Box(np.tile(obs.low, frame_stack), np.tile(obs.high, frame_stack),
+                             dtype=obs.dtype)
+    policy = build_policy(archive, algo, obs, action_space(), side)
+    policy.algo_name = algo
+    return policy
 
 
 class WrappedModel:
@@ -162,11 +207,12 @@ class WrappedModel:
 
 
 def load_policy(name_or_path: str | os.PathLike, config: EnvConfig | None = None,
-                max_episode_steps: int | None = None) -> Any:
+                max_episode_steps: int | None = None, trust: bool = False) -> Any:
     """A baseline by name (``BASELINES``, or ``const-<K>`` for any K) built for ``config``,
     or a Stable-Baselines3 model loaded from a ``.zip`` file (algorithm detected; wrapped
-    as its sidecar's ``frame_stack``/``normalize`` say). ``max_episode_steps`` is the
-    episode length ``best-const`` is searched for (default: the search's own)."""
+    as its sidecar's ``frame_stack``/``normalize`` say), or an RLlib checkpoint directory.
+    ``max_episode_steps`` is the episode length ``best-const`` is searched for (default:
+    the search's own). Files are read as data unless ``trust`` (see `load_model`)."""
     config = EnvConfig() if config is None else config
     name = str(name_or_path)
     if name == "best-const" and max_episode_steps is not None:
@@ -180,36 +226,50 @@ def load_policy(name_or_path: str | os.PathLike, config: EnvConfig | None = None
         from .rllib_policy import latest_checkpoint, load_policy as load_rllib_policy
 
         if latest_checkpoint(name) is not None:
-            return load_rllib_policy(name)
+            return load_rllib_policy(name, trust=trust)
     path = Path(name if name.endswith(".zip") or Path(name).exists() else name + ".zip")
     if path.is_file():
-        return _load_with_pipeline(path, config)
+        return _load_with_pipeline(path, config, trust)
     raise ValueError(f"unknown policy {name!r}: not a baseline ({', '.join(BASELINES)}, "
                      f"const-<K>) and no model file {str(path)!r}")
 
 
-def _load_with_pipeline(path: Path, config: EnvConfig) -> Any:
-    model = load_model(path)
+def _load_with_pipeline(path: Path, config: EnvConfig, trust: bool = False) -> Any:
     side = model_sidecar(path) or {}
     frame_stack = side.get("frame_stack") or 1
-    normalizer = None
-    if side.get("normalize"):
-        stats = vecnormalize_path(path)
-        if not stats.is_file():
-            raise ValueError(f"{path}: its sidecar says observations were normalised in "
-                             f"training, but the statistics file {stats.name} is missing")
-        import pickle
-
-        with open(stats, "rb") as fh:
-            normalizer = pickle.load(fh)  # noqa: S301 — our own training run's file
-        normalizer.training = False
-    if not isinstance(frame_stack, int) or frame_stack < 1:
-        raise ValueError(f"{path}: sidecar frame_stack must be a positive integer, "
+    if isinstance(frame_stack, bool) or not isinstance(frame_stack, int) or \
+            not 1 <= frame_stack <= 64:
+        raise ValueError(f"{path}: sidecar frame_stack must be an integer in [1, 64], "
                          f"got {frame_stack!r}")
+    if not isinstance(side.get("normalize", False), bool):
+        raise ValueError(f"{path}: sidecar normalize must be true or false, "
+                         f"got {side['normalize']!r}")
+    model = load_model(path, config, frame_stack, trust=trust)
+    normalizer = _normalizer(path, config, trust) if side.get("normalize") else None
     if frame_stack == 1 and normalizer is None:
         return model
     return WrappedModel(model, config, frame_stack, normalizer)
 
 
-__all__ = ["BASELINES", "SB3_ALGOS", "WrappedModel", "load_model", "load_policy",
+def _normalizer(path: Path, config: EnvConfig, trust: bool) -> Any:
+    """The saved normalisation statistics of a model: the JSON file, or (with trust only)
+    the pickle older runs wrote."""
+    stats = vecnormalize_path(path)
+    if stats.is_file():
+        return ObservationNormalizer(read_normalizer(stats, observation_space(config).shape[0]))
+    pickled = vecnormalize_path(path, pickled=True)
+    if not pickled.is_file():
+        raise ValueError(f"{path}: its sidecar says observations were normalised in "
+                         f"training, but the statistics file {stats.name} is missing")
+    if not trust:
+        raise untrusted(pickled, "normaliser statistics stored as a pickle")
+    import pickle
+
+    with open(pickled, "rb") as fh:
+        normalizer = pickle.load(fh)  # noqa: S301 — the user passed trust=True
+    normalizer.training = False
+    return normalizer
+
+
+__all__ = ["BASELINES", "SB3_ALGOS", "UntrustedFileError", "WrappedModel", "load_model", "load_policy",
            "model_sidecar", "policy_sidecar", "sb3_algorithm", "vecnormalize_path"]

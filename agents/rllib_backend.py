@@ -60,10 +60,12 @@ from .cli_args import (
     resolve_env,
     saved_settings,
 )
+from .model_files import untrusted
 from .rllib_policy import (  # noqa: F401  (the checkpoint side, importable without training)
     CHECKPOINT_MARKER,
     MODULE_PATH,
     SIDECAR,
+    WEIGHTS_FILE,
     RllibPolicy,
     checkpoint_sidecar,
     is_checkpoint,
@@ -275,6 +277,15 @@ def _net_arch(hyper: dict[str, Any], default: list[int]) -> list[int]:
     return [int(n) for n in arch]
 
 
+def module_config(algo: str, hyper: dict[str, Any]) -> dict[str, Any]:
+    """The policy network's RLlib model config (DefaultModelConfig keywords), also recorded
+    in each checkpoint's sidecar so that evaluation can rebuild the network as data."""
+    if algo == "ppo":
+        return {"fcnet_hiddens": _net_arch(hyper, [64, 64]), "fcnet_activation": "tanh",
+                "vf_share_layers": False}
+    return {"fcnet_hiddens": _net_arch(hyper, [256, 256]), "fcnet_activation": "relu"}
+
+
 def build_config(settings: RllibSettings, hyper: dict[str, Any]):
     """The RLlib AlgorithmConfig of a run (Ray must be initialised: the CPUs per env
     runner are shared out among the cluster's CPUs if there are more runners than CPUs)."""
@@ -287,7 +298,7 @@ def build_config(settings: RllibSettings, hyper: dict[str, Any]):
     runners = int(settings.num_env_runners)
     cpus = float(ray.cluster_resources().get("CPU", 1.0))
     cpus_per_runner = min(1.0, cpus / runners)
-    arch = _net_arch(hyper, [64, 64] if settings.algo == "ppo" else [256, 256])
+    model = DefaultModelConfig(**module_config(settings.algo, hyper))
     if settings.algo == "ppo":
         from ray.rllib.algorithms.ppo import PPOConfig
 
@@ -300,8 +311,6 @@ def build_config(settings: RllibSettings, hyper: dict[str, Any]):
             gamma=float(hyper.get("gamma", 0.99)), lambda_=float(hyper.get("gae_lambda", 0.95)),
             clip_param=float(hyper.get("clip_range", 0.2)),
             entropy_coeff=float(hyper.get("ent_coef", 0.0)), use_kl_loss=False)
-        model = DefaultModelConfig(fcnet_hiddens=arch, fcnet_activation="tanh",
-                                   vf_share_layers=False)
     else:
         from ray.rllib.algorithms.sac import SACConfig
 
@@ -313,7 +322,6 @@ def build_config(settings: RllibSettings, hyper: dict[str, Any]):
             num_steps_sampled_before_learning_starts=int(hyper.get("learning_starts", 1000)),
             replay_buffer_config={"type": "PrioritizedEpisodeReplayBuffer",
                                   "capacity": int(hyper.get("buffer_size", 200_000))})
-        model = DefaultModelConfig(fcnet_hiddens=arch, fcnet_activation="relu")
     config = (config
               .environment(env=ENV_NAME, env_config=settings.env_config())
               .env_runners(num_env_runners=runners, num_envs_per_env_runner=n_envs,
@@ -432,24 +440,39 @@ def lifetime_steps(algo) -> int:
 
 def save_checkpoint(algo, path: Path, settings: RllibSettings, steps: int,
                     extra: dict[str, Any] | None = None) -> Path:
-    """RLlib's checkpoint at ``path`` and our sidecar in it."""
+    """RLlib's checkpoint at ``path``, and in it our sidecar and the policy network's
+    weights as plain tensors (`WEIGHTS_FILE`): RLlib's own files are pickles, which
+    evaluation reads only with trust; the weights and the sidecar's ``module`` config
+    rebuild the network as data."""
+    import torch
+    from ray.rllib.core import DEFAULT_MODULE_ID
+
     path = Path(path).resolve()
     path.parent.mkdir(parents=True, exist_ok=True)
     algo.save_to_path(str(path))
+    weights = algo.learner_group.get_weights()[DEFAULT_MODULE_ID]
+    torch.save({k: torch.as_tensor(np.asarray(v)) for k, v in weights.items()},
+               path / WEIGHTS_FILE)
     level, config = settings.environment()
     side = {"backend": "rllib", "algo": settings.algo, "env_id": level.id,
             "env_kwargs": level_overrides(level, config),
             "max_episode_steps": settings.max_episode_steps, "seed": settings.seed,
-            "steps": int(steps), "frame_stack": 1, "normalize": False}
+            "steps": int(steps), "frame_stack": 1, "normalize": False,
+            "module": module_config(settings.algo, settings.hyperparams_used)}
     side.update(extra or {})
     (path / SIDECAR).write_text(json.dumps(side, indent=2, default=list) + "\n")
     return path
 
 
-def train(settings: RllibSettings, resume: str | os.PathLike | None = None) -> Path:
-    """Train (or resume) on RLlib; return the run folder."""
+def train(settings: RllibSettings, resume: str | os.PathLike | None = None,
+          trust: bool = False) -> Path:
+    """Train (or resume) on RLlib; return the run folder. Resuming restores RLlib's own
+    checkpoint, which is pickled: it needs ``trust`` (``--trust-model``)."""
     check_dependencies()
     settings.validate()
+    if resume is not None and not trust:
+        raise untrusted(resume, "resuming restores RLlib's checkpoint, which is pickled "
+                                "(evaluating it does not need this)")
     from .training import load_hyperparams
 
     hyper = load_hyperparams(settings.algo, settings.env_id, settings.hyperparams, note=True)
@@ -525,7 +548,7 @@ def _train(settings: RllibSettings, hyper: dict[str, Any], run_dir: Path,
         path = save_checkpoint(algo, run_dir / "checkpoints" / f"interrupted_{steps}",
                                settings, steps)
         print(f"\ninterrupted at {steps} steps; checkpoint saved to {path}\n"
-              f"continue with: python train.py --resume {path}", flush=True)
+              f"continue with: python train.py --resume {path} --trust-model", flush=True)
     finally:
         signal.signal(signal.SIGTERM, previous)
         if bar is not None:

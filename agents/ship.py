@@ -68,8 +68,8 @@ def ship(runs: Sequence[Path], name: str, models_dir: Path = MODELS_DIR) -> Path
     models_dir.mkdir(parents=True, exist_ok=True)
     target = models_dir / f"{name}.zip"
     shutil.copyfile(src / "selected_model.zip", target)
-    for extra in src.glob("selected_model.vecnormalize.pkl"):
-        shutil.copyfile(extra, models_dir / f"{name}.vecnormalize.pkl")
+    for extra in src.glob("selected_model.vecnormalize.json"):
+        shutil.copyfile(extra, models_dir / f"{name}.vecnormalize.json")
     if (src / "learning_curve.png").is_file():
         shutil.copyfile(src / "learning_curve.png", models_dir / f"{name}_learning_curve.png")
     if (src / "learning_curve.csv").is_file():

@@ -8,7 +8,7 @@ entry of its own uses the ``SaddleTrap-v0`` entry (a note says so).
 Zoo keys honoured besides the algorithm's own arguments: ``n_envs``, ``n_timesteps``,
 ``policy``, ``noise_type``/``noise_std`` (off-policy action noise), ``normalize`` (``true`` or
 ``"dict(norm_obs=True, norm_reward=False)"``: VecNormalize, its statistics saved next to
-every model as ``<model>.vecnormalize.pkl``), ``frame_stack`` (VecFrameStack with that many
+every model as ``<model>.vecnormalize.json``), ``frame_stack`` (VecFrameStack with that many
 frames), ``warm_start`` (`agents.warm_start`) and ``imitation`` (its settings for
 ``warm_start: mpc``, `agents.imitation`). ``env_wrapper`` and ``callback`` are
 rejected with an error (no wrapper or callback classes are importable by name here).
@@ -22,7 +22,9 @@ return), ``selected_model.zip`` (see below), ``checkpoints/`` and ``final_model.
 model with a ``.json`` sidecar that records the level (``env_id``), the options overriding
 it (``env_kwargs``), the episode length and the wrappers, and ``learning_curve.png``.
 Ctrl-C or SIGTERM saves a checkpoint (and the replay buffer of off-policy algorithms);
-``--resume CHECKPOINT.zip`` continues from it.
+``--resume CHECKPOINT.zip`` continues from it. Everything a run writes is read back as data
+(JSON, tensors, npz: `agents.model_files`); a checkpoint that needs unpickling (SB3's own
+files, older runs' pickles) is resumed only with ``--trust-model``.
 
 **Model selection.** Every ``eval_freq`` steps (default: a twentieth of the budget), and
 once more on the final model, the policy is evaluated on ``eval_episodes`` validation
@@ -39,7 +41,6 @@ the plateau, not its first point (which ``best_model.zip`` keeps, as SB3 does).
 
 from __future__ import annotations
 
-import ast
 import json
 import signal
 import sys
@@ -61,6 +62,7 @@ from .cli_args import (  # noqa: F401
     resolve_env,
     saved_settings,
 )
+from .literal_kwargs import parse_kwargs_string
 from .seeds import COMPARE_SEED, VALIDATION_SEED
 
 # The main job (`python train.py`): a level where learning shows within minutes.
@@ -202,30 +204,16 @@ def load_hyperparams(algo: str, env_id: str = ENV_ID, path: str | Path | None = 
 
 
 def parse_policy_kwargs(value: Any) -> dict[str, Any]:
-    """Policy kwargs from YAML: a mapping, or the zoo's string form ``"dict(net_arch=[64, 64])"``
-    (evaluated with only ``dict`` and torch.nn activations in scope; no builtins)."""
+    """Policy kwargs from YAML: a mapping, or the zoo's string form ``"dict(net_arch=[64, 64])"``,
+    read as data by `agents.literal_kwargs` (literals and allowed class names; nothing is
+    evaluated or called)."""
     if value is None:
         return {}
     if isinstance(value, dict):
         return value
     if not isinstance(value, str):
         raise ValueError(f"policy_kwargs must be a mapping or a string, got {value!r}")
-    import torch.nn as nn
-
-    tree = ast.parse(value, mode="eval")
-    allowed = (ast.Expression, ast.Call, ast.Name, ast.Load, ast.keyword, ast.Constant,
-               ast.List, ast.Tuple, ast.Dict, ast.Attribute, ast.UnaryOp, ast.USub)
-    for node in ast.walk(tree):
-        if not isinstance(node, allowed):
-            raise ValueError(f"policy_kwargs: unsupported syntax {type(node).__name__} in {value!r}")
-    try:
-        result = eval(compile(tree, "<policy_kwargs>", "eval"), {"__builtins__": {}},  # noqa: S307
-                      {"dict": dict, "nn": nn})
-    except Exception as exc:  # a name outside dict/nn, a bad call, ...
-        raise ValueError(f"policy_kwargs: cannot evaluate {value!r}: {exc}") from None
-    if not isinstance(result, dict):
-        raise ValueError(f"policy_kwargs must evaluate to a dict, got {type(result).__name__}")
-    return result
+    return parse_kwargs_string(value, "policy_kwargs")
 
 
 # ---------------------------------------------------------------------------------------
@@ -309,49 +297,142 @@ class _Stop(Exception):
 def save_model(model, path: Path, settings: TrainSettings, extra: dict[str, Any] | None = None
                ) -> Path:
     """Save ``model`` at ``path`` with its sidecar and, if observations are normalised, the
-    statistics next to it (what evaluation needs to act as in training)."""
-    from .policies import vecnormalize_path
-
+    statistics next to it as JSON (what evaluation needs to act as in training)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     model.save(path)
-    norm = model.get_vec_normalize_env()
-    if norm is not None:
-        norm.save(str(vecnormalize_path(path)))
-    write_sidecar(path, settings, extra)
+    save_model_extras(model, path, settings, extra)
     return path
 
 
-def save_model_extras(model, path: Path, settings: TrainSettings) -> None:
-    """The sidecar and normalisation statistics of a model file someone else saved (SB3's
-    best_model.zip), written at the time it was saved."""
+def save_model_extras(model, path: Path, settings: TrainSettings,
+                      extra: dict[str, Any] | None = None) -> None:
+    """The sidecar and normalisation statistics (JSON) of a model file, written when it is
+    saved (also for SB3's own best_model.zip)."""
+    from .model_files import save_normalizer
     from .policies import vecnormalize_path
 
     norm = model.get_vec_normalize_env()
     if norm is not None:
-        norm.save(str(vecnormalize_path(path)))
-    write_sidecar(path, settings)
+        save_normalizer(norm, vecnormalize_path(path))
+    write_sidecar(path, settings, extra)
 
 
-def checkpoint_statistics(checkpoint: str | Path) -> Path | None:
-    """The normalisation statistics saved with a checkpoint: ours (``<stem>.vecnormalize.pkl``)
-    or SB3's CheckpointCallback's (``checkpoint_vecnormalize_<steps>_steps.pkl``)."""
+def checkpoint_statistics(checkpoint: str | Path) -> tuple[Path | None, Path | None]:
+    """(JSON, pickle) normalisation statistics saved with a checkpoint, each None if absent:
+    ours (``<stem>.vecnormalize.json``), or the pickles older runs and SB3's
+    CheckpointCallback wrote (``<stem>.vecnormalize.pkl``,
+    ``checkpoint_vecnormalize_<steps>_steps.pkl``)."""
     from .policies import vecnormalize_path
 
     ckpt = Path(checkpoint)
     ours = vecnormalize_path(ckpt)
-    if ours.is_file():
-        return ours
     prefix, _, steps = ckpt.stem.partition("_")
-    theirs = ckpt.with_name(f"{prefix}_vecnormalize_{steps}.pkl")
-    return theirs if theirs.is_file() else None
+    pickles = [vecnormalize_path(ckpt, pickled=True),
+               ckpt.with_name(f"{prefix}_vecnormalize_{steps}.pkl")]
+    return (ours if ours.is_file() else None,
+            next((p for p in pickles if p.is_file()), None))
+
+
+REPLAY_SUFFIX = ".replay.npz"
 
 
 def _save_checkpoint(model, folder: Path, tag: str, settings: TrainSettings) -> Path:
+    from .model_files import save_replay_buffer
+
     path = save_model(model, folder / f"{tag}_{model.num_timesteps}_steps.zip", settings)
-    if hasattr(model, "replay_buffer") and model.replay_buffer is not None:
-        model.save_replay_buffer(path.with_suffix(".replay.pkl"))
+    if getattr(model, "replay_buffer", None) is not None:
+        save_replay_buffer(model.replay_buffer, path.with_suffix(REPLAY_SUFFIX))
     return path
+
+
+def _checkpoint_callback(folder: Path, settings: TrainSettings, n_envs: int):
+    """Every ``save_freq`` steps, a checkpoint as `_save_checkpoint` writes it (model,
+    sidecar, JSON statistics, npz replay buffer): SB3's CheckpointCallback pickles the
+    statistics and the buffer, which a resume would then have to unpickle."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    every = max(1, settings.save_freq // n_envs)   # callbacks count vector steps
+
+    class Checkpoints(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.n_calls % every == 0:
+                _save_checkpoint(self.model, folder, "checkpoint", settings)
+            return True
+
+    return Checkpoints()
+
+
+def _new_model(cls, hyper: dict[str, Any], env, settings: TrainSettings):
+    """The algorithm as the hyperparameters describe it, untrained."""
+    kwargs = {k: v for k, v in hyper.items() if k not in ZOO_ONLY_KEYS}
+    kwargs["policy_kwargs"] = parse_policy_kwargs(kwargs.get("policy_kwargs"))
+    noise = _action_noise(hyper)
+    if noise is not None:
+        kwargs["action_noise"] = noise
+    return cls(hyper.get("policy", "MlpPolicy"), env, seed=settings.seed,
+               device=settings.device, verbose=0, **kwargs)
+
+
+def _resume(cls, checkpoint: Path, env, hyper: dict[str, Any], norm_kw: dict[str, Any] | None,
+            frame_stack: int, settings: TrainSettings, trust: bool):
+    """The model of ``checkpoint``, ready to learn on (wrapped) ``env``.
+
+    By default as data: the algorithm is rebuilt from the run's hyperparameters, then the
+    checkpoint's tensors (weights and optimiser state, ``weights_only``), its step counters
+    (plain JSON), normaliser statistics (JSON) and replay buffer (npz) are put into it.
+    ``trust``: SB3's own loader and the pickles older runs wrote."""
+    from .model_files import (
+        load_replay_buffer,
+        read_archive,
+        read_normalizer,
+        restore_normalizer,
+        untrusted,
+    )
+
+    stats_json, stats_pickle = checkpoint_statistics(checkpoint)
+    if norm_kw is not None and stats_json is None and stats_pickle is not None:
+        if not trust:
+            raise untrusted(stats_pickle, "normaliser statistics stored as a pickle")
+        from stable_baselines3.common.vec_env import VecNormalize
+
+        env = wrap_env(VecNormalize.load(str(stats_pickle), env), None, frame_stack)
+    else:
+        env = wrap_env(env, norm_kw, frame_stack)
+        if norm_kw is not None and stats_json is not None:
+            norm = env.venv if frame_stack > 1 else env
+            restore_normalizer(norm, read_normalizer(stats_json, norm.observation_space.shape[0]))
+    buffer_npz = checkpoint.with_suffix(REPLAY_SUFFIX)
+    buffer_pickle = checkpoint.with_suffix(".replay.pkl")
+    if trust:
+        model = cls.load(checkpoint, env=env, device=settings.device)
+        if hasattr(model, "load_replay_buffer") and buffer_pickle.is_file() \
+                and not buffer_npz.is_file():
+            model.load_replay_buffer(buffer_pickle)
+    else:
+        archive = read_archive(checkpoint)
+        model = _new_model(cls, hyper, env, settings)
+        try:
+            model.set_parameters(archive.params, exact_match=True, device=settings.device)
+        except (ValueError, KeyError, RuntimeError) as exc:
+            raise ValueError(f"{checkpoint}: its tensors do not fit the run's {settings.algo} "
+                             f"model ({str(exc).splitlines()[0][:200]})") from None
+        wanted = set(model._get_torch_save_params()[1])     # e.g. SAC's log_ent_coef
+        for name, value in (archive.variables or {}).items():
+            if name in wanted and value is not None:
+                getattr(model, name).data = value.data
+        for counter in ("num_timesteps", "_n_updates", "_episode_num"):
+            value = archive.data.get(counter, 0)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"{checkpoint}: data field {counter!r} must be a "
+                                 f"non-negative integer, got {value!r}")
+            setattr(model, counter, value)
+    if getattr(model, "replay_buffer", None) is not None:
+        if buffer_npz.is_file():
+            load_replay_buffer(model.replay_buffer, buffer_npz)
+        elif buffer_pickle.is_file() and not trust:
+            raise untrusted(buffer_pickle, "a replay buffer stored as a pickle")
+    return model
 
 
 def write_sidecar(model_path: Path, settings: TrainSettings,
@@ -449,11 +530,13 @@ def _progress_callback():
     return ExactProgressBar()
 
 
-def train(settings: TrainSettings, resume: str | Path | None = None) -> Path:
-    """Train (or resume) an agent; return the run folder."""
+def train(settings: TrainSettings, resume: str | Path | None = None, trust: bool = False
+          ) -> Path:
+    """Train (or resume) an agent; return the run folder. ``trust``: a resumed checkpoint
+    may be unpickled (see `_resume`)."""
     check_dependencies(settings.progress_bar)
     import torch
-    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
+    from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.logger import configure
 
     settings.validate()
@@ -481,27 +564,10 @@ def train(settings: TrainSettings, resume: str | Path | None = None) -> Path:
     eval_env = make_vec_env(min(settings.eval_episodes, 16), VALIDATION_SEED + settings.seed,
                             settings.env_kwargs, steps, settings.env_id)
     if resume is not None:
-        stats = checkpoint_statistics(resume)
-        if norm_kw is not None and stats is not None:
-            from stable_baselines3.common.vec_env import VecNormalize
-
-            env = VecNormalize.load(str(stats), env)
-            env = wrap_env(env, None, frame_stack)
-        else:
-            env = wrap_env(env, norm_kw, frame_stack)
-        model = cls.load(resume, env=env, device=settings.device)
-        buffer = Path(resume).with_suffix(".replay.pkl")
-        if hasattr(model, "load_replay_buffer") and buffer.is_file():
-            model.load_replay_buffer(buffer)
+        model = _resume(cls, Path(resume), env, hyper, norm_kw, frame_stack, settings, trust)
     else:
         env = wrap_env(env, norm_kw, frame_stack)
-        kwargs = {k: v for k, v in hyper.items() if k not in ZOO_ONLY_KEYS}
-        kwargs["policy_kwargs"] = parse_policy_kwargs(kwargs.get("policy_kwargs"))
-        noise = _action_noise(hyper)
-        if noise is not None:
-            kwargs["action_noise"] = noise
-        model = cls(hyper.get("policy", "MlpPolicy"), env, seed=settings.seed,
-                    device=settings.device, verbose=0, **kwargs)
+        model = _new_model(cls, hyper, env, settings)
         if hyper.get("warm_start"):
             from .warm_start import warm_start
 
@@ -514,11 +580,7 @@ def train(settings: TrainSettings, resume: str | Path | None = None) -> Path:
     eval_env = wrap_env(eval_env, norm_kw, frame_stack, training=False)
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
     selector = _selection_callback(eval_env, settings, run_dir, n_envs)
-    callbacks = [CheckpointCallback(max(1, settings.save_freq // n_envs),
-                                    str(run_dir / "checkpoints"), name_prefix="checkpoint",
-                                    save_replay_buffer=hasattr(model, "replay_buffer"),
-                                    save_vecnormalize=norm_kw is not None),
-                 selector]
+    callbacks = [_checkpoint_callback(run_dir / "checkpoints", settings, n_envs), selector]
     if settings.progress_bar:
         callbacks.append(_progress_callback())
 
@@ -588,7 +650,7 @@ def plot_learning_curve(run_dir: Path) -> Path | None:
     data_file = run_dir / "evaluations.npz"
     if not data_file.is_file():
         return None
-    data = np.load(data_file)
+    data = np.load(data_file, allow_pickle=False)
     steps, results, lengths = data["timesteps"], data["results"], data["ep_lengths"]
     rows = ["timesteps,mean_return,std_return,mean_length"]
     rows += [f"{s},{r.mean()},{r.std()},{n.mean()}" for s, r, n in zip(steps, results, lengths)]

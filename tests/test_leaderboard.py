@@ -55,14 +55,14 @@ def test_resume_keeps_finished_policies_and_an_interrupt_keeps_what_finished(tmp
     first, second = LEVELS[1].id, LEVELS[2].id
     calls = []
 
-    def fake(env_id, spec, episodes, seed, progress=True):
+    def fake(env_id, spec, episodes, seed, progress=True, trust=False):
         calls.append((env_id, spec))
         if env_id == second and spec == "const-1.0":
             raise KeyboardInterrupt
         return _fake_result(spec)
 
     monkeypatch.setattr(lb, "evaluate_policy", fake)
-    monkeypatch.setattr(lb, "shipped_agents", lambda env_id: [])
+    monkeypatch.setattr(lb, "shipped_agents", lambda env_id, models_dir=None: [])
     args = ["--episodes", "2", "--levels", first, second, "--out", str(tmp_path),
             "--no-progress"]
     assert lb.main(args) == 130
@@ -116,11 +116,11 @@ def test_bad_arguments_give_one_line_errors(capsys):
 def test_updating_one_level_keeps_the_others_on_the_board(tmp_path, monkeypatch):
     first, second = LEVELS[1].id, LEVELS[2].id
 
-    def fake(env_id, spec, episodes, seed, progress=True):
+    def fake(env_id, spec, episodes, seed, progress=True, trust=False):
         return _fake_result(spec)
 
     monkeypatch.setattr(lb, "evaluate_policy", fake)
-    monkeypatch.setattr(lb, "shipped_agents", lambda env_id: [])
+    monkeypatch.setattr(lb, "shipped_agents", lambda env_id, models_dir=None: [])
     common = ["--episodes", "2", "--out", str(tmp_path), "--no-progress"]
     assert lb.main(common + ["--levels", second, first]) == 0
     assert lb.main(common + ["--levels", second, "--resume"]) == 0

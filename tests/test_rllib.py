@@ -132,12 +132,28 @@ def test_rllib_run_checkpoints_resumes_and_is_evaluated(tmp_path):
     assert any((run / "checkpoints").glob("checkpoint_*/rllib_checkpoint.json"))
     assert (run / "tb").is_dir() and (run / "config.json").is_file()
 
+    # resuming restores RLlib's pickles: refused without --trust-model, in one line
+    refused = _run("train.py", "--resume", str(final), "--total-timesteps",
+                   str(first[-1] + 500), timeout=120, check=False)
+    assert refused.returncode == 2 and "--trust-model" in refused.stderr
+    assert "Traceback" not in refused.stderr
     # --resume continues the step counter (its config.json supplies the settings)
     _run("train.py", "--resume", str(final), "--total-timesteps", str(first[-1] + 500),
-         "--no-progress-bar")
+         "--no-progress-bar", "--trust-model")
     steps = _steps(run)
     assert steps[:len(first)] == first and steps[len(first)] > first[-1]
     assert json.loads((final / "saddle_env.json").read_text())["steps"] == steps[-1]
+
+    # read as data (weights file + sidecar config), the network acts exactly as RLlib's own
+    # (unpickled) copy of it
+    from agents.rllib_policy import load_policy
+    from saddle_env.envs import EnvConfig
+    from saddle_env.envs.observation import observation_space
+    space = observation_space(EnvConfig())
+    space.seed(3)
+    obs = np.stack([space.sample() for _ in range(256)])
+    safe, trusted = load_policy(final), load_policy(final, trust=True)
+    assert np.array_equal(safe.predict(obs)[0], trusted.predict(obs)[0])
 
     # saddle-eval runs the policy network alone, deterministic, on the seeded episodes
     def evaluate():
@@ -200,8 +216,9 @@ def test_sigterm_leaves_a_checkpoint_that_resumes(tmp_path):
     assert len(ckpts) == 1 and (ckpts[0] / "rllib_checkpoint.json").is_file(), out
     done = json.loads((ckpts[0] / "saddle_env.json").read_text())["steps"]
     assert done >= _steps(run)[1] and "continue with: python train.py --resume" in out
+    assert "--trust-model" in out
     _run("train.py", "--resume", str(ckpts[0]), "--total-timesteps", str(done + 200),
-         "--num-env-runners", "1", "--no-progress-bar")
+         "--num-env-runners", "1", "--no-progress-bar", "--trust-model")
     assert _steps(run)[-1] > done
 
 

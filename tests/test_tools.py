@@ -119,7 +119,9 @@ def _ppo_on(env_id, tmp_path, frame_stack=1, normalize=False, name="model"):
     path = tmp_path / f"{name}.zip"
     model.save(path)
     if normalize:
-        model.get_vec_normalize_env().save(str(P.vecnormalize_path(path)))
+        from agents.model_files import save_normalizer
+
+        save_normalizer(model.get_vec_normalize_env(), P.vecnormalize_path(path))
     path.with_suffix(".json").write_text(json.dumps(
         {"algo": "PPO", "env_id": env_id, "env_kwargs": {}, "frame_stack": frame_stack,
          "normalize": normalize}))
@@ -301,7 +303,7 @@ def test_train_on_a_level_records_it_and_honours_normalize_and_frame_stack(tmp_p
     assert side["frame_stack"] == 2 and side["normalize"] is True
     assert side["max_episode_steps"] == get_level(GUSTY).max_episode_steps
     for name in ("final_model", "selected_model", "best_model"):
-        assert (run / f"{name}.zip").is_file() and (run / f"{name}.vecnormalize.pkl").is_file()
+        assert (run / f"{name}.zip").is_file() and (run / f"{name}.vecnormalize.json").is_file()
     selected = json.loads((run / "selected_model.json").read_text())
     evals = np.load(run / "evaluations.npz")
     means = evals["results"].mean(axis=1)
