@@ -169,9 +169,19 @@ def levels_markdown() -> str:
              "option (`gym.make(\"SaddleTrap-Gusty-v0\", air_force=0.1)`). A change of "
              "meaning gets a new version, never a silent edit. How every baseline and agent "
              "does on each: [leaderboard.md](leaderboard.md).", "",
-             "| id | summary | episode |", "|---|---|---|"]
+             "**Reward threshold.** Each level's `gym.spec(ID).reward_threshold`, Gymnasium's "
+             "\"solved\" marker (read by tools such as SB3's `StopTrainingOnRewardThreshold`), "
+             "is the mean return of `mpc` on the level's frozen test set (1,000 episodes, "
+             "[leaderboard.md](leaderboard.md)), rounded down to 0.1: an agent that reaches it "
+             "traps as long as the model-predictive controller. A return is the sum over the "
+             "episode's control steps of the per-step reward (the fraction of the step the ball "
+             "stayed trapped, less 10 in the step it is lost; [environment.md](environment.md#reward)), so 500 is "
+             "a ball kept for the full 10 s. The "
+             "tests check each threshold against the committed leaderboard.", "",
+             "| id | summary | episode | reward threshold |", "|---|---|---|---|"]
     for level in LEVELS:
-        lines.append(f"| `{level.id}` | {level.summary} | {level.max_episode_steps} steps |")
+        lines.append(f"| `{level.id}` | {level.summary} | {level.max_episode_steps} steps | "
+                     f"{level.reward_threshold} |")
     for level in LEVELS:
         opts = ", ".join(f"`{k}={v!r}`" for k, v in level.options.items()) or \
             "none: every option at its default"

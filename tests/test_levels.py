@@ -191,3 +191,19 @@ def test_slippery_level_draws_coulomb_balls_whose_low_friction_makes_them_slip()
     rolling = position_after(100, contact="rolling", mu_range=None)
     assert np.abs(position_after(100, mu_range=[hi, hi]) - rolling).max() < 1e-5
     assert np.abs(position_after(100, mu_range=[lo, lo]) - rolling).max() > 0.05
+
+
+def test_every_level_has_a_reward_threshold_at_mpcs_test_return():
+    """gym.spec(ID).reward_threshold is mpc's mean return on the level's frozen test set
+    (docs/leaderboard.json), rounded down to 0.1."""
+    import json
+    import math
+    from pathlib import Path
+
+    board = json.loads((Path(__file__).resolve().parents[1] / "docs" / "leaderboard.json")
+                       .read_text())
+    for level in LEVELS:
+        threshold = gym.spec(level.id).reward_threshold
+        assert threshold is not None and threshold == level.reward_threshold
+        mpc = next(r for r in board["levels"][level.id]["policies"] if r["policy"] == "mpc")
+        assert threshold == math.floor(mpc["return"]["mean"] * 10) / 10, level.id

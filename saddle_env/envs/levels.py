@@ -30,14 +30,21 @@ class Level:
     why_hard: str
     options: Mapping[str, Any] = field(default_factory=dict)
     max_episode_steps: int = DEFAULT_EPISODE_STEPS
+    # Gymnasium's "solved" marker (gym.spec(ID).reward_threshold, read by tools such as
+    # SB3's StopTrainingOnRewardThreshold): the mean return of `mpc` on the level's frozen
+    # test set (1,000 episodes, docs/leaderboard.md), rounded down to 0.1. Reaching it means
+    # trapping as long as the model-predictive controller. docs/levels.md.
+    reward_threshold: float | None = None
 
     def config(self, **overrides: Any) -> EnvConfig:
         """The level's options, with ``overrides`` on top, as a validated `EnvConfig`."""
         return EnvConfig.from_kwargs(**{**self.options, **overrides})
 
 
-def _level(id: str, summary: str, models: str, why_hard: str, **options: Any) -> Level:
-    return Level(id, summary, models, why_hard, MappingProxyType(options))
+def _level(id: str, summary: str, models: str, why_hard: str, *, reward_threshold: float,
+           **options: Any) -> Level:
+    return Level(id, summary, models, why_hard, MappingProxyType(options),
+                 reward_threshold=reward_threshold)
 
 
 # What every level after the calm one gives a controller: the motor is a speed servo (the
@@ -58,7 +65,8 @@ LEVELS: tuple[Level, ...] = (
         "The paper's saddle and its 2.65 cm ball released within 1 cm of the centre at rest in "
         "the laboratory, the saddle at 15-25 rad/s.",
         "It is not: every constant speed from 1.1 Omega_crt to the motor's top speed keeps every "
-        "ball. It is the level for checking an agent learns the basics and for benchmarks."),
+        "ball. It is the level for checking an agent learns the basics and for benchmarks.",
+        reward_threshold=500.0),
     _level(
         "SaddleTrap-Gusty-v0",
         "gusty: air currents push the ball, the motor ripples, one of the paper's three balls",
@@ -71,7 +79,8 @@ LEVELS: tuple[Level, ...] = (
         "(detachment), while just above the threshold the trap is too weak to hold it "
         "(escape). The best constant speed keeps about a third of the balls for 10 s; a "
         "controller must read the push from the ball's motion and answer it.",
-        **_GUSTS, ball_radii=_PAPER_BALLS, **_CONTROLLER),
+        **_GUSTS, ball_radii=_PAPER_BALLS, **_CONTROLLER,
+        reward_threshold=447.4),
     _level(
         "SaddleTrap-Capture-v0",
         "capture: the saddle starts below the threshold, the ball up to 2 cm out",
@@ -82,7 +91,8 @@ LEVELS: tuple[Level, ...] = (
         "reach the threshold, and by then the ball is on a wide orbit that a high speed throws "
         "off the saddle and a low one lets escape. Spinning straight up to the best constant "
         "loses one ball in five; how fast and how far to go depends on where the ball is.",
-        omega0_range=[10.0, 13.0], init_offset=0.02, ball_radii=_PAPER_BALLS, **_CONTROLLER),
+        omega0_range=[10.0, 13.0], init_offset=0.02, ball_radii=_PAPER_BALLS, **_CONTROLLER,
+        reward_threshold=461.6),
     _level(
         "SaddleTrap-Storm-v0",
         "hardest: gusts, a sub-threshold start, sensor noise and an unknown ball",
@@ -96,7 +106,8 @@ LEVELS: tuple[Level, ...] = (
         "assumes one of them mispredicts the other.",
         air_force=0.15, ripple_amp=1.0, ripple_freq=20.0, ball_radii=_PAPER_BALLS,
         contact_models=["rolling", "slipping"], omega0_range=[8.0, 13.0], init_offset=0.01,
-        position_noise=0.001, velocity_noise=0.01, omega_noise=0.2, **_CONTROLLER),
+        position_noise=0.001, velocity_noise=0.01, omega_noise=0.2, **_CONTROLLER,
+        reward_threshold=390.1),
     _level(
         "SaddleTrap-Slippery-v0",
         "slippery: real balls that stick and slip (Coulomb friction, mu 0.01-0.1) in still air",
@@ -119,7 +130,8 @@ LEVELS: tuple[Level, ...] = (
         "same controller predicting a rolling ball kept all 200. A controller has to tell from "
         "the ball's motion how much it slips.",
         contact="coulomb", mu_range=[0.01, 0.1], drag_quadratic=0.2, ball_radii=_PAPER_BALLS,
-        **_CONTROLLER),
+        **_CONTROLLER,
+        reward_threshold=494.9),
 )
 
 LEVEL_IDS: tuple[str, ...] = tuple(level.id for level in LEVELS)
@@ -146,7 +158,8 @@ def register_levels() -> None:
         if level.id not in registry:
             register(id=level.id, entry_point="saddle_env.envs.saddle_trap:SaddleTrapEnv",
                      vector_entry_point="saddle_env.envs.vector:SaddleTrapVectorEnv",
-                     max_episode_steps=level.max_episode_steps, kwargs=dict(level.options))
+                     max_episode_steps=level.max_episode_steps,
+                     reward_threshold=level.reward_threshold, kwargs=dict(level.options))
 
 
 __all__ = ["DEFAULT_EPISODE_STEPS", "LEVELS", "LEVEL_IDS", "Level", "PAPER_BALL_RADII",
