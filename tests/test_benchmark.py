@@ -1,0 +1,124 @@
+"""The benchmark suite: cells, resume, one JSON per run, and the rliable report generated
+from result files alone (tiny budgets; the real runs are committed under benchmark/)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rliable")
+pytest.importorskip("sb3_contrib")
+
+from agents import benchmark as B  # noqa: E402
+from agents.benchmark_report import references  # noqa: E402
+
+GUSTY, STORM = "SaddleTrap-Gusty-v0", "SaddleTrap-Storm-v0"
+
+
+@pytest.mark.slow
+def test_a_real_cell_writes_its_result_and_a_rerun_skips_it(tmp_path, monkeypatch, capsys):
+    args = ["--only", f"{GUSTY}/recurrent-ppo/3", "--budget", "64", "--episodes", "3",
+            "--out", str(tmp_path)]
+    assert B.main(args) == 0
+    path = B.result_path(tmp_path, GUSTY, "recurrent-ppo", 3)
+    data = json.loads(path.read_text())
+    assert data["level"] == GUSTY and data["seed"] == 3 and data["steps_done"] >= 64
+    assert len(data["episode_times"]) == 3 and data["test"]["episodes"] == 3
+    t = data["trapping_time"]
+    assert 0.0 <= t["low"] <= t["mean"] <= t["high"] <= 10.0
+    assert data["versions"]["sb3-contrib"] and not list(tmp_path.rglob("*.tmp"))
+
+    def must_not_run(*a, **k):
+        raise AssertionError("a finished cell was run again")
+
+    monkeypatch.setattr(B, "run_cell", must_not_run)
+    assert B.main(args) == 0
+    assert "already have results" in capsys.readouterr().err
+
+
+def _fake_cell(level, algo, seed, budget=None, episodes=B.TEST_EPISODES):
+    rng = np.random.default_rng(hash((level, algo, seed)) % 2 ** 32)
+    mean = {"ppo": 8.0, "sac": 5.0}[algo] + rng.normal(0, 0.3)
+    return {"level": level, "algo": algo, "seed": seed, "budget_steps": 10,
+            "train_wall_s": 1.0, "test": {"seed": 0, "episodes": episodes},
+            "trapping_time": {"mean": mean, "low": mean - 0.1, "high": mean + 0.1},
+            "kept": {"mean": mean / 10}, "return": {"mean": 50 * mean}}
+
+
+def test_a_killed_suite_resumes_where_it_stopped(tmp_path, monkeypatch):
+    calls, killed = [], []
+
+    def fake(level, algo, seed, **kw):
+        calls.append((level, algo, seed))
+        if len(calls) == 3 and not killed:
+            killed.append(True)
+            raise KeyboardInterrupt              # Ctrl-C in the third cell
+        return _fake_cell(level, algo, seed)
+
+    monkeypatch.setattr(B, "run_cell", fake)
+    argv = ["--levels", GUSTY, STORM, "--algos", "ppo", "sac", "--seeds", "0", "1",
+            "--out", str(tmp_path)]
+    assert B.main(argv) == 130
+    assert len(list(tmp_path.rglob("seed*.json"))) == 2
+    first = list(calls)
+    calls.clear()
+    assert B.main(argv) == 0
+    assert len(calls) == 8 - 2 and not set(calls) & set(first[:2])   # finished cells kept
+    assert len(list(tmp_path.rglob("seed*.json"))) == 8
+
+
+def test_the_report_is_generated_from_the_result_files(tmp_path, monkeypatch, capsys):
+    import agents.benchmark_report as R
+
+    monkeypatch.setattr(R, "REPS", 300)   # fewer bootstrap draws: the same code, faster
+    results = tmp_path / "results"
+    for lv in (GUSTY, STORM):
+        for algo in ("ppo", "sac"):
+            for seed in (0, 1, 2):
+                B.write_result(results, _fake_cell(lv, algo, seed))
+    docs = tmp_path / "docs"
+    docs.mkdir()
+    assert B.main(["--report", "--out", str(results), "--docs", str(docs)]) == 0
+    md = (docs / "benchmark.md").read_text()
+    assert f"### {GUSTY}" in md and "| ppo | 3 (0, 1, 2)" in md and "IQM" in md
+    for fig in ("benchmark_aggregates.png", "benchmark_profiles.png"):
+        assert (docs / "figures" / fig).read_bytes()[:4] == b"\x89PNG"
+    capsys.readouterr()
+    assert B.main(["--report", "--json", "--out", str(results)]) == 0
+    data = json.loads(capsys.readouterr().out)
+    refs = references()
+    for lv in (GUSTY, STORM):
+        for algo in ("ppo", "sac"):
+            row = data["levels"][lv][algo]
+            assert row["seeds"] == 3 and row["iqm_ci"][0] <= row["iqm"] <= row["iqm_ci"][1]
+            # the score's normalisation: random 0, the upper reference 1
+            ref = refs[lv]
+            want = (row["trapping_time_mean"] - ref["random"]) / (ref[ref["upper"]]
+                                                                  - ref["random"])
+            assert row["mean"] == pytest.approx(want)
+        # ppo (about 8 s) beats best-const on Storm (6.06 s) in every run; sac (5 s) never
+        assert data["levels"][lv]["sac"]["p_improve_mpc"] == 0.0
+    assert data["levels"][STORM]["ppo"]["p_improve_best-const"] == 1.0
+    assert data["across_levels"]["ppo"]["seeds"] == 3
+
+
+def test_bad_cells_are_one_line_errors(capsys):
+    for argv, needle in ((["--only", "Nope-v0/ppo/0"], "Nope-v0"),
+                         (["--only", f"{GUSTY}/dqn/0"], "unknown algorithm"),
+                         (["--only", f"{GUSTY}/ppo"], "LEVEL/ALGO/SEED"),
+                         (["--algos", "dqn"], "unknown")):
+        with pytest.raises(SystemExit) as exc:
+            B.main(argv)
+        assert exc.value.code == 2 and needle in capsys.readouterr().err
+
+
+def test_two_cells_run_as_tasks_on_a_local_ray(tmp_path):
+    pytest.importorskip("ray")
+    argv = ["--levels", GUSTY, "--algos", "ppo", "--seeds", "0", "1", "--budget", "64",
+            "--episodes", "2", "--out", str(tmp_path), "--address", "local"]
+    assert B.main(argv) == 0
+    for seed in (0, 1):
+        data = json.loads(B.result_path(tmp_path, GUSTY, "ppo", seed).read_text())
+        assert data["seed"] == seed and data["steps_done"] >= 64
