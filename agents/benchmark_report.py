@@ -197,6 +197,19 @@ def _ci(v: float, ci: list[float], fmt: str = "{:.2f}") -> str:
     return f"{fmt.format(v)} [{fmt.format(ci[0])}, {fmt.format(ci[1])}]"
 
 
+def provenance(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """The library versions, machines, dates and loads the results were made with."""
+    versions: dict[str, set[str]] = {}
+    for r in results:
+        for k, v in r.get("versions", {}).items():
+            versions.setdefault(k, set()).add(v)
+    loads = [r["load_average_at_end"][0] for r in results if r.get("load_average_at_end")]
+    return {"versions": {k: sorted(v) for k, v in sorted(versions.items())},
+            "machines": sorted({r.get("machine", "?") for r in results}),
+            "dates": sorted({str(r.get("date", "?"))[:10] for r in results}),
+            "load_average": [round(min(loads), 1), round(max(loads), 1)] if loads else None}
+
+
 def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str) -> str:
     from .benchmark import ALGOS, SEEDS, TEST_EPISODES
 
@@ -257,7 +270,8 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str) ->
               "python -m agents.benchmark                        # every missing cell, in turn",
               "python -m agents.benchmark --only SaddleTrap-Storm-v0/sac/1   # one cell",
               "python -m agents.benchmark --address HOST:PORT    # as Ray tasks on a cluster",
-              "python -m agents.benchmark --report [--json]      # this page, or its data",
+              "python -m agents.benchmark --report               # this page and its figures",
+              "python -m agents.benchmark --report --json        # the same data as JSON",
               "```", "",
               f"The default cells are every non-calm level x every row x seeds "
               f"{', '.join(map(str, SEEDS))}. A cell writes `benchmark/results/<level>/<algo>/"
@@ -275,6 +289,15 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str) ->
               "test set is seeds 2,000,000 onwards (`agents/seeds.py`), used for nothing else; "
               "no model selection is done (the final network is evaluated), so no validation "
               "episodes are spent.", ""]
+    prov = data.get("provenance")
+    if prov:
+        vers = ", ".join(f"{k} {'/'.join(v)}" for k, v in prov["versions"].items())
+        load = prov["load_average"]
+        lines += ["**Versions and machine.** " + vers + f". Machine: {', '.join(prov['machines'])}"
+                  f"; runs made on {', '.join(prov['dates'])}"
+                  + (f", 1-minute load average at the end of a run {load[0]}-{load[1]} "
+                     "(wall times are comparable only between runs made under similar load; "
+                     "scores do not depend on it)" if load else "") + ".", ""]
     return "\n".join(lines) + "\n"
 
 
@@ -285,6 +308,7 @@ def main_report(out: Path, docs: Path | None = None, as_json: bool = False) -> i
               file=sys.stderr)
         return 1
     data = report_data(results, references())
+    data["provenance"] = provenance(results)
     data.pop("_matrices") if as_json else None
     if as_json:
         sys.stdout.write(json.dumps(data, indent=1) + "\n")
