@@ -47,13 +47,18 @@ def refresh() -> bool:
         digest = source_digest()
         if _STAMP.is_file() and _STAMP.read_text() == digest:
             return False
-        for tree in _TREES:
-            if tree.is_dir():
-                for pattern in ("*.nbi", "*.nbc"):
-                    for f in tree.rglob(pattern):
-                        f.unlink(missing_ok=True)
+        clear()
         _STAMP.parent.mkdir(exist_ok=True)
         _STAMP.write_text(digest)
         return True
     except OSError:  # read-only install: numba keeps its cache elsewhere
         return False
+
+
+def clear() -> None:
+    """Remove the in-tree cache files (what a fresh install starts from)."""
+    for tree in _TREES:
+        if tree.is_dir():
+            for pattern in ("*.nbi", "*.nbc"):
+                for f in tree.rglob(pattern):
+                    f.unlink(missing_ok=True)
