@@ -155,6 +155,21 @@ def jit(f):
     return one_signature(_jit(f))
 
 
+_ir_inline = nb.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+
+
+def ir_inline(f):
+    """`jit`, with the function's code typed into each compiled caller rather than compiled
+    on its own (numba inlines it before typing). For thin layers between a compiled entry
+    point and the integrator: numba links a callee's whole code into each caller's and
+    optimises and generates machine code for it again there, so every separately compiled
+    layer above `integrators.integrate_h` paid for the integrator once more (the
+    environment's step had four: docs/coldstart.md). Not for large helpers with several
+    call sites: numba types each inlined copy again, and its type inference grows faster
+    than the code (measured: inlining the integrator's helpers made compiling slower)."""
+    return one_signature(_ir_inline(f))
+
+
 def inline(f):
     """`jit`, always inlined by LLVM into its callers."""
     return one_signature(_inline(f))

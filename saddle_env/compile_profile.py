@@ -79,6 +79,38 @@ class CompileRecorder:
         return sum(r.self_s for r in self.rows.values())
 
 
+class LLVMSize:
+    """Counts the LLVM instructions numba optimises and turns into machine code: the
+    optimised size of every module it finalises, which holds the function's code and the
+    code of every callee linked into it. Unlike seconds it does not depend on the machine's
+    load. Reads numba internals (``CPUCodeLibrary._optimize_final_module``): diagnostic only.
+    """
+
+    def __init__(self):
+        from numba.core import codegen
+
+        self._cls = codegen.CPUCodeLibrary
+        self._orig = self._cls._optimize_final_module
+        self.modules = 0
+        self.instructions = 0
+
+    def __enter__(self):
+        orig, counter = self._orig, self
+
+        def optimize(library):
+            orig(library)
+            counter.modules += 1
+            counter.instructions += sum(
+                len(list(b.instructions)) for f in library._final_module.functions
+                if not f.is_declaration for b in f.blocks)
+
+        self._cls._optimize_final_module = optimize
+        return self
+
+    def __exit__(self, *exc):
+        self._cls._optimize_final_module = self._orig
+
+
 def run_scenario(name: str) -> None:
     """Run one scenario: ``simulate`` or a level id's first reset and step."""
     import gymnasium as gym
@@ -113,7 +145,7 @@ def _profile_here(names: list[str], top: int,
     """Run the scenarios in this process; print the per-function table; return
     (scenario, wall seconds, compile seconds) rows."""
     results = []
-    with CompileRecorder() as rec:
+    with CompileRecorder() as rec, LLVMSize() as size:
         for name in names:
             before = rec.compiled_seconds()
             t0 = time.perf_counter()
@@ -123,7 +155,8 @@ def _profile_here(names: list[str], top: int,
     rows = sorted(rec.rows.items(), key=lambda kv: -kv[1].self_s)
     n_sigs = sum(len(r.signatures) for _, r in rows)
     print(f"{len(rows)} functions compiled, {n_sigs} specialisations, "
-          f"{rec.compiled_seconds():.1f} s in all")
+          f"{rec.compiled_seconds():.1f} s in all; {size.modules} LLVM modules finalised, "
+          f"{size.instructions:,} LLVM instructions optimised and compiled")
     print(f"{'function':<46} {'specs':>5} {'self s':>7} {'total s':>8}")
     for fname, r in rows[:top]:
         print(f"{_short(fname):<46} {len(r.signatures):>5} {r.self_s:>7.2f} {r.total_s:>8.2f}")

@@ -50,7 +50,7 @@ import numpy as np
 
 from .._kernels import (DRIVE_AMP, DRIVE_FREQ, DRIVE_FX, DRIVE_FY, DRIVE_PHASE, DRIVE_RATE,
                         DRIVE_THETA0, DRIVE_W0, DRIVE_WIDTH, ROW_WIDTH, STATE_WIDTH, angle_at,
-                        contact_velocity, geometry, jit, lab_rest_velocity, rhs,
+                        contact_velocity, geometry, ir_inline, jit, lab_rest_velocity, rhs,
                         state_from_velocity)
 from ..integrators import EVENT_DETACH, STATUS_DETACH, StepControl, Tableau, integrate_h, reaches
 from ..lockstep import (BLOCK_WIDTH, LANES, PARAM_WIDTH, accepted, block_size, carve_block,
@@ -182,7 +182,7 @@ def _finish(model, p, y, ball, cfg, events, action, drive, rate, status, t_end, 
     observe_one(model, p, y, ball, cfg, noise, obs)
 
 
-@jit
+@ir_inline
 def _integrate(model, p, scale, y, ball, drive, tab, ctl, sc):
     """The scalar path: `integrate_h` over one control period; returns the status, the end
     time and N/m at the final state. The step size carries over from the last control step
@@ -275,7 +275,7 @@ def _store(i, width, Y, balls, obs, out, record):
         out[i, k] = o[k]
 
 
-@jit
+@ir_inline
 def _step_block(model, m, lanes, rates, ws, sc, record, P, scales, Y, balls, cfg, actions, tab,
                 ctl, noise, obs, out):
     """Finish lanes 0..m-1 (balls ``lanes``), gathered into ``ws``: one SIMD step for all,
@@ -379,6 +379,13 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
     return failed
 
 
+# `_step_range`, `_step_block` and `_integrate` are typed into `step_serial`
+# (`_kernels.ir_inline`): compiled on their own, each was one more module holding all of the
+# integrator's code, optimised and turned into machine code again (docs/coldstart.md).
+# `step_parallel` calls `_step_range` compiled on its own: numba's analysis of the reduction
+# in its parallel loop fails on the inlined body ("unexpected cycle in lookup()").
+_step_range_inlined = ir_inline(_step_range.py_func)
+
 # The two entry points take the method and the step settings as the plain tuples of their
 # records' fields and rebuild the records inside: numba's dispatcher types a namedtuple
 # argument in Python, ~0.5 µs a call (measured), a tenth of a single ball's control step.
@@ -388,8 +395,9 @@ def step_serial(models, P, scales, Y, balls, cfg, actions, active, tab_fields, c
     """Step the active balls on this thread with the caller's scratch buffers (see `_carve`);
     return how many failed (status < 0). ``tab_fields``, ``ctl_fields``: the fields of the
     method's `Tableau` and of the `StepControl`."""
-    return _step_range(0, Y.shape[0], models, P, scales, Y, balls, cfg, actions, active,
-                       Tableau(*tab_fields), StepControl(*ctl_fields), noise, obs, out, buf, ibuf)
+    return _step_range_inlined(0, Y.shape[0], models, P, scales, Y, balls, cfg, actions,
+                               active, Tableau(*tab_fields), StepControl(*ctl_fields), noise,
+                               obs, out, buf, ibuf)
 
 
 @nb.njit(cache=True, parallel=True)
