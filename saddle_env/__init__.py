@@ -1,8 +1,9 @@
 """saddle-env: a rigid ball on a rotating saddle — physics, simulator and Gymnasium environment."""
 
-from . import _cache
+from . import _cache, _notice
 
 _cache.refresh()  # before any compiled function is loaded (see saddle_env/_cache.py)
+_notice.install()  # a compile that takes more than a moment says so (saddle_env/_notice.py)
 
 from .integrators import METHODS, Method  # noqa: E402
 from .omega import OmegaProfile  # noqa: E402

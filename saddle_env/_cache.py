@@ -1,59 +1,141 @@
-"""Keep numba's on-disk cache honest in a source tree that is being edited.
+"""Keep numba's on-disk cache honest, one source file at a time.
 
-numba checks a cached function against its *own* source file only. Our kernels inline
-functions from other files (the rates of `_kernels` into `integrators`, `lockstep`,
-`envs._step` and the baselines), so after an edit of `_kernels.py` alone the cached callers
-would keep running the old physics — tests included. On import, a digest of every source
-file that holds compiled code is compared with the one stored beside the cache; when they
-differ, the package's in-tree cache files are removed and numba recompiles.
+numba checks a cached function against its *own* source file only (numba 0.68: a hash of
+the file's content; earlier versions its time stamp and size). Our compiled functions call functions of other files, and numba links the
+callees' code into each caller's cached object: after an edit of `_kernels.py` alone the
+cached callers in `integrators`, `lockstep`, `envs._step` and `agents` would keep running
+the old physics. They also freeze module constants (`scene.P_A`, ...) as they compile.
 
-Installed copies are unaffected in practice: an upgrade rewrites every file, which numba
-notices by itself. Trees that cannot be written (numba then caches elsewhere) are skipped.
+So on import, every module of the package (and every module of `agents` that compiles
+code) gets a digest of its own source and of every module it imports from these trees,
+directly or not. A module whose digest changed since the stamp was written has its cache
+files removed; the others keep theirs. An upgrade, or a ``git pull``, that changes one
+kernel file then recompiles what depends on it and nothing else: a change to
+`envs/_step.py` recompiles only the environment's step, one to `_kernels.py` everything
+compiled, since everything calls it (tests/test_cache.py).
+
+Trees that cannot be written (numba then caches elsewhere, and an upgrade rewrites every
+file, which numba notices by itself) are skipped.
 """
 
 from __future__ import annotations
 
+import ast
 import hashlib
+import json
 from pathlib import Path
 
 _PACKAGE = Path(__file__).resolve().parent
 # Packages whose compiled functions call into saddle_env's kernels.
 _TREES = [_PACKAGE, _PACKAGE.parent / "agents"]
-_STAMP = _PACKAGE / "__pycache__" / "numba-sources.sha256"
+_STAMP = _PACKAGE / "__pycache__" / "numba-sources.json"
 
 
-def _sources() -> list[Path]:
-    """Every module of saddle_env (kernels freeze its constants too) and the modules of the
-    other trees that compile code."""
-    out = [p for p in _PACKAGE.rglob("*.py") if "__pycache__" not in p.parts]
-    for tree in _TREES[1:]:
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(_PACKAGE.parent).with_suffix("")
+    parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+    return ".".join(parts)
+
+
+def _sources() -> dict[str, Path]:
+    """Module name -> file, for every module of the trees."""
+    out = {}
+    for tree in _TREES:
         if tree.is_dir():
-            out += [p for p in tree.rglob("*.py")
-                    if "__pycache__" not in p.parts and b"numba" in p.read_bytes()]
-    return sorted(out)
+            for p in tree.rglob("*.py"):
+                if "__pycache__" not in p.parts:
+                    out[_module_name(p)] = p
+    return out
 
 
-def source_digest() -> str:
-    h = hashlib.sha256()
-    for path in _sources():
-        h.update(str(path.relative_to(_PACKAGE.parent)).encode())
-        h.update(path.read_bytes())
-    return h.hexdigest()
-
-
-def refresh() -> bool:
-    """Drop stale cache files if the sources changed since they were written; True if dropped."""
+def _imports(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
+    """The modules of the trees that ``name`` imports, absolute or relative. (Python also
+    runs the packages' ``__init__`` on the way; they hold no compiled code and are not
+    counted, or every module would depend on everything ``saddle_env/__init__`` imports.)"""
+    is_pkg = path.name == "__init__.py"
+    package = name if is_pkg else name.rpartition(".")[0]
+    found = set()
     try:
-        digest = source_digest()
-        if _STAMP.is_file() and _STAMP.read_text() == digest:
-            return False
-        for tree in _TREES:
-            if tree.is_dir():
-                for pattern in ("*.nbi", "*.nbc"):
-                    for f in tree.rglob(pattern):
-                        f.unlink(missing_ok=True)
+        tree = ast.parse(path.read_bytes())
+    except (SyntaxError, ValueError):
+        return found
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names if a.name in modules)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[:len(base) - (node.level - 1)]
+                root = ".".join(base + ([node.module] if node.module else []))
+            else:
+                root = node.module or ""
+            for a in node.names:
+                # ``from pkg import mod`` is the submodule; ``from pkg import name`` the
+                # package's ``__init__`` (which re-exports from its own imports)
+                sub = f"{root}.{a.name}"
+                if sub in modules:
+                    found.add(sub)
+                elif root in modules:
+                    found.add(root)
+    found.discard(name)
+    return found
+
+
+def digests() -> dict[str, str]:
+    """Module name -> digest of its source and of every source it depends on."""
+    modules = _sources()
+    direct = {m: _imports(m, p, modules) for m, p in modules.items()}
+    own = {m: hashlib.sha256(p.read_bytes()).hexdigest() for m, p in modules.items()}
+    out = {}
+    for m in modules:
+        seen, todo = {m}, [m]
+        while todo:
+            for dep in direct[todo.pop()]:
+                if dep not in seen:
+                    seen.add(dep)
+                    todo.append(dep)
+        h = hashlib.sha256()
+        for dep in sorted(seen):
+            h.update(f"{dep}:{own[dep]}\n".encode())
+        out[m] = h.hexdigest()
+    return out
+
+
+def _cache_files(path: Path) -> list[Path]:
+    """numba's cache files for the functions of one source file
+    (``__pycache__/<stem>.<function>-<line>.py<ver>.nbi`` / ``.nbc``)."""
+    cache = path.parent / "__pycache__"
+    stem = "__init__" if path.name == "__init__.py" else path.stem
+    return [f for pattern in (f"{stem}.*.nbi", f"{stem}.*.nbc") for f in cache.glob(pattern)]
+
+
+def refresh() -> list[str]:
+    """Drop the cache files of every module whose sources changed since the stamp was
+    written; return those modules' names (empty if nothing was dropped)."""
+    try:
+        now = digests()
+        try:
+            before = json.loads(_STAMP.read_text())
+        except (OSError, ValueError):
+            before = {}
+        if before == now:
+            return []
+        modules = _sources()
+        stale = sorted(m for m in now if before.get(m) != now[m])
+        for m in stale:
+            for f in _cache_files(modules[m]):
+                f.unlink(missing_ok=True)
         _STAMP.parent.mkdir(exist_ok=True)
-        _STAMP.write_text(digest)
-        return True
+        _STAMP.write_text(json.dumps(now, indent=0, sort_keys=True))
+        return stale
     except OSError:  # read-only install: numba keeps its cache elsewhere
-        return False
+        return []
+
+
+def clear() -> None:
+    """Remove the in-tree cache files (what a fresh install starts from)."""
+    for tree in _TREES:
+        if tree.is_dir():
+            for pattern in ("*.nbi", "*.nbc"):
+                for f in tree.rglob(pattern):
+                    f.unlink(missing_ok=True)

@@ -80,7 +80,7 @@ def serial_twin(parallel_kernel):
     twin.__doc__ = f.__doc__
     options = {k: v for k, v in parallel_kernel.targetoptions.items()
                if k not in ("parallel", "nopython")}
-    return nb.njit(cache=True, **options)(twin)
+    return one_signature(nb.njit(cache=True, **options)(twin))
 
 
 def threads_usable() -> bool:
@@ -124,9 +124,55 @@ DRIVE_WIDTH = 8
 OBS_VX, OBS_VY, OBS_N, OBS_H, OBS_CX, OBS_CY, OBS_CZ, OBS_OMEGA = range(8)
 OBS_WIDTH = 8
 
-jit = nb.njit(cache=True, fastmath=False, error_model="numpy")
+def one_signature(dispatcher):
+    """Type a compiled function's arguments as their plain types when compiled code calls it.
+
+    numba compiles a function once per distinct argument types, and a constant passed from
+    compiled code is its own type (``Literal[int](4)`` for COULOMB, ``Literal[bool](True)``):
+    `rhs` was compiled six times over for literal and plain models and ``want_normal`` flags,
+    `integrate_h` twice, `_event_value` eight times, and each copy pulls in the code below it
+    (measured, docs/coldstart.md). None of these functions needs a constant argument (LLVM
+    still folds a constant at an inlined call), so calls from compiled code are typed
+    without the literals, one specialisation each."""
+    typed = dispatcher.get_call_template
+
+    def get_call_template(args, kws):
+        return typed(tuple(nb.types.unliteral(a) for a in args),
+                     {k: nb.types.unliteral(v) for k, v in kws.items()})
+
+    dispatcher.get_call_template = get_call_template
+    return dispatcher
+
+
+_jit = nb.njit(cache=True, fastmath=False, error_model="numpy")
 # For the per-ball rates: inlined into every caller so a loop over balls can be vectorised.
-inline = nb.njit(cache=True, fastmath=False, error_model="numpy", forceinline=True)
+_inline = nb.njit(cache=True, fastmath=False, error_model="numpy", forceinline=True)
+
+
+def jit(f):
+    """The kernels' compiler: numba without fast-math, numpy's error model (1/0 = inf), cached
+    on disk, one specialisation per function (`one_signature`)."""
+    return one_signature(_jit(f))
+
+
+_ir_inline = nb.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+
+
+def ir_inline(f):
+    """`jit`, with the function's code typed into each compiled caller rather than compiled
+    on its own (numba inlines it before typing). For thin layers between a compiled entry
+    point and the integrator: numba links a callee's whole code into each caller's and
+    optimises and generates machine code for it again there, so every separately compiled
+    layer above `integrators.integrate_h` paid for the integrator once more (the
+    environment's step had four: docs/coldstart.md). Not for large helpers with several
+    call sites: numba types each inlined copy again, and its type inference grows faster
+    than the code (measured: inlining the integrator's helpers made compiling slower)."""
+    return one_signature(_ir_inline(f))
+
+
+def inline(f):
+    """`jit`, always inlined by LLVM into its callers."""
+    return one_signature(_inline(f))
 
 
 @jit

@@ -208,7 +208,7 @@ def step_factor(err, exponent):
 
 
 @jit
-def _stages(model, p, prof, t, y, h, d, tab, K, ytmp, ynew, want_normal=False):
+def _stages(model, p, prof, t, y, h, d, tab, K, ytmp, ynew, want_normal):
     """Stages 2..s of one explicit RK step from (t, y) with K[0] = f(t, y) given; the
     new point goes to ``ynew``. Returns the smallest normal force per unit mass seen at the
     stage points (a by-product of the right-hand side) if ``want_normal``, else +inf."""
@@ -302,7 +302,7 @@ def _probe_dip(kind, model, p, prof, t, y, hstep, d, tab, K, ytmp, yout, dy):
         tau = tab.C[i] * hstep
         if tau <= 0.0 or tau >= hstep:
             continue
-        _stages(model, p, prof, t, y, tau, d, tab, K, ytmp, yout)
+        _stages(model, p, prof, t, y, tau, d, tab, K, ytmp, yout, False)
         if _event_value(kind, model, p, prof, t + tau, yout, dy) < 0.0:
             return tau
     return 0.0
@@ -327,7 +327,7 @@ def _locate(kind, model, p, prof, t, y, hstep, d, tab, K, ytmp, yout, dy):
     """
     lo, hi = 0.0, hstep
     flo = _event_value(kind, model, p, prof, t, y, dy)
-    _stages(model, p, prof, t, y, hi, d, tab, K, ytmp, yout)
+    _stages(model, p, prof, t, y, hi, d, tab, K, ytmp, yout, False)
     fhi = _event_value(kind, model, p, prof, t + hi, yout, dy)
     side = 0
     width = hi - lo
@@ -339,7 +339,7 @@ def _locate(kind, model, p, prof, t, y, hstep, d, tab, K, ytmp, yout, dy):
         if not (lo < tm < hi) or (side != 0 and hi - lo > 0.5 * width):
             tm = 0.5 * (lo + hi)
             width = hi - lo
-        _stages(model, p, prof, t, y, tm, d, tab, K, ytmp, yout)
+        _stages(model, p, prof, t, y, tm, d, tab, K, ytmp, yout, False)
         fm = _event_value(kind, model, p, prof, t + tm, yout, dy)
         if fm < 0.0:
             hi, fhi = tm, fm
@@ -351,7 +351,7 @@ def _locate(kind, model, p, prof, t, y, hstep, d, tab, K, ytmp, yout, dy):
             if side == 1:
                 fhi *= 0.5
             side = 1
-    _stages(model, p, prof, t, y, hi, d, tab, K, ytmp, yout)
+    _stages(model, p, prof, t, y, hi, d, tab, K, ytmp, yout, False)
     return hi
 
 
@@ -687,7 +687,7 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
                 stats[2] += 1
                 return Outcome(STATUS_DETACH, t + tau, h_start, accepted_normal)
             # a false alarm: the stage values are low-order estimates; redo the full step
-            _stages(model, p, prof, t, y, hstep, d, tab, K, ytmp, ynew)
+            _stages(model, p, prof, t, y, hstep, d, tab, K, ytmp, ynew, False)
             rhs(model, p, prof, t + hstep, ynew, K[s], False)
         if fired:
             # The state at t is still in y and f(t, y) in K[0]: locate on the partial step.

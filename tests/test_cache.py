@@ -1,44 +1,160 @@
-"""saddle_env._cache drops numba cache files when any compiled-code source changes."""
+"""saddle_env._cache drops the numba cache files of exactly the modules whose sources, or the
+sources they import, changed: an upgrade that changes one kernel file recompiles only what
+depends on it."""
 
 from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
 
 from saddle_env import _cache
 
 
 def _tree(tmp_path, monkeypatch):
+    """A package with the real import structure in miniature: kernels <- integrators <-
+    envs._step, a module nothing compiled imports, and agents/mpc importing the kernels."""
     pkg = tmp_path / "saddle_env"
-    (pkg / "__pycache__").mkdir(parents=True)
-    (pkg / "_kernels.py").write_text("x = 1\n")
+    (pkg / "envs").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("from . import integrators\nfrom .envs import _step\n")
+    (pkg / "scene.py").write_text("P_A = 0\n")
+    (pkg / "_kernels.py").write_text("from .scene import P_A\nx = 1\n")
+    (pkg / "integrators.py").write_text("from ._kernels import x\n")
+    (pkg / "linear.py").write_text("import math\n")
+    (pkg / "envs" / "__init__.py").write_text("")
+    (pkg / "envs" / "_step.py").write_text("from .. import _kernels as K\n"
+                                           "from ..integrators import x\n")
     other = tmp_path / "agents"
-    (other / "__pycache__").mkdir(parents=True)
-    (other / "baselines.py").write_text("import numba\n")
-    (other / "training.py").write_text("print('no compiled code')\n")
+    other.mkdir()
+    (other / "mpc.py").write_text("import numba\nfrom saddle_env._kernels import x\n")
     monkeypatch.setattr(_cache, "_PACKAGE", pkg)
     monkeypatch.setattr(_cache, "_TREES", [pkg, other])
-    monkeypatch.setattr(_cache, "_STAMP", pkg / "__pycache__" / "numba-sources.sha256")
+    monkeypatch.setattr(_cache, "_STAMP", pkg / "__pycache__" / "numba-sources.json")
     return pkg, other
 
 
-def _cached(*dirs):
-    for d in dirs:
-        (d / "__pycache__" / "f-1.py311.nbi").write_text("index")
-        (d / "__pycache__" / "f-1.py311.1.nbc").write_text("code")
+def _cached(path):
+    """Fake numba cache files for one function of the source file ``path``."""
+    cache = path.parent / "__pycache__"
+    cache.mkdir(exist_ok=True)
+    (cache / f"{path.stem}.f-1.py311.nbi").write_text("index")
+    (cache / f"{path.stem}.f-1.py311.1.nbc").write_text("code")
 
 
-def _count(*dirs):
-    return sum(len(list((d / "__pycache__").glob("*.nb?"))) for d in dirs)
+def _modules(stale):
+    """The stale modules other than packages (an ``__init__`` holds no compiled code, and
+    the package's imports everything)."""
+    return set(stale) - {"saddle_env", "saddle_env.envs"}
 
 
-def test_cache_survives_unchanged_sources_and_goes_when_a_kernel_file_changes(tmp_path,
-                                                                             monkeypatch):
+def _has_cache(path):
+    return len(list((path.parent / "__pycache__").glob(f"{path.stem}.*.nb?"))) == 2
+
+
+def test_dependencies_follow_the_imports(tmp_path, monkeypatch):
+    _tree(tmp_path, monkeypatch)
+    mods = _cache._sources()
+    deps = {m: _cache._imports(m, p, mods) for m, p in mods.items()}
+    assert deps["saddle_env._kernels"] == {"saddle_env.scene"}
+    assert deps["saddle_env.envs._step"] == {"saddle_env._kernels", "saddle_env.integrators"}
+    assert deps["agents.mpc"] == {"saddle_env._kernels"}
+    # the package __init__ is not a dependency of its modules (it imports everything)
+    assert "saddle_env" not in set().union(*deps.values())
+
+
+def test_a_changed_file_drops_only_its_own_and_its_dependents_caches(tmp_path, monkeypatch):
     pkg, other = _tree(tmp_path, monkeypatch)
-    assert _cache.refresh()  # no stamp yet: start clean
-    _cached(pkg, other)
-    assert not _cache.refresh() and _count(pkg, other) == 4
-    (other / "training.py").write_text("print('edited, still no compiled code')\n")
-    assert not _cache.refresh() and _count(pkg, other) == 4
-    (pkg / "_kernels.py").write_text("x = 2\n")  # a callee changed: callers' caches are stale
-    assert _cache.refresh() and _count(pkg, other) == 0
-    _cached(pkg, other)
-    (other / "baselines.py").write_text("import numba  # edited\n")
-    assert _cache.refresh() and _count(pkg, other) == 0
+    files = {name: pkg / name for name in ("_kernels.py", "integrators.py", "linear.py")}
+    files["step"] = pkg / "envs" / "_step.py"
+    files["mpc"] = other / "mpc.py"
+    assert _cache.refresh()  # no stamp yet: every module is new
+    for f in files.values():
+        _cached(f)
+    assert _cache.refresh() == [] and all(_has_cache(f) for f in files.values())
+
+    # The environment's step changes: only its own cache goes.
+    files["step"].write_text(files["step"].read_text() + "y = 2\n")
+    assert _modules(_cache.refresh()) == {"saddle_env.envs._step"}
+    assert not _has_cache(files["step"])
+    assert all(_has_cache(f) for k, f in files.items() if k != "step")
+
+    # A module nothing compiled imports: nobody else's cache goes.
+    _cached(files["step"])
+    files["linear.py"].write_text("import math  # edited\n")
+    assert _modules(_cache.refresh()) == {"saddle_env.linear"}
+    assert all(_has_cache(f) for k, f in files.items() if k != "linear.py")
+
+    # The kernels change: every module that imports them, directly or not, recompiles.
+    _cached(files["linear.py"])
+    files["_kernels.py"].write_text("from .scene import P_A\nx = 2\n")
+    assert _modules(_cache.refresh()) == {"saddle_env._kernels", "saddle_env.integrators",
+                                          "saddle_env.envs._step", "agents.mpc"}
+    assert _has_cache(files["linear.py"])
+    assert not any(_has_cache(f) for k, f in files.items() if k != "linear.py")
+
+    # A constant module the kernels freeze (scene.py): the same.
+    for f in files.values():
+        _cached(f)
+    (pkg / "scene.py").write_text("P_A = 1\n")
+    assert "saddle_env.integrators" in _cache.refresh()
+    assert not _has_cache(files["integrators.py"]) and _has_cache(files["linear.py"])
+
+
+def test_touching_a_file_keeps_the_stamp_valid(tmp_path, monkeypatch):
+    """A new time stamp with the same content (a reinstall, a checkout) drops nothing here;
+    numba itself recompiles that one file's functions, whose index holds the stamp."""
+    pkg, _ = _tree(tmp_path, monkeypatch)
+    _cache.refresh()
+    _cached(pkg / "integrators.py")
+    os.utime(pkg / "_kernels.py", (1, 1))
+    assert _cache.refresh() == [] and _has_cache(pkg / "integrators.py")
+    assert json.loads(_cache._STAMP.read_text())["saddle_env.integrators"]
+
+
+_TWO_FILES = {
+    "a.py": """
+        import numba
+        @numba.njit(cache=True)
+        def f(x):
+            return x + 1.0
+        """,
+    "b.py": """
+        import numba
+        @numba.njit(cache=True)
+        def g(x):
+            return x * 2.0
+        """,
+    "run.py": """
+        import a, b
+        a.f(1.0); b.g(1.0)
+        print(a.f.stats.cache_hits.total(), b.g.stats.cache_hits.total())
+        """,
+}
+
+
+@pytest.mark.slow
+def test_numba_recompiles_only_the_changed_file(tmp_path):
+    """What the layer above relies on: numba keys each file's cache on that file's own
+    source (numba 0.68: a hash of its content, formerly its time stamp and size), so a
+    changed file leaves the other file's cached functions loading, and a touched one (same
+    content, new time stamp: a reinstall) leaves its own loading too."""
+    for name, src in _TWO_FILES.items():
+        (tmp_path / name).write_text(textwrap.dedent(src))
+
+    def hits():
+        out = subprocess.run([sys.executable, "run.py"], cwd=tmp_path, check=True,
+                             capture_output=True, text=True).stdout.split()
+        return int(out[0]), int(out[1])
+
+    assert hits() == (0, 0)  # compiled and cached
+    assert hits() == (1, 1)  # both loaded
+    st = (tmp_path / "a.py").stat()
+    os.utime(tmp_path / "a.py", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    assert hits() == (1, 1)  # touched: still loaded
+    with open(tmp_path / "a.py", "a") as f:
+        f.write("# changed\n")
+    assert hits() == (0, 1)  # a.py recompiled, b.py still loaded

@@ -94,6 +94,8 @@ def _tool(argv: list[str]) -> tuple[str, list[str]]:
             return "rllib-benchmark", argv[3:]
         if argv[1:3] == ["-m", "agents.benchmark"]:
             return "benchmark", argv[3:]
+        if argv[1:3] == ["-m", "saddle_env.compile_profile"]:
+            return "compile-profile", argv[3:]
     if argv[0] == "ray" and argv[1:2] in (["start"], ["stop"], ["status"]):
         return "ray", argv[1:]          # Ray's own CLI (docs/scaling.md): not run by the tests
     if argv[:2] == ["pip", "install"]:
@@ -131,6 +133,8 @@ def _parser(tool: str) -> argparse.ArgumentParser | None:
         from agents.rllib_benchmark import build_parser
     elif tool == "benchmark":
         from agents.benchmark import build_parser
+    elif tool == "compile-profile":
+        from saddle_env.compile_profile import build_parser
     else:
         return None
     return build_parser()
@@ -363,6 +367,8 @@ def _main(tool: str):
         from saddle_env.envs.benchmark import main
     elif tool == "rllib-benchmark":
         from agents.rllib_benchmark import main
+    elif tool == "compile-profile":
+        from saddle_env.compile_profile import main
     else:
         sys.path.insert(0, str(ROOT))
         try:

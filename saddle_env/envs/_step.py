@@ -50,7 +50,7 @@ import numpy as np
 
 from .._kernels import (DRIVE_AMP, DRIVE_FREQ, DRIVE_FX, DRIVE_FY, DRIVE_PHASE, DRIVE_RATE,
                         DRIVE_THETA0, DRIVE_W0, DRIVE_WIDTH, ROW_WIDTH, STATE_WIDTH, angle_at,
-                        contact_velocity, geometry, jit, lab_rest_velocity, rhs,
+                        contact_velocity, geometry, ir_inline, jit, lab_rest_velocity, rhs,
                         state_from_velocity)
 from ..integrators import EVENT_DETACH, STATUS_DETACH, StepControl, Tableau, integrate_h, reaches
 from ..lockstep import (BLOCK_WIDTH, LANES, PARAM_WIDTH, accepted, block_size, carve_block,
@@ -182,7 +182,7 @@ def _finish(model, p, y, ball, cfg, events, action, drive, rate, status, t_end, 
     observe_one(model, p, y, ball, cfg, noise, obs)
 
 
-@jit
+@ir_inline
 def _integrate(model, p, scale, y, ball, drive, tab, ctl, sc):
     """The scalar path: `integrate_h` over one control period; returns the status, the end
     time and N/m at the final state. The step size carries over from the last control step
@@ -215,11 +215,11 @@ def scratch_size(stages):
             + block_size(stages))
 
 
-@jit
-def _carve(buf, ibuf, stages, dt):
-    """Views into the caller's scratch buffers (floats: `scratch_size`; ints: 4 + LANES):
-    the scalar path's `ScalarScratch`, the ball record (see
-    `_load`), the lane block, the lanes' Ω̇ and their ball indices."""
+@ir_inline
+def _carve_scalar(buf, ibuf, stages, dt):
+    """The scalar path's views into the caller's scratch buffers (see `_carve`): its
+    `ScalarScratch`, the ball record (see `_load`), the lanes' Ω̇ and the offset where the
+    lane block starts."""
     t_out, o = take(buf, 0, 1)
     t_out[0] = dt
     Y_out, o = take(buf, o, STATE_WIDTH)
@@ -236,9 +236,18 @@ def _carve(buf, ibuf, stages, dt):
     out, o = take(buf, o, OUT_WIDTH)
     Y_out = Y_out.reshape((1, STATE_WIDTH))
     work = work.reshape((stages + 5, STATE_WIDTH))
-    ws = carve_block(buf[o:], stages)
     record = (p, scale, y, ball, noise, obs, out)
     sc = ScalarScratch(t_out, Y_out, ibuf[:4], dy, work, drive)
+    return sc, record, rates, o
+
+
+@jit
+def _carve(buf, ibuf, stages, dt):
+    """Views into the caller's scratch buffers (floats: `scratch_size`; ints: 4 + LANES):
+    the scalar path's `ScalarScratch`, the ball record (see
+    `_load`), the lane block, the lanes' Ω̇ and their ball indices."""
+    sc, record, rates, o = _carve_scalar(buf, ibuf, stages, dt)
+    ws = carve_block(buf[o:], stages)
     return sc, record, ws, rates, ibuf[4:4 + LANES]
 
 
@@ -275,7 +284,40 @@ def _store(i, width, Y, balls, obs, out, record):
         out[i, k] = o[k]
 
 
-@jit
+@ir_inline
+def _scalar_ball(i, model, width, Y, balls, cfg, actions, tab, ctl, obs, out, sc, record):
+    """The scalar path for ball i, already loaded into ``record`` (``width`` state slots, as
+    `_load`): its drive, `integrate_h` over the control period, the booking, the store.
+    Returns 1 if it failed, else 0."""
+    p, scale, y, ball, nz, ob, o = record
+    drive = sc.drive
+    rate = _drive(ball, cfg, actions[i], drive)
+    status, t_end, normal = _integrate(model, p, scale, y, ball, drive, tab, ctl, sc)
+    _finish(model, p, y, ball, cfg, ctl.events, actions[i], drive, rate, status, t_end, normal,
+            nz, ob, o, sc.dy)
+    _store(i, width, Y, balls, obs, out, record)
+    return 1 if status < 0 else 0
+
+
+@ir_inline
+def _coulomb_balls(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, ctl, noise,
+                   obs, out, sc, record):
+    """Step the active coulomb balls lo..hi-1 on the scalar path (a phase may change inside a
+    step), whole state rows; return how many failed. A loop of their own: handling them in
+    the loop over the other balls, with a longer row copy behind a branch, made the
+    environment's step 30-40 % slower for the other balls (20 steps of 1024 rolling balls:
+    10.2-11.8 ms against 7.7-8.4; measured)."""
+    failed = 0
+    for i in range(lo, hi):
+        if not active[i] or models[i] != COULOMB:
+            continue
+        _load(i, STATE_WIDTH, P, scales, Y, balls, noise, record)
+        failed += _scalar_ball(i, COULOMB, STATE_WIDTH, Y, balls, cfg, actions, tab, ctl, obs,
+                               out, sc, record)
+    return failed
+
+
+@ir_inline
 def _step_block(model, m, lanes, rates, ws, sc, record, P, scales, Y, balls, cfg, actions, tab,
                 ctl, noise, obs, out):
     """Finish lanes 0..m-1 (balls ``lanes``), gathered into ``ws``: one SIMD step for all,
@@ -349,35 +391,41 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
                                           balls, cfg, actions, tab, ctl, noise, obs, out)
                     m = 0
             else:
-                drive = sc.drive
-                rate = _drive(ball, cfg, actions[i], drive)
-                status, t_end, normal = _integrate(model, p, scale, y, ball, drive, tab, ctl, sc)
-                _finish(model, p, y, ball, cfg, ctl.events, actions[i], drive, rate, status,
-                        t_end, normal, nz, ob, o, sc.dy)
-                _store(i, ROW_WIDTH, Y, balls, obs, out, record)
-                if status < 0:
-                    failed += 1
+                failed += _scalar_ball(i, model, ROW_WIDTH, Y, balls, cfg, actions, tab, ctl,
+                                       obs, out, sc, record)
         if m > 0:
             failed += _step_block(model, m, lanes, rates, ws, sc, record, P, scales, Y, balls,
                                   cfg, actions, tab, ctl, noise, obs, out)
-    # Coulomb balls: the scalar loop (a phase may change inside a step), whole state rows.
-    # A loop of their own: handling them in the loop above, with a longer row copy behind a
-    # branch, made the environment's step 30-40 % slower for the other balls (20 steps of
-    # 1024 rolling balls: 10.2-11.8 ms against 7.7-8.4; measured).
-    for i in range(lo, hi):
-        if not active[i] or models[i] != COULOMB:
-            continue
-        _load(i, STATE_WIDTH, P, scales, Y, balls, noise, record)
-        drive = sc.drive
-        rate = _drive(ball, cfg, actions[i], drive)
-        status, t_end, normal = _integrate(COULOMB, p, scale, y, ball, drive, tab, ctl, sc)
-        _finish(COULOMB, p, y, ball, cfg, ctl.events, actions[i], drive, rate, status, t_end,
-                normal, nz, ob, o, sc.dy)
-        _store(i, STATE_WIDTH, Y, balls, obs, out, record)
-        if status < 0:
-            failed += 1
-    return failed
+    return failed + _coulomb_balls(lo, hi, models, P, scales, Y, balls, cfg, actions, active,
+                                   tab, ctl, noise, obs, out, sc, record)
 
+
+@ir_inline
+def _step_range_scalar(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, ctl,
+                       noise, obs, out, buf, ibuf):
+    """`_step_range` where no block can form (fewer than `MIN_BLOCK` balls, or SIMD blocks
+    off): every ball on the scalar path, as `_step_range` then steps it. Compiles without
+    `saddle_env.lockstep` (a fifth of the environment's compile, docs/coldstart.md), so a
+    single environment's first step compiles less."""
+    sc, record, rates, o = _carve_scalar(buf, ibuf, tab.B.shape[0], cfg[C_DT])
+    failed = 0
+    for model in (ROLLING, SLIPPING):
+        for i in range(lo, hi):
+            if not active[i] or models[i] != model:
+                continue
+            _load(i, ROW_WIDTH, P, scales, Y, balls, noise, record)
+            failed += _scalar_ball(i, model, ROW_WIDTH, Y, balls, cfg, actions, tab, ctl, obs,
+                                   out, sc, record)
+    return failed + _coulomb_balls(lo, hi, models, P, scales, Y, balls, cfg, actions, active,
+                                   tab, ctl, noise, obs, out, sc, record)
+
+
+# `_step_range`, `_step_block` and `_integrate` are typed into `step_serial`
+# (`_kernels.ir_inline`): compiled on their own, each was one more module holding all of the
+# integrator's code, optimised and turned into machine code again (docs/coldstart.md).
+# `step_parallel` calls `_step_range` compiled on its own: numba's analysis of the reduction
+# in its parallel loop fails on the inlined body ("unexpected cycle in lookup()").
+_step_range_inlined = ir_inline(_step_range.py_func)
 
 # The two entry points take the method and the step settings as the plain tuples of their
 # records' fields and rebuild the records inside: numba's dispatcher types a namedtuple
@@ -388,8 +436,19 @@ def step_serial(models, P, scales, Y, balls, cfg, actions, active, tab_fields, c
     """Step the active balls on this thread with the caller's scratch buffers (see `_carve`);
     return how many failed (status < 0). ``tab_fields``, ``ctl_fields``: the fields of the
     method's `Tableau` and of the `StepControl`."""
-    return _step_range(0, Y.shape[0], models, P, scales, Y, balls, cfg, actions, active,
-                       Tableau(*tab_fields), StepControl(*ctl_fields), noise, obs, out, buf, ibuf)
+    return _step_range_inlined(0, Y.shape[0], models, P, scales, Y, balls, cfg, actions,
+                               active, Tableau(*tab_fields), StepControl(*ctl_fields), noise,
+                               obs, out, buf, ibuf)
+
+
+@jit
+def step_scalar(models, P, scales, Y, balls, cfg, actions, active, tab_fields, ctl_fields,
+                noise, obs, out, buf, ibuf):
+    """`step_serial` for engines where no SIMD block can form (`_step_range_scalar`): the
+    same results, less to compile. Same arguments."""
+    return _step_range_scalar(0, Y.shape[0], models, P, scales, Y, balls, cfg, actions, active,
+                              Tableau(*tab_fields), StepControl(*ctl_fields), noise, obs, out,
+                              buf, ibuf)
 
 
 @nb.njit(cache=True, parallel=True)
@@ -410,10 +469,22 @@ def step_parallel(models, P, scales, Y, balls, cfg, actions, active, tab_fields,
 
 
 @jit
+def _observe_into(model, p, y, ball, cfg, noise, obs, row):
+    """`observe_one` into the float32 observation row ``obs`` through the float64 ``row``,
+    as the step observes into its float64 record (`_finish`): one compiled `observe_one`
+    for both (a float32 row was a second specialisation, ~5 % of the environment's compile
+    time; the values are the same, rounded to float32 on the copy instead of the store)."""
+    observe_one(model, p, y, ball, cfg, noise, row)
+    for k in range(obs.shape[0]):
+        obs[k] = row[k]
+
+
+@jit
 def observe_all(models, P, Y, balls, cfg, active, noise, obs):
+    row = np.zeros(OBS_MAX)
     for i in range(Y.shape[0]):
         if active[i]:
-            observe_one(models[i], P[i], Y[i], balls[i], cfg, noise[i], obs[i])
+            _observe_into(models[i], P[i], Y[i], balls[i], cfg, noise[i], obs[i], row)
 
 
 @jit
@@ -422,6 +493,7 @@ def place(idx, models, P, Y, balls, cfg, x, y, vx, vy, lab_rest, spin_normal, no
     (vx[j], vy[j]), plus the velocity of rest in the laboratory where ``lab_rest[j]``; Ω,
     phase and force are already in ``balls``. Writes the state, observation and outputs
     (N/mg at rest in time)."""
+    row = np.zeros(OBS_MAX)
     for j in range(idx.shape[0]):
         i = idx[j]
         p = P[i]
@@ -434,7 +506,7 @@ def place(idx, models, P, Y, balls, cfg, x, y, vx, vy, lab_rest, spin_normal, no
         out[i, :] = 0.0
         out[i, O_TRAPPED] = 1.0
         out[i, O_NORMAL] = normal_over_mg(models[i], p, Y[i], balls[i], cfg)
-        observe_one(models[i], p, Y[i], balls[i], cfg, noise[i], obs[i])
+        _observe_into(models[i], p, Y[i], balls[i], cfg, noise[i], obs[i], row)
 
 
 @jit

@@ -289,7 +289,10 @@ class TrapEngine:
                 self._chunk_scratch = self._new_scratch(chunks)
             failed = S.step_parallel(*args, *self._chunk_scratch)
         else:
-            failed = S.step_serial(*args, self._scratch, self._iscratch)
+            # Where no SIMD block can form, the entry compiled without them (less to
+            # compile on a first step; the same results).
+            step = S.step_serial if self._lockstep and self.n >= S.MIN_BLOCK else S.step_scalar
+            failed = step(*args, self._scratch, self._iscratch)
         if failed:
             bad = int(np.flatnonzero(active & (self.out[:, S.O_STATUS] < 0))[0])
             code = int(self.out[bad, S.O_STATUS])

@@ -1,0 +1,232 @@
+"""Where the first call's compile time goes: numba compiles, per function and signature.
+
+    python -m saddle_env.compile_profile [--fresh] [--isolated] [--top N] [SCENARIO ...]
+
+A scenario is ``simulate`` (the README's rolling ball, 10 s) or a registered level id
+(``gym.make(ID).reset(seed=0); step()``); by default ``simulate`` and every level of
+`saddle_env.LEVELS`. In one process (the default) the scenarios run in order, so each one's
+row is what it adds to the ones before; with ``--isolated`` each runs in a fresh interpreter
+on an empty cache (the first step after a fresh install; implies ``--fresh``).
+
+``--fresh`` empties the package's in-tree numba cache first (`saddle_env._cache.clear`):
+the numbers are then those of a fresh install. Without it they are what this machine's
+cache leaves to compile.
+
+numba reports each compile through its event API (``numba.core.event``, kind
+``numba:compile``); a function's callees compile inside it, so the table gives each
+function's own time (``self``: typing, lowering and optimising its code, including the
+callees' code that LLVM inlines into it) apart from its callees' (``total`` includes them).
+Loads from the on-disk cache are not compiles and cost milliseconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+
+@dataclass
+class _Row:
+    self_s: float = 0.0
+    total_s: float = 0.0
+    signatures: list = field(default_factory=list)
+
+
+class CompileRecorder:
+    """Collects numba's compile events: own and inclusive seconds per function, and the
+    signatures it was compiled for. Use as a context manager."""
+
+    def __init__(self):
+        from numba.core import event
+
+        self._event = event
+        self.rows: dict[str, _Row] = defaultdict(_Row)
+        self._stack: list[list] = []  # [name, start, seconds spent in nested compiles]
+        recorder = self
+
+        class _Listener(event.Listener):
+            def on_start(self, ev):
+                d = ev.data["dispatcher"]
+                name = f"{d.py_func.__module__}.{d.py_func.__qualname__}"
+                recorder._stack.append([name, time.perf_counter(), 0.0, ev.data["args"]])
+
+            def on_end(self, ev):
+                name, start, nested, args = recorder._stack.pop()
+                took = time.perf_counter() - start
+                row = recorder.rows[name]
+                row.self_s += took - nested
+                row.total_s += took
+                row.signatures.append(args)
+                if recorder._stack:
+                    recorder._stack[-1][2] += took
+
+        self._listener = _Listener()
+
+    def __enter__(self):
+        self._event.register("numba:compile", self._listener)
+        return self
+
+    def __exit__(self, *exc):
+        self._event.unregister("numba:compile", self._listener)
+
+    def compiled_seconds(self) -> float:
+        """Seconds spent in outermost compiles (each nested one is inside its caller's)."""
+        return sum(r.self_s for r in self.rows.values())
+
+
+class LLVMSize:
+    """Counts the LLVM instructions numba optimises and turns into machine code: the
+    optimised size of every module it finalises, which holds the function's code and the
+    code of every callee linked into it. Unlike seconds it does not depend on the machine's
+    load. Reads numba internals (``CPUCodeLibrary._optimize_final_module``): diagnostic only.
+    """
+
+    def __init__(self):
+        from numba.core import codegen
+
+        self._cls = codegen.CPUCodeLibrary
+        self._orig = self._cls._optimize_final_module
+        self.modules = 0
+        self.instructions = 0
+
+    def __enter__(self):
+        orig, counter = self._orig, self
+
+        def optimize(library):
+            orig(library)
+            counter.modules += 1
+            counter.instructions += sum(
+                len(list(b.instructions)) for f in library._final_module.functions
+                if not f.is_declaration for b in f.blocks)
+
+        self._cls._optimize_final_module = optimize
+        return self
+
+    def __exit__(self, *exc):
+        self._cls._optimize_final_module = self._orig
+
+
+def run_scenario(name: str) -> None:
+    """Run one scenario: ``simulate`` or a level id's first reset and step."""
+    import gymnasium as gym
+
+    import saddle_env as se
+
+    if name == "simulate":
+        scene = se.Scene(a=0.159, R=0.02, contact="rolling")
+        state = se.initial_state(scene, x=0.001, y=0.001, start="lab-rest", omega=30.0)
+        se.simulate(scene, state, t_end=10.0, omega=30.0, dt_out=0.01)
+        return
+    env = gym.make(name)
+    env.reset(seed=0)
+    env.step(env.action_space.sample() * 0)
+    env.close()
+
+
+def _scenarios(names: list[str]) -> list[str]:
+    if names:
+        return names
+    import saddle_env
+
+    return ["simulate"] + [level.id for level in saddle_env.LEVELS]
+
+
+def _short(name: str) -> str:
+    return name.removeprefix("saddle_env.")
+
+
+def _profile_here(names: list[str], top: int,
+                  signatures: bool = False) -> list[tuple[str, float, float]]:
+    """Run the scenarios in this process; print the per-function table; return
+    (scenario, wall seconds, compile seconds) rows."""
+    results = []
+    with CompileRecorder() as rec, LLVMSize() as size:
+        for name in names:
+            before = rec.compiled_seconds()
+            t0 = time.perf_counter()
+            run_scenario(name)
+            wall = time.perf_counter() - t0
+            results.append((name, wall, rec.compiled_seconds() - before))
+    rows = sorted(rec.rows.items(), key=lambda kv: -kv[1].self_s)
+    n_sigs = sum(len(r.signatures) for _, r in rows)
+    print(f"{len(rows)} functions compiled, {n_sigs} specialisations, "
+          f"{rec.compiled_seconds():.1f} s in all; {size.modules} LLVM modules finalised, "
+          f"{size.instructions:,} LLVM instructions optimised and compiled")
+    print(f"{'function':<46} {'specs':>5} {'self s':>7} {'total s':>8}")
+    for fname, r in rows[:top]:
+        print(f"{_short(fname):<46} {len(r.signatures):>5} {r.self_s:>7.2f} {r.total_s:>8.2f}")
+    many = [(f, r) for f, r in rows if len(r.signatures) > 1]
+    if many:
+        print("\nfunctions compiled for more than one signature:")
+        for fname, r in many:
+            print(f"  {_short(fname)}: {len(r.signatures)}")
+            if signatures:
+                for sig in r.signatures:
+                    print("      (" + ", ".join(map(str, sig)) + ")")
+    return results
+
+
+def _isolated(names: list[str]) -> list[tuple[str, float, float]]:
+    """Each scenario in a fresh interpreter on an empty cache."""
+    from . import _cache
+
+    results = []
+    for name in names:
+        _cache.clear()
+        code = ("import time; t0 = time.perf_counter(); import saddle_env; "
+                "t1 = time.perf_counter(); c1 = time.process_time(); "
+                "from saddle_env.compile_profile import run_scenario, CompileRecorder\n"
+                "with CompileRecorder() as r:\n"
+                f"    run_scenario({name!r})\n"
+                "print(time.perf_counter() - t1, time.process_time() - c1, "
+                "r.compiled_seconds(), t1 - t0)")
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                             check=True, env=dict(os.environ))
+        wall, cpu, compiled, imp = (float(v) for v in out.stdout.split()[-4:])
+        results.append((name, wall, compiled))
+        # CPU seconds: what the wall time is on an idle machine (numba compiles on one
+        # thread); on a loaded one the wall time is longer.
+        print(f"{name:<26} import {imp:5.2f} s, first call {wall:6.2f} s wall, "
+              f"{cpu:6.2f} s CPU (compiling {compiled:6.2f} s)", flush=True)
+    return results
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="python -m saddle_env.compile_profile",
+                                 description=__doc__.split("\n\n")[0])
+    ap.add_argument("scenarios", nargs="*",
+                    help="'simulate' and/or level ids (default: simulate and every level)")
+    ap.add_argument("--fresh", action="store_true",
+                    help="empty the in-tree numba cache first (a fresh install)")
+    ap.add_argument("--isolated", action="store_true",
+                    help="each scenario in a fresh process on an empty cache")
+    ap.add_argument("--top", type=int, default=25, help="functions listed (default 25)")
+    ap.add_argument("--signatures", action="store_true",
+                    help="print the signatures of functions compiled more than once")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    names = _scenarios(args.scenarios)
+    if args.isolated:
+        _isolated(names)
+        return 0
+    if args.fresh:
+        from . import _cache
+
+        _cache.clear()
+    results = _profile_here(names, args.top, args.signatures)
+    print(f"\n{'scenario':<26} {'wall s':>7} {'compile s':>10}")
+    for name, wall, compiled in results:
+        print(f"{name:<26} {wall:>7.2f} {compiled:>10.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
