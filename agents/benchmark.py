@@ -279,7 +279,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.report:
         from .benchmark_report import main_report
 
-        return main_report(out, docs=Path(args.docs) if args.docs else None, as_json=args.json)
+        return main_report(out, ALGOS, SEEDS, TEST_EPISODES,
+                           docs=Path(args.docs) if args.docs else None, as_json=args.json)
     try:
         if args.only:
             todo = [parse_only(args.only)]
