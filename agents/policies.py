@@ -24,6 +24,7 @@ from saddle_env.envs import EnvConfig
 from saddle_env.envs.observation import observation_space
 
 from .best_constant import best_const
+from .clairvoyant import clairvoyant
 from .controllers import (
     CONST_MULTIPLES,
     Controller,
@@ -40,6 +41,7 @@ BASELINES: dict[str, Callable[..., Controller]] = {
     "masspoint": mass_point,
     "best-const": best_const,
     "mpc": ModelPredictiveController,
+    "clairvoyant": clairvoyant,
     "zero": ZeroAction,
     "random": UniformRandom,
 }

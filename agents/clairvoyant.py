@@ -1,0 +1,549 @@
+"""``clairvoyant``: an upper reference that knows the episode's future and plans on copies of
+the episode's own environment.
+
+The clairvoyant controller is not a controller a real apparatus could run. It reads the
+environment itself, not the observation: the ball (size, contact model, mu), the true state
+(no sensor noise) and, through a copy of the ball's random generator, every future air
+current and sensor draw. It plans with the environment's own compiled step, so a plan that
+keeps a ball on the copy keeps it in the episode, bit for bit.
+
+**How it plans** (per episode, at its start; `ClairvoyantPlanner`):
+
+1. **Incumbent: `mpc`'s own episode.** The whole batch of balls, engine state and generators
+   copied, is driven by `mpc` (`agents.mpc`, built exactly as ``saddle-eval --policy mpc``
+   builds it) for the full episode. The actions it sent are the first plan of each ball,
+   and its trapping time is `mpc`'s trapping time on that episode (the same episode:
+   same generator, same observations, same actions).
+2. **Improvement, only where the incumbent loses the ball.** Backing off from the step in
+   which the ball is lost (2, 5, 10, ... steps, up to the episode's start), candidate plans
+   are scored from that step to the episode's end on a batch engine of copies of the ball
+   at that step (its state and generator): a target speed (or an acceleration in
+   ``acceleration`` mode) held for a window of 2-40 steps, then either the incumbent's
+   remaining actions or the same speed held; the speed held to the end; random
+   perturbations of the incumbent. A candidate that keeps the ball strictly longer than
+   the incumbent (from the same step, with the same future) replaces it, and the search
+   starts again from the new loss. It stops when the ball is kept, when no back-off finds
+   an improvement, or at the budget (``max_rounds`` rounds).
+3. **Execution.** The plan is replayed open loop; every step the real engine's ball is
+   checked against the plan's predicted state (bit-identical, else `RuntimeError`).
+
+**The guarantee.** A plan is replaced only by one that keeps the ball longer on an exact
+copy of the episode, so the executed plan keeps every ball at least as long as `mpc` does
+on the same episode: not on average, on every episode. Starts the search does not rescue
+are reported as *doomed* for this planner (an upper bound on the truly doomed share: a
+better search could rescue some).
+
+`evaluate_clairvoyant` runs it on seeded episodes of a level and returns the trapping times
+(with `mpc`'s, free from step 1), the doomed share with a Wilson interval and the time per
+episode. ``saddle-eval --policy clairvoyant`` runs it through `agents.rollout`, which hands
+the environment to actors that ask for it (``attach``).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from saddle_env.envs import EnvConfig
+from saddle_env.envs import _step as S
+from saddle_env.envs.engine import TrapEngine
+from saddle_env.linear import critical_omega
+
+from .controllers import Controller
+
+BACKOFFS = (2, 5, 10, 20, 35, 50, 75, 100, 150, 200, 300, 400, 500)  # steps before the loss
+WINDOWS = (2, 6, 15, 40)   # steps a candidate's deviation lasts before its tail
+
+
+# --------------------------------------------------------------------------------------
+# One ball's state in an engine, and batches of copies of it
+# --------------------------------------------------------------------------------------
+def copy_rng(rng: np.random.Generator) -> np.random.Generator:
+    """An independent generator in ``rng``'s exact state (its future draws, without
+    advancing it); 3x cheaper than `copy.deepcopy`, which it falls back to."""
+    bg = rng.bit_generator
+    try:
+        twin = type(bg)(0)
+        twin.state = bg.state
+    except (TypeError, ValueError):
+        return copy.deepcopy(rng)
+    return np.random.Generator(twin)
+
+
+@dataclass
+class BallState:
+    """Everything a `TrapEngine` keeps for one ball, and its random generator (a copy)."""
+
+    model: int
+    P: np.ndarray
+    scale: np.ndarray
+    Y: np.ndarray
+    ball: np.ndarray
+    out: np.ndarray
+    frame: np.ndarray
+    obs: np.ndarray
+    noise: np.ndarray
+    scene: Any
+    rng: np.random.Generator      # a copy, never stepped itself
+
+    @classmethod
+    def capture(cls, engine: TrapEngine, rngs: Any, i: int) -> BallState:
+        return cls(int(engine.models[i]), engine.P[i].copy(), engine.scales[i].copy(),
+                   engine.Y[i].copy(), engine.balls[i].copy(), engine.out[i].copy(),
+                   engine.frame[i].copy(), engine.obs[i].copy(), engine.noise[i].copy(),
+                   engine.scenes[i], copy_rng(rngs[i]))
+
+    def put(self, engine: TrapEngine, rows: np.ndarray) -> list[np.random.Generator]:
+        """Write this state into ``rows`` of ``engine``; returns a fresh generator copy per row."""
+        engine.models[rows] = self.model
+        engine.P[rows] = self.P
+        engine.scales[rows] = self.scale
+        engine.Y[rows] = self.Y
+        engine.balls[rows] = self.ball
+        engine.out[rows] = self.out
+        engine.frame[rows] = self.frame
+        engine.obs[rows] = self.obs
+        engine.noise[rows] = self.noise
+        for r in rows:
+            engine.scenes[r] = self.scene
+        return [copy_rng(self.rng) for _ in rows]
+
+
+def copy_engine(engine: TrapEngine, rngs: Any) -> tuple[TrapEngine, list[np.random.Generator]]:
+    """A new engine holding a copy of every ball of ``engine``, and copies of the generators."""
+    twin = TrapEngine(engine.config, engine.n)
+    for name in ("models", "P", "scales", "Y", "balls", "out", "frame", "obs", "noise"):
+        getattr(twin, name)[:] = getattr(engine, name)
+    twin.scenes = list(engine.scenes)
+    return twin, [copy_rng(r) for r in rngs]
+
+
+@dataclass
+class Rollout:
+    """Outcome of open-loop plans from a common state: per plan the trapped time [s] over the
+    simulated steps, the step (0-based, from the start) in which the ball was lost (the
+    number of steps if kept) and the cause (``O_STATUS`` code, 0 if kept)."""
+
+    time: np.ndarray
+    loss: np.ndarray
+    status: np.ndarray
+
+
+def run_plans(engine: TrapEngine, rngs: list, plans: np.ndarray) -> Rollout:
+    """Step every row of ``engine`` through its row of ``plans`` (n, steps) (float32 actions,
+    as the environment receives them) until its ball is lost; rows are independent."""
+    n, steps = plans.shape
+    dt = engine.config.control_period
+    active = np.ones(n, dtype=bool)
+    t = np.zeros(n)
+    loss = np.full(n, steps, dtype=np.int64)
+    status = np.zeros(n, dtype=np.int64)
+    acts = np.zeros(n)
+    for k in range(steps):
+        acts[:] = plans[:, k].astype(np.float64)
+        engine.step(acts, active, rngs)
+        t[active] += engine.out[active, S.O_TRAPPED] * dt
+        lost = active & (engine.out[:, S.O_STATUS] > 0)
+        loss[lost] = k
+        status[lost] = engine.out[lost, S.O_STATUS]
+        active &= ~lost
+        if not active.any():
+            break
+    return Rollout(t, loss, status)
+
+
+# --------------------------------------------------------------------------------------
+# The planner
+# --------------------------------------------------------------------------------------
+@dataclass
+class BallPlan:
+    """One ball's plan: its actions for the whole episode (float32), the time it keeps the
+    ball [s], the step it is lost in (the episode length if kept), and `mpc`'s time."""
+
+    actions: np.ndarray
+    time: float
+    loss: int
+    mpc_time: float
+    rounds: int = 0
+    improved: int = 0
+
+
+class ClairvoyantPlanner:
+    """Plans for a batch of balls just reset in an engine (see the module docstring).
+
+    ``max_rounds``: candidate batches scored per lost ball at most; ``candidates``: plans
+    per batch (the fixed families, then random perturbations up to this number);
+    ``seed``: the generator of those perturbations (the plan is deterministic for a seed).
+    """
+
+    def __init__(self, config: EnvConfig, max_rounds: int = 400, candidates: int = 128,
+                 seed: int = 0, mpc: Any = None):
+        self.config = config
+        self.max_rounds = int(max_rounds)
+        self.candidates = int(candidates)
+        self.seed = int(seed)
+        self._mpc = mpc
+        self._engines: dict[int, TrapEngine] = {}
+
+    @property
+    def mpc(self) -> Any:
+        """`mpc` as ``saddle-eval --policy mpc`` builds it (the reference speed searched or
+        read from the best-constant cache on first use)."""
+        if self._mpc is None:
+            from .mpc import ModelPredictiveController
+            self._mpc = ModelPredictiveController(self.config)
+        return self._mpc
+
+    def _engine(self, n: int) -> TrapEngine:
+        if n not in self._engines:
+            self._engines[n] = TrapEngine(self.config, n)
+        return self._engines[n]
+
+    # -- 1. the incumbent: mpc's own episode -------------------------------------------
+    def mpc_episode(self, engine: TrapEngine, rngs: Any, steps: int
+                    ) -> tuple[np.ndarray, Rollout]:
+        """Drive a copy of every ball of ``engine`` with `mpc` for ``steps`` steps, as
+        `agents.rollout.run_episodes` does: (actions (n, steps) float32, outcome)."""
+        from .rollout import PolicyActor
+
+        twin, trngs = copy_engine(engine, rngs)
+        n = twin.n
+        actor = PolicyActor(self.mpc)
+        actor.start(n)
+        dt = self.config.control_period
+        plans = np.zeros((n, steps), dtype=np.float32)
+        alive = np.ones(n, dtype=bool)
+        t = np.zeros(n)
+        loss = np.full(n, steps, dtype=np.int64)
+        status = np.zeros(n, dtype=np.int64)
+        actions = np.zeros(n)
+        for k in range(steps):
+            idx = np.flatnonzero(alive)
+            obs = twin.obs.copy()
+            a = np.asarray(actor(obs, idx), dtype=np.float32).reshape(len(idx))
+            plans[idx, k] = a
+            actions[:] = 0.0
+            actions[idx] = np.clip(a.astype(np.float64), -1.0, 1.0)
+            twin.step(actions, alive.copy(), trngs)
+            t[idx] += twin.out[idx, S.O_TRAPPED] * dt
+            lost = alive & (twin.out[:, S.O_STATUS] > 0)
+            loss[lost] = k
+            status[lost] = twin.out[lost, S.O_STATUS]
+            alive &= ~lost
+            if not alive.any():
+                break
+        # After a loss the plan holds its last action (never executed: the episode is over).
+        for i in range(n):
+            if loss[i] < steps:
+                plans[i, loss[i] + 1:] = plans[i, loss[i]]
+        return plans, Rollout(t, loss, status)
+
+    # -- 2. improvement of a lost ball ------------------------------------------------
+    def _snapshots(self, start: BallState, plan: np.ndarray, upto: int) -> list[BallState]:
+        """The ball's state at the start of steps 0 .. ``upto`` under ``plan``."""
+        eng = self._engine(1)
+        rngs = start.put(eng, np.array([0]))
+        snaps = [start]
+        a = np.zeros(1)
+        active = np.ones(1, dtype=bool)
+        for k in range(upto):
+            a[0] = float(plan[k])
+            eng.step(a, active, rngs)
+            snaps.append(BallState.capture(eng, rngs, 0))
+        return snaps
+
+    def _speeds(self, state: BallState) -> np.ndarray:
+        """Target speeds the candidates try, around this ball's Ω_crt [rad/s]."""
+        c = self.config
+        try:
+            wc = critical_omega(state.scene)
+        except Exception:   # noqa: BLE001 — a scene the linear theory does not cover
+            wc = math.sqrt(2 * c.g / c.a)
+        grid = np.concatenate([wc * np.linspace(0.85, 1.6, 13), [state.ball[S.B_OMEGA]]])
+        return np.clip(grid, 0.0, c.omega_max)
+
+    def _candidates(self, state: BallState, tail: np.ndarray, rng: np.random.Generator
+                    ) -> np.ndarray:
+        """Candidate plans (K, len(tail)) from a state whose incumbent continues with ``tail``."""
+        c = self.config
+        m = len(tail)
+        rows = [tail.copy()]
+        if c.action_mode == "target":
+            levels = 2.0 * self._speeds(state) / c.omega_max - 1.0
+            hold = None                      # a held target is the level itself
+        else:
+            levels = np.array([-1.0, -0.5, -0.2, 0.2, 0.5, 1.0])
+            hold = 0.0                       # acceleration 0 holds the speed reached
+        for v in levels:
+            full = np.full(m, v)
+            rows.append(full if hold is None else np.where(np.arange(m) < 10, v, hold))
+            for w in WINDOWS:
+                if w >= m:
+                    continue
+                a = tail.copy()
+                a[:w] = v
+                rows.append(a)
+                b = np.full(m, v if hold is None else hold)
+                b[:w] = v
+                rows.append(b)
+        plans = np.array(rows)
+        extra = self.candidates - len(plans)
+        if extra > 0:
+            # Random perturbations of the incumbent: smooth (a random walk) over a random window.
+            scale = rng.choice(np.array([0.003, 0.01, 0.03]), size=(extra, 1))
+            noise = np.cumsum(rng.normal(0.0, 1.0, size=(extra, m)) * scale, axis=1)
+            span = rng.integers(5, max(6, min(m, 120)) + 1, size=extra)
+            noise[np.arange(m)[None, :] >= span[:, None]] *= 0.0
+            plans = np.vstack([plans, tail[None, :] + noise])
+        return np.clip(plans[:max(self.candidates, 1)], -1.0, 1.0).astype(np.float32)
+
+    def improve(self, start: BallState, plan: BallPlan, steps: int, rng: np.random.Generator
+                ) -> BallPlan:
+        """Search for a plan that keeps this ball longer than ``plan`` (see the module doc)."""
+        dt = self.config.control_period
+        rounds, j = 0, 0
+        snaps = self._snapshots(start, plan.actions, plan.loss)
+        while plan.loss < steps and rounds < self.max_rounds and j < len(BACKOFFS):
+            s = max(0, plan.loss - BACKOFFS[j])
+            tail = plan.actions[s:]
+            cands = self._candidates(snaps[s], tail, rng)
+            eng = self._engine(len(cands))
+            rngs = snaps[s].put(eng, np.arange(len(cands)))
+            res = run_plans(eng, rngs, cands)
+            rounds += 1
+            # The time before s is common to every candidate; row 0 is the incumbent.
+            best = int(np.argmax(res.time))
+            if res.time[best] > res.time[0]:
+                actions = np.concatenate([plan.actions[:s], cands[best]])
+                prefix = plan.time - res.time[0]
+                plan = BallPlan(actions, prefix + float(res.time[best]),
+                                s + int(res.loss[best]), plan.mpc_time, plan.rounds,
+                                plan.improved + 1)
+                if plan.loss < steps:
+                    snaps = snaps[:s] + self._snapshots(snaps[s], actions[s:], plan.loss - s)
+                j = 0
+            else:
+                j += 1
+                if s == 0:
+                    break
+        plan.rounds += rounds
+        # The recomputed time of the final plan is the reference (sums in the episode's order).
+        return plan
+
+    # -- the batch ---------------------------------------------------------------------
+    def plan(self, engine: TrapEngine, rngs: Any, steps: int) -> list[BallPlan]:
+        """A plan for every ball of ``engine`` (just reset) for an episode of ``steps`` steps."""
+        actions, mpc = self.mpc_episode(engine, rngs, steps)
+        plans = []
+        for i in range(engine.n):
+            p = BallPlan(actions[i], float(mpc.time[i]), int(mpc.loss[i]), float(mpc.time[i]))
+            if p.loss < steps:
+                start = BallState.capture(engine, rngs, i)
+                # A generator per ball from the planner's seed and the ball's start (so a
+                # ball's plan does not depend on the others in the batch).
+                key = np.frombuffer(start.Y.tobytes() + start.ball.tobytes(), dtype=np.uint32)
+                p = self.improve(start, p, steps, np.random.default_rng([self.seed, *key]))
+                # Exact score of the final plan from the start (the guarantee's check).
+                eng = self._engine(1)
+                r = run_plans(eng, start.put(eng, np.array([0])), p.actions[None, :])
+                if r.time[0] < p.mpc_time:
+                    raise RuntimeError(f"clairvoyant plan of ball {i} keeps it {r.time[0]:.6f} s, "
+                                       f"less than mpc's {p.mpc_time:.6f} s")
+                p.time, p.loss = float(r.time[0]), int(r.loss[0])
+            plans.append(p)
+        return plans
+
+
+# --------------------------------------------------------------------------------------
+# The policy: a named baseline that needs the environment
+# --------------------------------------------------------------------------------------
+class ClairvoyantController(Controller):
+    """``clairvoyant``: the upper reference (module docstring). It acts through
+    `ClairvoyantActor`, which `agents.rollout.run_episodes` gives the environment; its
+    ``predict`` alone (observations only) cannot act and raises."""
+
+    name = "clairvoyant"
+    row_independent = True
+
+    def __init__(self, config: EnvConfig, max_rounds: int = 400, candidates: int = 128,
+                 seed: int = 0):
+        super().__init__(config)
+        self.planner = ClairvoyantPlanner(config, max_rounds, candidates, seed)
+
+    def make_actor(self) -> ClairvoyantActor:
+        return ClairvoyantActor(self.planner)
+
+    def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, Any]:
+        raise RuntimeError("the clairvoyant controller reads the environment, not the "
+                           "observation: run it through agents.rollout.run_episodes "
+                           "(saddle-eval --policy clairvoyant) or evaluate_clairvoyant")
+
+
+class ClairvoyantActor:
+    """``act(obs, idx)`` for `run_episodes`: plans at ``attach`` (after the batch's reset),
+    then replays each ball's plan, checking the engine against it every step."""
+
+    def __init__(self, planner: ClairvoyantPlanner):
+        self.planner = planner
+        self.plans: list[BallPlan] = []
+        self.env: Any = None
+        self._step = np.zeros(0, dtype=np.int64)
+        self._expect: list[list[np.ndarray] | None] = []
+        self.plan_seconds = 0.0
+
+    def start(self, n: int) -> None:
+        self._step = np.zeros(n, dtype=np.int64)
+
+    def attach(self, env: Any, max_episode_steps: int) -> None:
+        """Plan for every ball of the vector env ``env`` just reset."""
+        t0 = time.perf_counter()
+        e = env.engine
+        self.env = env
+        self.plans = self.planner.plan(e, env._rngs, max_episode_steps)
+        self._step = np.zeros(e.n, dtype=np.int64)
+        # The state every ball should be in before each of its steps (for the check).
+        self._expect = []
+        for i, p in enumerate(self.plans):
+            eng = self.planner._engine(1)
+            rngs = BallState.capture(e, env._rngs, i).put(eng, np.array([0]))
+            ys = [e.Y[i].copy()]
+            a, on = np.zeros(1), np.ones(1, dtype=bool)
+            for k in range(min(p.loss + 1, max_episode_steps)):
+                a[0] = float(p.actions[k])
+                eng.step(a, on, rngs)
+                ys.append(eng.Y[0].copy())
+            self._expect.append(ys)
+        self.plan_seconds += time.perf_counter() - t0
+
+    def __call__(self, obs: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        if self.env is None:
+            raise RuntimeError("the clairvoyant actor needs the environment (attach)")
+        Y = self.env.engine.Y
+        out = np.empty(len(idx), dtype=np.float32)
+        for j, i in enumerate(idx):
+            k = int(self._step[i])
+            want = self._expect[i][k] if k < len(self._expect[i]) else None
+            if want is not None and not np.array_equal(Y[i], want, equal_nan=True):
+                raise RuntimeError(f"ball {i} left its plan at step {k}: the environment is not "
+                                   "the copy the clairvoyant planned on")
+            out[j] = self.plans[i].actions[min(k, len(self.plans[i].actions) - 1)]
+            self._step[i] += 1
+        return out
+
+
+def clairvoyant(config: EnvConfig) -> ClairvoyantController:
+    """The ``clairvoyant`` baseline with its default budget."""
+    return ClairvoyantController(config)
+
+
+# --------------------------------------------------------------------------------------
+# Evaluation: trapping times and the doomed share
+# --------------------------------------------------------------------------------------
+def evaluate_clairvoyant(env_id: str | EnvConfig, episodes: int, seed: int = 2_000_000,
+                         max_episode_steps: int | None = None, batch: int = 50,
+                         progress: bool = False, **planner: Any) -> dict[str, Any]:
+    """Run the clairvoyant on episodes ``seed .. seed + episodes − 1`` of a level (an id of
+    `saddle_env.LEVELS`, or a config) through `agents.rollout.run_episodes`, ``batch``
+    episodes per engine (results do not depend on it).
+
+    Returns per-episode ``time`` and ``mpc_time`` [s] (mpc's on the same episodes, from
+    the planner's first step), ``cause``; the summaries ``trapping_time`` and
+    ``mpc_trapping_time`` (mean, bootstrap interval), ``doomed`` (share of balls the
+    clairvoyant still loses, Wilson interval), ``mpc_lost``, ``rescued`` (balls mpc loses
+    and the clairvoyant keeps) and ``seconds_per_episode`` (wall time, planning included).
+    """
+    from saddle_env.envs import get_level
+
+    from .evaluation import bootstrap_interval, wilson_interval
+    from .rollout import run_episodes
+
+    if isinstance(env_id, EnvConfig):
+        config, steps, name = env_id, max_episode_steps or 500, None
+    else:
+        level = get_level(env_id)
+        config, name = level.config(), level.id
+        steps = max_episode_steps or level.max_episode_steps
+    policy = ClairvoyantController(config, **planner)
+    seeds = seed + np.arange(episodes)
+    times, mpc_times, causes, plans = [], [], [], []
+    t0 = time.perf_counter()
+    for b in range(0, episodes, batch):
+        act = policy.make_actor()
+        res = run_episodes(config, act, seeds[b:b + batch], max_episode_steps=steps,
+                           row_independent=True)
+        times.append(res["time"])
+        causes.extend(res["cause"])
+        mpc_times.append([p.mpc_time for p in act.plans])
+        plans.extend(act.plans)
+        if progress:
+            done = min(b + batch, episodes)
+            print(f"clairvoyant {name}: {done}/{episodes} episodes, "
+                  f"{(time.perf_counter() - t0) / done:.2f} s/episode", flush=True)
+    wall = time.perf_counter() - t0
+    time_arr = np.concatenate(times)
+    mpc_arr = np.concatenate([np.asarray(m, float) for m in mpc_times])
+    full = steps * config.control_period
+    kept = np.array([c == "kept" for c in causes])
+    mpc_kept = mpc_arr >= full - 1e-9
+
+    def share(k: int) -> dict[str, float]:     # Wilson, its rounding kept around the mean
+        w = wilson_interval(k, episodes)
+        return {"mean": w["mean"], "low": min(w["low"], w["mean"]),
+                "high": max(w["high"], w["mean"])}
+
+    return {"env_id": name, "episodes": episodes, "seed": seed, "episode_length_s": full,
+            "time": time_arr, "mpc_time": mpc_arr, "cause": np.array(causes, dtype=object),
+            "trapping_time": bootstrap_interval(time_arr),
+            "mpc_trapping_time": bootstrap_interval(mpc_arr),
+            "doomed": share(int((~kept).sum())), "mpc_lost": share(int((~mpc_kept).sum())),
+            "rescued": int((kept & ~mpc_kept).sum()),
+            "rounds": int(sum(p.rounds for p in plans)),
+            "seconds_per_episode": wall / episodes}
+
+
+def main(argv: Any = None) -> int:
+    """``python -m agents.clairvoyant [--levels ID ...] [--episodes N] [--seed S] [--out F]``:
+    the clairvoyant on each level's episodes (default: the leaderboard's test seeds), one JSON
+    line per level (also appended to ``--out``)."""
+    import argparse
+    import json
+
+    from saddle_env.envs import LEVEL_IDS
+
+    p = argparse.ArgumentParser(prog="python -m agents.clairvoyant", description=main.__doc__)
+    p.add_argument("--levels", nargs="+", default=list(LEVEL_IDS[1:]), metavar="ID")
+    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--seed", type=int, default=2_000_000)
+    p.add_argument("--batch", type=int, default=50)
+    p.add_argument("--max-rounds", type=int, default=400)
+    p.add_argument("--out", default=None, metavar="FILE")
+    args = p.parse_args(argv)
+    for lvl in args.levels:
+        r = evaluate_clairvoyant(lvl, args.episodes, args.seed, batch=args.batch, progress=True,
+                                 max_rounds=args.max_rounds)
+        row = {k: v for k, v in r.items() if k not in ("time", "mpc_time", "cause")}
+        row["max_rounds"] = args.max_rounds
+        row["per_episode"] = {"time": np.round(r["time"], 9).tolist(),
+                              "mpc_time": np.round(r["mpc_time"], 9).tolist(),
+                              "cause": list(r["cause"])}
+        line = json.dumps(row)
+        print(json.dumps({k: v for k, v in row.items() if k != "per_episode"}), flush=True)
+        if args.out:
+            with open(args.out, "a") as fh:
+                fh.write(line + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
+
+
+__all__ = ["BallPlan", "BallState", "ClairvoyantActor", "ClairvoyantController",
+           "ClairvoyantPlanner", "clairvoyant", "copy_engine", "copy_rng", "evaluate_clairvoyant",
+           "run_plans"]
