@@ -9,11 +9,13 @@ keeps a ball on the copy keeps it in the episode, bit for bit.
 
 **How it plans** (per episode, at its start; `ClairvoyantPlanner`):
 
-1. **Incumbent: `mpc`'s own episode.** The whole batch of balls, engine state and generators
-   copied, is driven by `mpc` (`agents.mpc`, built exactly as ``saddle-eval --policy mpc``
-   builds it) for the full episode. The actions it sent are the first plan of each ball,
-   and its trapping time is `mpc`'s trapping time on that episode (the same episode:
-   same generator, same observations, same actions).
+1. **Incumbents: `mpc`'s own episode, and the shipped agents'.** The whole batch of balls,
+   engine state and generators copied, is driven by `mpc` (`agents.mpc`, built exactly as
+   ``saddle-eval --policy mpc`` builds it) for the full episode, and so by each shipped
+   agent trained on the level (`shipped_agents`; in batches of ``CHUNK`` balls as
+   ``saddle-eval`` runs model files). Each ball's first plan is the actions of the one that
+   kept it longest (mpc on a tie), and each one's trapping time is its trapping time on
+   that episode (the same episode: same generator, same observations, same actions).
 2. **Improvement, only where the incumbent loses the ball.** Backing off from the step in
    which the ball is lost (2, 5, 10, ... steps, up to the episode's start), candidate plans
    are scored from that step to the episode's end on a batch engine of copies of the ball
@@ -28,8 +30,10 @@ keeps a ball on the copy keeps it in the episode, bit for bit.
    checked against the plan's predicted state (bit-identical, else `RuntimeError`).
 
 **The guarantee.** A plan is replaced only by one that keeps the ball longer on an exact
-copy of the episode, so the executed plan keeps every ball at least as long as `mpc` does
-on the same episode: not on average, on every episode. Starts the search does not rescue
+copy of the episode, so the executed plan keeps every ball at least as long as `mpc` (and
+every incumbent agent) does on the same episode: not on average, on every episode. For a
+model file this holds for the batch it acted in on the copy (``CHUNK`` balls); ``saddle-eval``
+batches the same way when the seeds are aligned to ``CHUNK``. Starts the search does not rescue
 are reported as *doomed* for this planner (an upper bound on the truly doomed share: a
 better search could rescue some).
 
@@ -45,6 +49,7 @@ import copy
 import math
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -163,7 +168,8 @@ def run_plans(engine: TrapEngine, rngs: list, plans: np.ndarray) -> Rollout:
 @dataclass
 class BallPlan:
     """One ball's plan: its actions for the whole episode (float32), the time it keeps the
-    ball [s], the step it is lost in (the episode length if kept), and `mpc`'s time."""
+    ball [s], the step it is lost in (the episode length if kept), `mpc`'s time and every
+    incumbent's."""
 
     actions: np.ndarray
     time: float
@@ -171,6 +177,8 @@ class BallPlan:
     mpc_time: float
     rounds: int = 0
     improved: int = 0
+    incumbents: dict[str, float] | None = None   # each incumbent policy's time [s]
+    source: str = "mpc"                           # the incumbent the search started from
 
 
 class ClairvoyantPlanner:
@@ -178,17 +186,35 @@ class ClairvoyantPlanner:
 
     ``max_rounds``: candidate batches scored per lost ball at most; ``candidates``: plans
     per batch (the fixed families, then random perturbations up to this number);
-    ``seed``: the generator of those perturbations (the plan is deterministic for a seed).
+    ``seed``: the generator of those perturbations (the plan is deterministic for a seed);
+    ``agents``: the policies whose episodes are incumbents besides `mpc`'s: True, the
+    shipped agents trained on exactly this config (`shipped_agents`); False, none; or a
+    list of model files / baseline names.
     """
 
     def __init__(self, config: EnvConfig, max_rounds: int = 400, candidates: int = 128,
-                 seed: int = 0, mpc: Any = None):
+                 seed: int = 0, mpc: Any = None, agents: bool | list[str] = True):
         self.config = config
         self.max_rounds = int(max_rounds)
         self.candidates = int(candidates)
         self.seed = int(seed)
         self._mpc = mpc
+        self._agent_specs = agents
+        self._agents: list[tuple[str, Any]] | None = None
         self._engines: dict[int, TrapEngine] = {}
+
+    @property
+    def agents(self) -> list[tuple[str, Any]]:
+        """(name, policy) of the incumbents besides `mpc` (loaded on first use)."""
+        if self._agents is None:
+            from .policies import load_policy
+
+            specs = self._agent_specs
+            if specs is True:
+                specs = [str(p) for p in shipped_agents(self.config)]
+            self._agents = [(Path(str(sp)).name, load_policy(sp, self.config))
+                            for sp in (specs or [])]
+        return self._agents
 
     @property
     def mpc(self) -> Any:
@@ -204,16 +230,40 @@ class ClairvoyantPlanner:
             self._engines[n] = TrapEngine(self.config, n)
         return self._engines[n]
 
-    # -- 1. the incumbent: mpc's own episode -------------------------------------------
+    # -- 1. the incumbents: mpc's own episode, and the agents' --------------------------
     def mpc_episode(self, engine: TrapEngine, rngs: Any, steps: int
                     ) -> tuple[np.ndarray, Rollout]:
-        """Drive a copy of every ball of ``engine`` with `mpc` for ``steps`` steps, as
-        `agents.rollout.run_episodes` does: (actions (n, steps) float32, outcome)."""
-        from .rollout import PolicyActor
+        """`closed_loop` of `mpc`."""
+        return self.closed_loop(self.mpc, engine, rngs, steps)
 
-        twin, trngs = copy_engine(engine, rngs)
+    def closed_loop(self, policy: Any, engine: TrapEngine, rngs: Any, steps: int
+                    ) -> tuple[np.ndarray, Rollout]:
+        """Drive a copy of every ball of ``engine`` with ``policy`` for ``steps`` steps, as
+        `agents.rollout.run_episodes` does: (actions (n, steps) float32, outcome). A policy
+        that is not row-independent (a model file) sees batches of ``CHUNK`` balls, padded
+        with copies, as in `run_episodes`."""
+        from .rollout import CHUNK, PolicyActor
+
+        if getattr(policy, "row_independent", False) or engine.n == CHUNK:
+            return self._closed_loop(PolicyActor(policy), *copy_engine(engine, rngs), steps)
+        parts = []
+        for lo in range(0, engine.n, CHUNK):
+            rows = np.arange(lo, min(lo + CHUNK, engine.n))
+            rows = np.concatenate([rows, np.full(CHUNK - len(rows), rows[0])])
+            twin = TrapEngine(engine.config, CHUNK)
+            for name in ("models", "P", "scales", "Y", "balls", "out", "frame", "obs", "noise"):
+                getattr(twin, name)[:] = getattr(engine, name)[rows]
+            twin.scenes = [engine.scenes[r] for r in rows]
+            keep = min(CHUNK, engine.n - lo)
+            plans, r = self._closed_loop(PolicyActor(policy), twin,
+                                         [copy_rng(rngs[i]) for i in rows], steps)
+            parts.append((plans[:keep], r.time[:keep], r.loss[:keep], r.status[:keep]))
+        return (np.concatenate([p[0] for p in parts]),
+                Rollout(*(np.concatenate([p[k] for p in parts]) for k in (1, 2, 3))))
+
+    def _closed_loop(self, actor: Any, twin: TrapEngine, trngs: list, steps: int
+                     ) -> tuple[np.ndarray, Rollout]:
         n = twin.n
-        actor = PolicyActor(self.mpc)
         actor.start(n)
         dt = self.config.control_period
         plans = np.zeros((n, steps), dtype=np.float32)
@@ -323,7 +373,7 @@ class ClairvoyantPlanner:
                 prefix = plan.time - res.time[0]
                 plan = BallPlan(actions, prefix + float(res.time[best]),
                                 s + int(res.loss[best]), plan.mpc_time, plan.rounds,
-                                plan.improved + 1)
+                                plan.improved + 1, plan.incumbents, plan.source)
                 if plan.loss < steps:
                     snaps = snaps[:s] + self._snapshots(snaps[s], actions[s:], plan.loss - s)
                 j = 0
@@ -338,10 +388,15 @@ class ClairvoyantPlanner:
     # -- the batch ---------------------------------------------------------------------
     def plan(self, engine: TrapEngine, rngs: Any, steps: int) -> list[BallPlan]:
         """A plan for every ball of ``engine`` (just reset) for an episode of ``steps`` steps."""
-        actions, mpc = self.mpc_episode(engine, rngs, steps)
+        runs = [("mpc", *self.mpc_episode(engine, rngs, steps))]
+        runs += [(name, *self.closed_loop(pol, engine, rngs, steps)) for name, pol in self.agents]
         plans = []
         for i in range(engine.n):
-            p = BallPlan(actions[i], float(mpc.time[i]), int(mpc.loss[i]), float(mpc.time[i]))
+            times = {name: float(r.time[i]) for name, _, r in runs}
+            best = max(range(len(runs)), key=lambda k: (runs[k][2].time[i], -k))  # ties: mpc
+            name, actions, r = runs[best]
+            p = BallPlan(actions[i].copy(), float(r.time[i]), int(r.loss[i]), times["mpc"],
+                         incumbents=times, source=name)
             if p.loss < steps:
                 start = BallState.capture(engine, rngs, i)
                 # A generator per ball from the planner's seed and the ball's start (so a
@@ -351,9 +406,9 @@ class ClairvoyantPlanner:
                 # Exact score of the final plan from the start (the guarantee's check).
                 eng = self._engine(1)
                 r = run_plans(eng, start.put(eng, np.array([0])), p.actions[None, :])
-                if r.time[0] < p.mpc_time:
+                if r.time[0] < max(times.values()):
                     raise RuntimeError(f"clairvoyant plan of ball {i} keeps it {r.time[0]:.6f} s, "
-                                       f"less than mpc's {p.mpc_time:.6f} s")
+                                       f"less than an incumbent's ({times})")
                 p.time, p.loss = float(r.time[0]), int(r.loss[0])
             plans.append(p)
         return plans
@@ -371,9 +426,9 @@ class ClairvoyantController(Controller):
     row_independent = True
 
     def __init__(self, config: EnvConfig, max_rounds: int = 400, candidates: int = 128,
-                 seed: int = 0):
+                 seed: int = 0, agents: bool | list[str] = True):
         super().__init__(config)
-        self.planner = ClairvoyantPlanner(config, max_rounds, candidates, seed)
+        self.planner = ClairvoyantPlanner(config, max_rounds, candidates, seed, agents=agents)
 
     def make_actor(self) -> ClairvoyantActor:
         return ClairvoyantActor(self.planner)
@@ -437,6 +492,30 @@ class ClairvoyantActor:
         return out
 
 
+def shipped_agents(config: EnvConfig, models_dir: Path | None = None) -> list[Path]:
+    """The shipped model files (``agents/models``) trained on exactly ``config``: their
+    sidecar's level with its ``env_kwargs`` resolves to it. Empty without the ``[train]``
+    extra (stable-baselines3), which loading them needs."""
+    import importlib.util
+    import json
+
+    from saddle_env.envs import get_level
+
+    if importlib.util.find_spec("stable_baselines3") is None:
+        return []
+    models_dir = Path(__file__).parent / "models" if models_dir is None else models_dir
+    out = []
+    for path in sorted(models_dir.glob("*.zip")):
+        try:
+            side = json.loads(path.with_suffix(".json").read_text())
+            trained = get_level(side["env_id"]).config(**(side.get("env_kwargs") or {}))
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+        if trained == config:
+            out.append(path)
+    return out
+
+
 def clairvoyant(config: EnvConfig) -> ClairvoyantController:
     """The ``clairvoyant`` baseline with its default budget."""
     return ClairvoyantController(config)
@@ -446,7 +525,7 @@ def clairvoyant(config: EnvConfig) -> ClairvoyantController:
 # Evaluation: trapping times and the doomed share
 # --------------------------------------------------------------------------------------
 def evaluate_clairvoyant(env_id: str | EnvConfig, episodes: int, seed: int = 2_000_000,
-                         max_episode_steps: int | None = None, batch: int = 50,
+                         max_episode_steps: int | None = None, batch: int = 100,
                          progress: bool = False, **planner: Any) -> dict[str, Any]:
     """Run the clairvoyant on episodes ``seed .. seed + episodes − 1`` of a level (an id of
     `saddle_env.LEVELS`, or a config) through `agents.rollout.run_episodes`, ``batch``
@@ -472,6 +551,7 @@ def evaluate_clairvoyant(env_id: str | EnvConfig, episodes: int, seed: int = 2_0
     policy = ClairvoyantController(config, **planner)
     seeds = seed + np.arange(episodes)
     times, mpc_times, causes, plans = [], [], [], []
+    incumbents: dict[str, list[float]] = {}
     t0 = time.perf_counter()
     for b in range(0, episodes, batch):
         act = policy.make_actor()
@@ -480,6 +560,9 @@ def evaluate_clairvoyant(env_id: str | EnvConfig, episodes: int, seed: int = 2_0
         times.append(res["time"])
         causes.extend(res["cause"])
         mpc_times.append([p.mpc_time for p in act.plans])
+        for p in act.plans:
+            for k, v in (p.incumbents or {}).items():
+                incumbents.setdefault(k, []).append(v)
         plans.extend(act.plans)
         if progress:
             done = min(b + batch, episodes)
@@ -503,6 +586,9 @@ def evaluate_clairvoyant(env_id: str | EnvConfig, episodes: int, seed: int = 2_0
             "mpc_trapping_time": bootstrap_interval(mpc_arr),
             "doomed": share(int((~kept).sum())), "mpc_lost": share(int((~mpc_kept).sum())),
             "rescued": int((kept & ~mpc_kept).sum()),
+            "incumbents": {k: np.asarray(v) for k, v in incumbents.items()},
+            "incumbent_trapping_time": {k: bootstrap_interval(np.asarray(v))
+                                        for k, v in incumbents.items()},
             "rounds": int(sum(p.rounds for p in plans)),
             "seconds_per_episode": wall / episodes}
 
@@ -520,18 +606,20 @@ def main(argv: Any = None) -> int:
     p.add_argument("--levels", nargs="+", default=list(LEVEL_IDS[1:]), metavar="ID")
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--seed", type=int, default=2_000_000)
-    p.add_argument("--batch", type=int, default=50)
+    p.add_argument("--batch", type=int, default=100)
     p.add_argument("--max-rounds", type=int, default=400)
     p.add_argument("--out", default=None, metavar="FILE")
     args = p.parse_args(argv)
     for lvl in args.levels:
         r = evaluate_clairvoyant(lvl, args.episodes, args.seed, batch=args.batch, progress=True,
                                  max_rounds=args.max_rounds)
-        row = {k: v for k, v in r.items() if k not in ("time", "mpc_time", "cause")}
+        row = {k: v for k, v in r.items() if k not in ("time", "mpc_time", "cause", "incumbents")}
         row["max_rounds"] = args.max_rounds
         row["per_episode"] = {"time": np.round(r["time"], 9).tolist(),
                               "mpc_time": np.round(r["mpc_time"], 9).tolist(),
-                              "cause": list(r["cause"])}
+                              "cause": list(r["cause"]),
+                              "incumbents": {k: np.round(v, 9).tolist()
+                                             for k, v in r["incumbents"].items()}}
         line = json.dumps(row)
         print(json.dumps({k: v for k, v in row.items() if k != "per_episode"}), flush=True)
         if args.out:
