@@ -37,10 +37,11 @@ batches the same way when the seeds are aligned to ``CHUNK``. Starts the search 
 are reported as *doomed* for this planner (an upper bound on the truly doomed share: a
 better search could rescue some).
 
-`evaluate_clairvoyant` runs it on seeded episodes of a level and returns the trapping times
-(with `mpc`'s, free from step 1), the doomed share with a Wilson interval and the time per
-episode. ``saddle-eval --policy clairvoyant`` runs it through `agents.rollout`, which hands
-the environment to actors that ask for it (``attach``).
+`agents.headroom.evaluate_clairvoyant` runs it on seeded episodes of a level and returns the
+trapping times (with `mpc`'s and the agents', free from step 1), the doomed share with a
+Wilson interval and the time per episode. ``saddle-eval --policy clairvoyant`` runs it
+through `agents.rollout`, which hands the environment to actors that ask for it
+(``attach``).
 """
 
 from __future__ import annotations
@@ -189,17 +190,21 @@ class ClairvoyantPlanner:
     ``seed``: the generator of those perturbations (the plan is deterministic for a seed);
     ``agents``: the policies whose episodes are incumbents besides `mpc`'s: True, the
     shipped agents trained on exactly this config (`shipped_agents`); False, none; or a
-    list of model files / baseline names.
+    list of model files / baseline names, loaded with ``loader`` (`agents.policies.
+    load_policy`, which the registered ``clairvoyant`` passes; this module cannot import it,
+    as `agents.policies` imports this one).
     """
 
     def __init__(self, config: EnvConfig, max_rounds: int = 400, candidates: int = 128,
-                 seed: int = 0, mpc: Any = None, agents: bool | list[str] = True):
+                 seed: int = 0, mpc: Any = None, agents: bool | list[str] = False,
+                 loader: Any = None):
         self.config = config
         self.max_rounds = int(max_rounds)
         self.candidates = int(candidates)
         self.seed = int(seed)
         self._mpc = mpc
         self._agent_specs = agents
+        self._loader = loader
         self._agents: list[tuple[str, Any]] | None = None
         self._engines: dict[int, TrapEngine] = {}
 
@@ -207,12 +212,13 @@ class ClairvoyantPlanner:
     def agents(self) -> list[tuple[str, Any]]:
         """(name, policy) of the incumbents besides `mpc` (loaded on first use)."""
         if self._agents is None:
-            from .policies import load_policy
-
             specs = self._agent_specs
             if specs is True:
                 specs = [str(p) for p in shipped_agents(self.config)]
-            self._agents = [(Path(str(sp)).name, load_policy(sp, self.config))
+            if specs and self._loader is None:
+                raise ValueError("agents as incumbents need a loader "
+                                 "(loader=agents.policies.load_policy)")
+            self._agents = [(Path(str(sp)).name, self._loader(sp, self.config))
                             for sp in (specs or [])]
         return self._agents
 
@@ -355,7 +361,6 @@ class ClairvoyantPlanner:
     def improve(self, start: BallState, plan: BallPlan, steps: int, rng: np.random.Generator
                 ) -> BallPlan:
         """Search for a plan that keeps this ball longer than ``plan`` (see the module doc)."""
-        dt = self.config.control_period
         rounds, j = 0, 0
         snaps = self._snapshots(start, plan.actions, plan.loss)
         while plan.loss < steps and rounds < self.max_rounds and j < len(BACKOFFS):
@@ -382,7 +387,6 @@ class ClairvoyantPlanner:
                 if s == 0:
                     break
         plan.rounds += rounds
-        # The recomputed time of the final plan is the reference (sums in the episode's order).
         return plan
 
     # -- the batch ---------------------------------------------------------------------
@@ -426,9 +430,10 @@ class ClairvoyantController(Controller):
     row_independent = True
 
     def __init__(self, config: EnvConfig, max_rounds: int = 400, candidates: int = 128,
-                 seed: int = 0, agents: bool | list[str] = True):
+                 seed: int = 0, agents: bool | list[str] = False, loader: Any = None):
         super().__init__(config)
-        self.planner = ClairvoyantPlanner(config, max_rounds, candidates, seed, agents=agents)
+        self.planner = ClairvoyantPlanner(config, max_rounds, candidates, seed, agents=agents,
+                                          loader=loader)
 
     def make_actor(self) -> ClairvoyantActor:
         return ClairvoyantActor(self.planner)
@@ -516,122 +521,12 @@ def shipped_agents(config: EnvConfig, models_dir: Path | None = None) -> list[Pa
     return out
 
 
-def clairvoyant(config: EnvConfig) -> ClairvoyantController:
-    """The ``clairvoyant`` baseline with its default budget."""
-    return ClairvoyantController(config)
-
-
-# --------------------------------------------------------------------------------------
-# Evaluation: trapping times and the doomed share
-# --------------------------------------------------------------------------------------
-def evaluate_clairvoyant(env_id: str | EnvConfig, episodes: int, seed: int = 2_000_000,
-                         max_episode_steps: int | None = None, batch: int = 100,
-                         progress: bool = False, **planner: Any) -> dict[str, Any]:
-    """Run the clairvoyant on episodes ``seed .. seed + episodes − 1`` of a level (an id of
-    `saddle_env.LEVELS`, or a config) through `agents.rollout.run_episodes`, ``batch``
-    episodes per engine (results do not depend on it).
-
-    Returns per-episode ``time`` and ``mpc_time`` [s] (mpc's on the same episodes, from
-    the planner's first step), ``cause``; the summaries ``trapping_time`` and
-    ``mpc_trapping_time`` (mean, bootstrap interval), ``doomed`` (share of balls the
-    clairvoyant still loses, Wilson interval), ``mpc_lost``, ``rescued`` (balls mpc loses
-    and the clairvoyant keeps) and ``seconds_per_episode`` (wall time, planning included).
-    """
-    from saddle_env.envs import get_level
-
-    from .evaluation import bootstrap_interval, wilson_interval
-    from .rollout import run_episodes
-
-    if isinstance(env_id, EnvConfig):
-        config, steps, name = env_id, max_episode_steps or 500, None
-    else:
-        level = get_level(env_id)
-        config, name = level.config(), level.id
-        steps = max_episode_steps or level.max_episode_steps
-    policy = ClairvoyantController(config, **planner)
-    seeds = seed + np.arange(episodes)
-    times, mpc_times, causes, plans = [], [], [], []
-    incumbents: dict[str, list[float]] = {}
-    t0 = time.perf_counter()
-    for b in range(0, episodes, batch):
-        act = policy.make_actor()
-        res = run_episodes(config, act, seeds[b:b + batch], max_episode_steps=steps,
-                           row_independent=True)
-        times.append(res["time"])
-        causes.extend(res["cause"])
-        mpc_times.append([p.mpc_time for p in act.plans])
-        for p in act.plans:
-            for k, v in (p.incumbents or {}).items():
-                incumbents.setdefault(k, []).append(v)
-        plans.extend(act.plans)
-        if progress:
-            done = min(b + batch, episodes)
-            print(f"clairvoyant {name}: {done}/{episodes} episodes, "
-                  f"{(time.perf_counter() - t0) / done:.2f} s/episode", flush=True)
-    wall = time.perf_counter() - t0
-    time_arr = np.concatenate(times)
-    mpc_arr = np.concatenate([np.asarray(m, float) for m in mpc_times])
-    full = steps * config.control_period
-    kept = np.array([c == "kept" for c in causes])
-    mpc_kept = mpc_arr >= full - 1e-9
-
-    def share(k: int) -> dict[str, float]:     # Wilson, its rounding kept around the mean
-        w = wilson_interval(k, episodes)
-        return {"mean": w["mean"], "low": min(w["low"], w["mean"]),
-                "high": max(w["high"], w["mean"])}
-
-    return {"env_id": name, "episodes": episodes, "seed": seed, "episode_length_s": full,
-            "time": time_arr, "mpc_time": mpc_arr, "cause": np.array(causes, dtype=object),
-            "trapping_time": bootstrap_interval(time_arr),
-            "mpc_trapping_time": bootstrap_interval(mpc_arr),
-            "doomed": share(int((~kept).sum())), "mpc_lost": share(int((~mpc_kept).sum())),
-            "rescued": int((kept & ~mpc_kept).sum()),
-            "incumbents": {k: np.asarray(v) for k, v in incumbents.items()},
-            "incumbent_trapping_time": {k: bootstrap_interval(np.asarray(v))
-                                        for k, v in incumbents.items()},
-            "rounds": int(sum(p.rounds for p in plans)),
-            "seconds_per_episode": wall / episodes}
-
-
-def main(argv: Any = None) -> int:
-    """``python -m agents.clairvoyant [--levels ID ...] [--episodes N] [--seed S] [--out F]``:
-    the clairvoyant on each level's episodes (default: the leaderboard's test seeds), one JSON
-    line per level (also appended to ``--out``)."""
-    import argparse
-    import json
-
-    from saddle_env.envs import LEVEL_IDS
-
-    p = argparse.ArgumentParser(prog="python -m agents.clairvoyant", description=main.__doc__)
-    p.add_argument("--levels", nargs="+", default=list(LEVEL_IDS[1:]), metavar="ID")
-    p.add_argument("--episodes", type=int, default=100)
-    p.add_argument("--seed", type=int, default=2_000_000)
-    p.add_argument("--batch", type=int, default=100)
-    p.add_argument("--max-rounds", type=int, default=400)
-    p.add_argument("--out", default=None, metavar="FILE")
-    args = p.parse_args(argv)
-    for lvl in args.levels:
-        r = evaluate_clairvoyant(lvl, args.episodes, args.seed, batch=args.batch, progress=True,
-                                 max_rounds=args.max_rounds)
-        row = {k: v for k, v in r.items() if k not in ("time", "mpc_time", "cause", "incumbents")}
-        row["max_rounds"] = args.max_rounds
-        row["per_episode"] = {"time": np.round(r["time"], 9).tolist(),
-                              "mpc_time": np.round(r["mpc_time"], 9).tolist(),
-                              "cause": list(r["cause"]),
-                              "incumbents": {k: np.round(v, 9).tolist()
-                                             for k, v in r["incumbents"].items()}}
-        line = json.dumps(row)
-        print(json.dumps({k: v for k, v in row.items() if k != "per_episode"}), flush=True)
-        if args.out:
-            with open(args.out, "a") as fh:
-                fh.write(line + "\n")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+def clairvoyant(config: EnvConfig, loader: Any = None, **planner: Any) -> ClairvoyantController:
+    """The ``clairvoyant`` baseline: incumbents `mpc` and, given a ``loader``
+    (`agents.policies.load_policy`), the shipped agents trained on ``config``."""
+    return ClairvoyantController(config, agents=loader is not None, loader=loader, **planner)
 
 
 __all__ = ["BallPlan", "BallState", "ClairvoyantActor", "ClairvoyantController",
-           "ClairvoyantPlanner", "clairvoyant", "copy_engine", "copy_rng", "evaluate_clairvoyant",
-           "run_plans"]
+           "ClairvoyantPlanner", "clairvoyant", "copy_engine", "copy_rng", "run_plans",
+           "shipped_agents"]

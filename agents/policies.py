@@ -24,7 +24,7 @@ from saddle_env.envs import EnvConfig
 from saddle_env.envs.observation import observation_space
 
 from .best_constant import best_const
-from .clairvoyant import clairvoyant
+from .clairvoyant import clairvoyant as _clairvoyant
 from .controllers import (
     CONST_MULTIPLES,
     Controller,
@@ -41,7 +41,7 @@ BASELINES: dict[str, Callable[..., Controller]] = {
     "masspoint": mass_point,
     "best-const": best_const,
     "mpc": ModelPredictiveController,
-    "clairvoyant": clairvoyant,
+    "clairvoyant": lambda config: _clairvoyant(config, loader=load_policy),
     "zero": ZeroAction,
     "random": UniformRandom,
 }
@@ -179,7 +179,8 @@ def load_policy(name_or_path: str | os.PathLike, config: EnvConfig | None = None
     if const is not None:
         return const(config)
     if Path(name).is_dir():      # an RLlib checkpoint directory (or an RLlib run folder)
-        from .rllib_policy import latest_checkpoint, load_policy as load_rllib_policy
+        from .rllib_policy import latest_checkpoint
+        from .rllib_policy import load_policy as load_rllib_policy
 
         if latest_checkpoint(name) is not None:
             return load_rllib_policy(name)
@@ -203,7 +204,7 @@ def _load_with_pipeline(path: Path, config: EnvConfig) -> Any:
         import pickle
 
         with open(stats, "rb") as fh:
-            normalizer = pickle.load(fh)  # noqa: S301 — our own training run's file
+            normalizer = pickle.load(fh)
         normalizer.training = False
     if not isinstance(frame_stack, int) or frame_stack < 1:
         raise ValueError(f"{path}: sidecar frame_stack must be a positive integer, "

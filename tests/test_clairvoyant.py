@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from agents.best_constant import best_constant
-from agents.clairvoyant import BallState, ClairvoyantController, evaluate_clairvoyant
+from agents.clairvoyant import BallState, ClairvoyantController
 from agents.evaluation import main as saddle_eval
+from agents.headroom import evaluate_clairvoyant
 from agents.mpc import ModelPredictiveController
 from agents.policies import BASELINES, load_policy
 from agents.rollout import policy_actor, run_episodes
@@ -52,7 +53,7 @@ def test_foresight_beats_mpc_on_a_gust(gusty):
     assert calm["kept"][0]
     mpc, _ = _run(load_policy("mpc", gusty), gusty, [GUST_SEED])
     assert mpc["cause"][0] == "escape" and mpc["time"][0] < 2.0
-    clair, act = _run(ClairvoyantController(gusty, agents=False), gusty, [GUST_SEED])
+    clair, act = _run(ClairvoyantController(gusty), gusty, [GUST_SEED])
     assert act.plans[0].mpc_time == mpc["time"][0]
     assert clair["time"][0] > mpc["time"][0] + 0.5
     assert act.plans[0].time == clair["time"][0]   # the plan's score is what happened
@@ -63,7 +64,7 @@ def test_never_shorter_than_mpc(gusty):
     mpc: its first plan is mpc's own episode, and a plan is replaced only by a better one."""
     seeds = list(range(9_000_000, 9_000_006)) + [GUST_SEED]
     mpc, _ = _run(load_policy("mpc", gusty), gusty, seeds)
-    clair, act = _run(ClairvoyantController(gusty, max_rounds=60, agents=False), gusty, seeds)
+    clair, act = _run(ClairvoyantController(gusty, max_rounds=60), gusty, seeds)
     np.testing.assert_array_equal([p.mpc_time for p in act.plans], mpc["time"])
     assert np.all(clair["time"] >= mpc["time"])
     assert clair["time"].sum() > mpc["time"].sum()   # GUST_SEED's ball is kept longer
@@ -78,17 +79,18 @@ def test_never_shorter_than_the_shipped_agent(gusty):
     (path,) = shipped_agents(gusty)
     seeds = [9_000_000, GUST_SEED]
     agent, _ = _run(load_policy(str(path), gusty), gusty, seeds)
-    clair, act = _run(ClairvoyantController(gusty, max_rounds=5), gusty, seeds)
+    clair, act = _run(ClairvoyantController(gusty, max_rounds=5, agents=True,
+                                            loader=load_policy), gusty, seeds)
     np.testing.assert_array_equal([p.incumbents[path.name] for p in act.plans], agent["time"])
     assert np.all(clair["time"] >= agent["time"])
 
 
 def test_deterministic_and_batch_independent(gusty):
-    one, a1 = _run(ClairvoyantController(gusty, max_rounds=20, agents=False), gusty, [GUST_SEED])
-    two, a2 = _run(ClairvoyantController(gusty, max_rounds=20, agents=False), gusty, [GUST_SEED])
+    one, a1 = _run(ClairvoyantController(gusty, max_rounds=20), gusty, [GUST_SEED])
+    two, a2 = _run(ClairvoyantController(gusty, max_rounds=20), gusty, [GUST_SEED])
     np.testing.assert_array_equal(a1.plans[0].actions, a2.plans[0].actions)
     assert one["time"][0] == two["time"][0]
-    many, a3 = _run(ClairvoyantController(gusty, max_rounds=20, agents=False), gusty,
+    many, a3 = _run(ClairvoyantController(gusty, max_rounds=20), gusty,
                     [9_000_003, GUST_SEED, 9_000_004])
     np.testing.assert_array_equal(a1.plans[0].actions, a3.plans[1].actions)
     assert many["time"][1] == one["time"][0]
@@ -101,7 +103,7 @@ def test_plan_is_checked_against_the_environment(gusty):
 
     env = SaddleTrapVectorEnv(num_envs=1, max_episode_steps=10, **gusty.as_dict())
     obs, _ = env.reset(seed=[9_000_001])
-    act = ClairvoyantController(gusty, max_rounds=0, agents=False).make_actor()
+    act = ClairvoyantController(gusty, max_rounds=0).make_actor()
     act.start(1)
     act.attach(env, 10)
     a = act(obs, np.array([0]))
