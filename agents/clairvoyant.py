@@ -17,25 +17,30 @@ keeps a ball on the copy keeps it in the episode, bit for bit.
    kept it longest (mpc on a tie), and each one's trapping time is its trapping time on
    that episode (the same episode: same generator, same observations, same actions).
 2. **Improvement, only where the incumbent loses the ball.** Backing off from the step in
-   which the ball is lost (2, 5, 10, ... steps, up to the episode's start), candidate plans
-   are scored from that step to the episode's end on a batch engine of copies of the ball
-   at that step (its state and generator): a target speed (or an acceleration in
-   ``acceleration`` mode) held for a window of 2-40 steps, then either the incumbent's
-   remaining actions or the same speed held; the speed held to the end; random
-   perturbations of the incumbent. A candidate that keeps the ball strictly longer than
-   the incumbent (from the same step, with the same future) replaces it, and the search
-   starts again from the new loss. It stops when the ball is kept, when no back-off finds
-   an improvement, or at the budget (``max_rounds`` rounds).
+   which the ball is lost (2, 5, 10, ... 500 steps, down to the episode's start), candidate
+   plans are scored from that step to the episode's end on a batch engine of copies of the
+   ball at that step (its state and generator). The candidates (`_candidates`): the
+   incumbent's own remaining actions; each of 14 target speeds (0.85-1.6 Ω_crt of the true
+   ball, and the speed commanded now) held for 2, 6, 15 or 40 steps, then either the
+   incumbent's remaining actions or that speed held, or held to the end; in
+   ``acceleration`` mode accelerations of ±0.2, ±0.5 and ±1 of the motor's limit instead,
+   followed by holding the speed reached. The rest of the ``candidates`` slots (128 by
+   default: 1 in target mode, 73 in acceleration mode) are smooth random perturbations of
+   the incumbent. A candidate that keeps the ball strictly longer than the incumbent (from
+   the same step, with the same future) replaces it, and the search starts again from the
+   new loss. It stops when the ball is kept, when backing off to the episode's start finds
+   no improvement, or after ``max_rounds`` candidate batches (400).
 3. **Execution.** The plan is replayed open loop; every step the real engine's ball is
    checked against the plan's predicted state (bit-identical, else `RuntimeError`).
 
 **The guarantee.** A plan is replaced only by one that keeps the ball longer on an exact
 copy of the episode, so the executed plan keeps every ball at least as long as `mpc` (and
 every incumbent agent) does on the same episode: not on average, on every episode. For a
-model file this holds for the batch it acted in on the copy (``CHUNK`` balls); ``saddle-eval``
-batches the same way when the seeds are aligned to ``CHUNK``. Starts the search does not rescue
-are reported as *doomed* for this planner (an upper bound on the truly doomed share: a
-better search could rescue some).
+model file the incumbent is its episode in a batch of ``CHUNK`` balls (padded), as
+``saddle-eval`` runs it: the same batches when both start from the same seed (a policy
+network's output can depend on the batch's shape). Starts the search does not rescue are
+reported as *doomed* for this planner: an upper bound on the share no controller can keep
+(a better search could rescue some).
 
 `agents.headroom.evaluate_clairvoyant` runs it on seeded episodes of a level and returns the
 trapping times (with `mpc`'s and the agents', free from step 1), the doomed share with a
