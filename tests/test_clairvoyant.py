@@ -78,9 +78,9 @@ def test_never_shorter_than_the_shipped_agent(gusty):
 
     (path,) = shipped_agents(gusty)
     seeds = [9_000_000, GUST_SEED]
-    agent, _ = _run(load_policy(str(path), gusty), gusty, seeds)
+    agent, _ = _run(load_policy(str(path), gusty), gusty, seeds, steps=80)
     clair, act = _run(ClairvoyantController(gusty, max_rounds=5, agents=True,
-                                            loader=load_policy), gusty, seeds)
+                                            loader=load_policy), gusty, seeds, steps=80)
     np.testing.assert_array_equal([p.incumbents[path.name] for p in act.plans], agent["time"])
     assert np.all(clair["time"] >= agent["time"])
 
