@@ -64,6 +64,7 @@ from saddle_env.envs import EnvConfig
 from saddle_env.envs import _step as S
 from saddle_env.envs.engine import TrapEngine
 from saddle_env.linear import critical_omega
+from saddle_env.simulate import SimulationError
 
 from .controllers import Controller
 
@@ -374,11 +375,16 @@ class ClairvoyantPlanner:
             cands = self._candidates(snaps[s], tail, rng)
             eng = self._engine(len(cands))
             rngs = snaps[s].put(eng, np.arange(len(cands)))
-            res = run_plans(eng, rngs, cands)
             rounds += 1
+            try:
+                res = run_plans(eng, rngs, cands)
+            except SimulationError:
+                # A candidate the integrator cannot follow (its step limit): this batch
+                # proves nothing, so it changes nothing; back off further.
+                res = None
             # The time before s is common to every candidate; row 0 is the incumbent.
-            best = int(np.argmax(res.time))
-            if res.time[best] > res.time[0]:
+            best = 0 if res is None else int(np.argmax(res.time))
+            if res is not None and res.time[best] > res.time[0]:
                 actions = np.concatenate([plan.actions[:s], cands[best]])
                 prefix = plan.time - res.time[0]
                 plan = BallPlan(actions, prefix + float(res.time[best]),

@@ -140,3 +140,23 @@ def test_saddle_eval_runs_the_clairvoyant(capsys):
     table = json.loads(capsys.readouterr().out)
     rows = {row["policy"]: row for row in table["policies"]}
     assert rows["clairvoyant"]["trapping_time"]["mean"] >= rows["mpc"]["trapping_time"]["mean"]
+
+
+def test_a_batch_the_integrator_cannot_follow_changes_nothing(gusty, monkeypatch):
+    """A candidate batch that fails to integrate is skipped, not fatal, and the plan still
+    keeps the ball at least as long as mpc."""
+    import agents.clairvoyant as C
+    from saddle_env.simulate import SimulationError
+
+    real, calls = C.run_plans, []
+
+    def flaky(engine, rngs, plans):
+        calls.append(len(plans))
+        if len(calls) == 1:
+            raise SimulationError("step limit")
+        return real(engine, rngs, plans)
+
+    monkeypatch.setattr(C, "run_plans", flaky)
+    clair, act = _run(ClairvoyantController(gusty, max_rounds=3), gusty, [GUST_SEED])
+    assert len(calls) >= 2 and act.plans[0].rounds == 3
+    assert clair["time"][0] >= act.plans[0].mpc_time
