@@ -29,6 +29,7 @@ from saddle_env.envs import EnvConfig
 from saddle_env.envs.observation import observation_space
 
 from .best_constant import best_const
+from .clairvoyant import clairvoyant as _clairvoyant
 from .controllers import (
     CONST_MULTIPLES,
     Controller,
@@ -53,6 +54,7 @@ BASELINES: dict[str, Callable[..., Controller]] = {
     "masspoint": mass_point,
     "best-const": best_const,
     "mpc": ModelPredictiveController,
+    "clairvoyant": lambda config: _clairvoyant(config, loader=load_policy),
     "zero": ZeroAction,
     "random": UniformRandom,
 }
@@ -223,7 +225,8 @@ def load_policy(name_or_path: str | os.PathLike, config: EnvConfig | None = None
     if const is not None:
         return const(config)
     if Path(name).is_dir():      # an RLlib checkpoint directory (or an RLlib run folder)
-        from .rllib_policy import latest_checkpoint, load_policy as load_rllib_policy
+        from .rllib_policy import latest_checkpoint
+        from .rllib_policy import load_policy as load_rllib_policy
 
         if latest_checkpoint(name) is not None:
             return load_rllib_policy(name, trust=trust)

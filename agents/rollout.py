@@ -73,6 +73,8 @@ def run_episodes(config: EnvConfig, act: Actor, seeds: Sequence[int] | np.ndarra
         obs, info = env.reset(seed=[int(s) for s in chunk])
         if hasattr(act, "start"):
             act.start(m)
+        if hasattr(act, "attach"):    # actors that plan on the environment itself (clairvoyant)
+            act.attach(env, max_episode_steps)
         alive = np.ones(m, dtype=bool)
         t_trap, r_sum, a_sum, ret = np.zeros(m), np.zeros(m), np.zeros(m), np.zeros(m)
         steps = np.zeros(m, dtype=np.int64)
@@ -161,8 +163,11 @@ class PolicyActor:
         return actions if self.row_independent else actions[idx]
 
 
-def policy_actor(policy: Any) -> tuple[PolicyActor, bool]:
-    """(actor, row_independent) for `run_episodes`."""
+def policy_actor(policy: Any) -> tuple[Any, bool]:
+    """(actor, row_independent) for `run_episodes`: the policy's own actor if it makes one
+    (``clairvoyant``, which reads the environment), else a `PolicyActor`."""
+    if hasattr(policy, "make_actor"):   # not "actor": SAC and TD3 models have one
+        return policy.make_actor(), bool(getattr(policy, "row_independent", False))
     actor = PolicyActor(policy)
     return actor, actor.row_independent
 
