@@ -58,6 +58,18 @@ def references(board_path: Path = DOCS / "leaderboard.json",
     return refs
 
 
+def clairvoyant_reference(level_id: str, path: Path = REFERENCES) -> dict[str, Any] | None:
+    """The clairvoyant's test-set result on ``level_id`` (mean trapping time, its interval,
+    the doomed share with its interval, episodes), or None where not measured."""
+    if not Path(path).is_file():
+        return None
+    entry = json.loads(Path(path).read_text()).get("levels", {}).get(level_id)
+    if entry is None:
+        return None
+    return {k: entry[k] for k in ("clairvoyant", "clairvoyant_ci", "doomed", "doomed_ci",
+                                  "episodes", "seed")}
+
+
 def normalise(t: float, ref: dict[str, Any]) -> float:
     lo, hi = ref["random"], ref[ref["upper"]]
     return (t - lo) / (hi - lo)
@@ -230,13 +242,25 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
              "are the probability that a run beats the deterministic baseline's score (0.5 "
              "for a tie), with bootstrap intervals.", ""]
     refs = data["references"]
-    lines += ["| level | random | best-const | mpc | clairvoyant | upper reference |",
-              "|---|---|---|---|---|---|"]
+    lines += ["The references, on the same test episodes: random, best-const and mpc from the "
+              "leaderboard; the clairvoyant controller (`agents/clairvoyant.py`: it knows the "
+              "ball and the future disturbances and plans with the true simulator, never "
+              "keeping a ball shorter than mpc or the shipped agent) from "
+              "`benchmark/references.json` (`python -m agents.headroom`). *Doomed*: the share "
+              "of starts the clairvoyant still loses (Wilson 95 % interval), an estimate of "
+              "what no controller can win.", "",
+              "| level | random | best-const | mpc | clairvoyant | doomed | upper reference |",
+              "|---|---|---|---|---|---|---|"]
     for lid in data["levels"]:
         r = refs[lid]
-        clair = f"{r['clairvoyant']:.2f}" if "clairvoyant" in r else "not measured"
+        c = clairvoyant_reference(lid)
+        clair = (f"{c['clairvoyant']:.2f} s [{c['clairvoyant_ci']['low']:.2f}, "
+                 f"{c['clairvoyant_ci']['high']:.2f}] ({c['episodes']} episodes)"
+                 if c else "not measured")
+        doomed = (f"{100 * c['doomed']:.1f} % [{100 * c['doomed_ci']['low']:.1f}, "
+                  f"{100 * c['doomed_ci']['high']:.1f}]" if c else "—")
         lines.append(f"| `{lid}` | {r['random']:.2f} s | {r['best-const']:.2f} s | "
-                     f"{r['mpc']:.2f} s | {clair} | {r['upper']} |")
+                     f"{r['mpc']:.2f} s | {clair} | {doomed} | {r['upper']} |")
     if data["across_levels"]:
         lines += ["", "### Across levels", "",
                   "| algorithm | runs per level | IQM | mean | P(>best-const) | P(>mpc) |",
@@ -330,4 +354,5 @@ def main_report(out: Path, rows: dict[str, Any], seeds: tuple[int, ...], test_ep
     return 0
 
 
-__all__ = ["load_results", "main_report", "normalise", "references", "report_data"]
+__all__ = ["clairvoyant_reference", "load_results", "main_report", "normalise", "references",
+           "report_data"]

@@ -446,7 +446,7 @@ class ClairvoyantController(Controller):
         self.planner = ClairvoyantPlanner(config, max_rounds, candidates, seed, agents=agents,
                                           loader=loader)
 
-    def make_actor(self) -> ClairvoyantActor:
+    def episode_actor(self) -> ClairvoyantActor:
         return ClairvoyantActor(self.planner)
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,

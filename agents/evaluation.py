@@ -308,7 +308,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "plots, or with --json print the table and write nothing.")
     p.add_argument("--policy", action="append", required=True, metavar="NAME_OR_PATH",
                    help="a baseline (const-1.0, const-1.2, const-<K>, masspoint, best-const, mpc, "
-                        "zero, random), a model file or an RLlib checkpoint directory; repeat "
+                        "clairvoyant, zero, random), a model file or an RLlib checkpoint directory; repeat "
                         "for several")
     p.add_argument("--env", default=None, metavar="ID",
                    help=f"task level ({', '.join(LEVEL_IDS)}); default: the level a model "

@@ -50,7 +50,7 @@ def evaluate_clairvoyant(env_id: str | EnvConfig, episodes: int, seed: int = 2_0
     incumbents: dict[str, list[float]] = {}
     t0 = time.perf_counter()
     for b in range(0, episodes, batch):
-        act = policy.make_actor()
+        act = policy.episode_actor()
         res = run_episodes(config, act, seeds[b:b + batch], max_episode_steps=steps,
                            row_independent=True)
         times.append(res["time"])

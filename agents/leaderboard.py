@@ -29,6 +29,7 @@ import numpy as np
 
 from saddle_env.envs import LEVELS, get_level
 
+from .benchmark_report import clairvoyant_reference
 from .model_files import TRUST_FLAG
 from .seeds import SEARCH_SEED, TEST_SEED, VALIDATION_SEED
 
@@ -112,20 +113,38 @@ def _cell(d: dict[str, float], fmt: str, scale: float = 1.0) -> str:
 def level_markdown(table: dict[str, Any], figure: str | None) -> str:
     level = get_level(table["env_id"])
     lines = [f"## {level.id}", "", level.summary[0].upper() + level.summary[1:] + ".", ""]
-    lines += ["| policy | trapping time [s] | kept [%] | detach [%] | escape [%] | "
-              "mean distance [mm] | effort (action²) |", "|" + "---|" * 7]
+    clair = clairvoyant_reference(level.id)
+    random_t = next((r["trapping_time"]["mean"] for r in table["policies"]
+                     if r["policy"] == "random"), None)
+
+    def score(row: dict[str, Any]) -> str:
+        """0 for uniform random actions, 1 for the clairvoyant (docs/benchmark.md)."""
+        if clair is None or random_t is None or clair["clairvoyant"] <= random_t:
+            return "—"
+        return f"{(row['trapping_time']['mean'] - random_t) / (clair['clairvoyant'] - random_t):.2f}"
+
+    lines += ["| policy | trapping time [s] | score | kept [%] | detach [%] | escape [%] | "
+              "mean distance [mm] | effort (action²) |", "|" + "---|" * 8]
     for row in sorted(table["policies"], key=lambda r: -r["trapping_time"]["mean"]):
         name = row["policy"]
         if name.endswith(".zip"):
             name = f"**{Path(name).stem}** ({row['kind']})"
         elif "omega" in row:
             name += f", Ω = {row['omega']:.2f}"
-        lines.append(f"| {name} | {_cell(row['trapping_time'], '.2f')} | "
+        lines.append(f"| {name} | {_cell(row['trapping_time'], '.2f')} | {score(row)} | "
                      f"{_cell(row['kept'], '.1f', 100)} | {_cell(row['detach'], '.1f', 100)} | "
                      f"{_cell(row['escape'], '.1f', 100)} | "
                      f"{_cell(row['mean_distance_mm'], '.2f')} | {_cell(row['effort'], '.3f')} |")
     lines += ["", f"{table['episodes']} episodes per policy, seeds {table['seed']}–"
               f"{table['seed'] + table['episodes'] - 1}, {table['episode_length_s']:g} s each."]
+    if clair is not None:
+        lines += ["", f"Upper reference: the clairvoyant controller keeps the ball "
+                  f"{clair['clairvoyant']:.2f} s [{clair['clairvoyant_ci']['low']:.2f}, "
+                  f"{clair['clairvoyant_ci']['high']:.2f}] on the first {clair['episodes']:,} "
+                  f"of these episodes; {100 * clair['doomed']:.1f} % "
+                  f"[{100 * clair['doomed_ci']['low']:.1f}, {100 * clair['doomed_ci']['high']:.1f}] "
+                  f"of its starts are doomed (lost even by it). *Score*: (T − T_random) / "
+                  f"(T_clairvoyant − T_random) ([benchmark.md](benchmark.md))."]
     if figure:
         lines += ["", f"![{level.id} survival]({figure})"]
     return "\n".join(lines) + "\n"

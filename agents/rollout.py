@@ -166,8 +166,9 @@ class PolicyActor:
 def policy_actor(policy: Any) -> tuple[Any, bool]:
     """(actor, row_independent) for `run_episodes`: the policy's own actor if it makes one
     (``clairvoyant``, which reads the environment), else a `PolicyActor`."""
-    if hasattr(policy, "make_actor"):   # not "actor": SAC and TD3 models have one
-        return policy.make_actor(), bool(getattr(policy, "row_independent", False))
+    # not "actor" or "make_actor": SB3 models and policies (SAC, TD3) have those
+    if hasattr(policy, "episode_actor"):
+        return policy.episode_actor(), bool(getattr(policy, "row_independent", False))
     actor = PolicyActor(policy)
     return actor, actor.row_independent
 

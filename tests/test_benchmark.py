@@ -122,3 +122,26 @@ def test_two_cells_run_as_tasks_on_a_local_ray(tmp_path):
     for seed in (0, 1):
         data = json.loads(B.result_path(tmp_path, GUSTY, "ppo", seed).read_text())
         assert data["seed"] == seed and data["steps_done"] >= 64
+
+
+def test_the_clairvoyant_reference_is_at_or_above_mpc_and_every_shipped_agent():
+    """benchmark/references.json (the clairvoyant on each level's test set) against the
+    committed leaderboard, episode by episode: never shorter than mpc or a shipped agent."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    refs = json.loads((root / "benchmark" / "references.json").read_text())["levels"]
+    board = json.loads((root / "docs" / "leaderboard.json").read_text())
+    assert set(refs) == set(board["levels"])
+    for lid, ref in refs.items():
+        clair = np.asarray(ref["episode_times"])
+        assert len(clair) == ref["episodes"] and ref["seed"] == board["seed"]
+        rows = board["levels"][lid]["policies"]
+        rivals = [r["key"] for r in rows if r["policy"] == "mpc" or r["policy"].endswith(".zip")]
+        assert len(rivals) >= 2 or lid == "SaddleTrap-v0"
+        for key in rivals:
+            theirs = np.asarray(board["episode_results"][lid][key]["time"][:len(clair)])
+            assert np.all(clair >= theirs - 1e-5), (lid, key)
+        lost = int(np.sum(clair < 10.0 - 1e-9))
+        assert ref["doomed"] == lost / len(clair)
+        assert ref["doomed_ci"]["low"] - 1e-12 <= ref["doomed"] <= ref["doomed_ci"]["high"]

@@ -103,7 +103,7 @@ def test_plan_is_checked_against_the_environment(gusty):
 
     env = SaddleTrapVectorEnv(num_envs=1, max_episode_steps=10, **gusty.as_dict())
     obs, _ = env.reset(seed=[9_000_001])
-    act = ClairvoyantController(gusty, max_rounds=0).make_actor()
+    act = ClairvoyantController(gusty, max_rounds=0).episode_actor()
     act.start(1)
     act.attach(env, 10)
     a = act(obs, np.array([0]))
