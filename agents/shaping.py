@@ -46,16 +46,18 @@ def check_shaping(value: Any) -> dict[str, float] | None:
     return out
 
 
-def shape(env: Any, value: Any, config: EnvConfig) -> Any:
+def shape(env: Any, value: Any, config: EnvConfig, training: bool = True) -> Any:
     """``env`` (an SB3 VecEnv of ``config``'s observations) with shaped rewards, or
-    ``env`` itself when there is no shaping."""
+    ``env`` itself when there is no shaping. ``training=False`` (the evaluation env of a
+    shaped run) wraps it in a pass-through instead, so that its wrappers stack as the
+    training env's do (SB3 syncs VecNormalize statistics wrapper by wrapper)."""
     settings = check_shaping(value)
     if not settings or settings.get("distance", 0.0) == 0.0:
         return env
     from stable_baselines3.common.vec_env import VecEnvWrapper
 
     lay = layout(config)
-    cost = settings["distance"]
+    cost = settings["distance"] if training else 0.0
 
     class DistanceCost(VecEnvWrapper):
         """Training rewards minus ``cost``·(r/rim)² of the state each step ends in (an
@@ -66,6 +68,8 @@ def shape(env: Any, value: Any, config: EnvConfig) -> Any:
 
         def step_wait(self):
             obs, rewards, dones, infos = self.venv.step_wait()
+            if cost == 0.0:
+                return obs, rewards, dones, infos
             last = obs
             if dones.any():
                 last = obs.copy()

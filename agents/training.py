@@ -507,12 +507,14 @@ def train(settings: TrainSettings, resume: str | Path | None = None) -> Path:
     steps = settings.max_episode_steps
     env = make_vec_env(n_envs, settings.seed, settings.env_kwargs,
                        train_episode_steps(hyper, steps), settings.env_id)
+    eval_env = make_vec_env(min(settings.eval_episodes, 16), VALIDATION_SEED + settings.seed,
+                            settings.env_kwargs, steps, settings.env_id)
     if hyper.get("reward_shaping") is not None:      # training rewards only (agents.shaping)
         from .shaping import shape
 
         env = shape(env, hyper["reward_shaping"], settings.environment()[1])
-    eval_env = make_vec_env(min(settings.eval_episodes, 16), VALIDATION_SEED + settings.seed,
-                            settings.env_kwargs, steps, settings.env_id)
+        eval_env = shape(eval_env, hyper["reward_shaping"], settings.environment()[1],
+                         training=False)
     if resume is not None:
         stats = checkpoint_statistics(resume)
         if norm_kw is not None and stats is not None:

@@ -56,3 +56,33 @@ def test_train_episode_steps_is_checked():
     assert train_episode_steps({"train_episode_steps": 900}, 500) == 500
     with pytest.raises(ValueError, match="train_episode_steps"):
         train_episode_steps({"train_episode_steps": 0}, 500)
+
+
+def test_distance_shaping_changes_training_rewards_only():
+    import numpy as np
+
+    from agents.shaping import check_shaping, shape
+    from agents.training import make_vec_env
+    from saddle_env.envs import EnvConfig
+
+    config = EnvConfig()
+    plain = make_vec_env(3, 0, {}, 5, "SaddleTrap-v0")
+    shaped = shape(make_vec_env(3, 0, {}, 5, "SaddleTrap-v0"), {"distance": 2.0}, config)
+    passing = shape(make_vec_env(3, 0, {}, 5, "SaddleTrap-v0"), {"distance": 2.0}, config,
+                    training=False)
+    assert shape(plain, None, config) is plain
+    for env in (plain, shaped, passing):
+        env.reset()
+    action = np.zeros((3, 1), np.float32)
+    for _ in range(5):   # the last step ends every episode (time limit): terminal obs used
+        o1, r1, d1, i1 = plain.step(action)
+        _, r2, _, _ = shaped.step(action)
+        _, r3, _, _ = passing.step(action)
+        last = np.array([i1[k]["terminal_observation"] if d1[k] else o1[k] for k in range(3)])
+        np.testing.assert_allclose(r2, r1 - 2.0 * (last[:, 0] ** 2 + last[:, 1] ** 2),
+                                   rtol=1e-6)
+        np.testing.assert_array_equal(r3, r1)
+    assert d1.all()
+    for bad in ({"distanse": 1.0}, {"distance": -1.0}, 3):
+        with pytest.raises(ValueError, match="reward_shaping"):
+            check_shaping(bad)
