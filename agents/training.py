@@ -9,8 +9,10 @@ Zoo keys honoured besides the algorithm's own arguments: ``n_envs``, ``n_timeste
 ``policy``, ``noise_type``/``noise_std`` (off-policy action noise), ``normalize`` (``true`` or
 ``"dict(norm_obs=True, norm_reward=False)"``: VecNormalize, its statistics saved next to
 every model as ``<model>.vecnormalize.pkl``), ``frame_stack`` (VecFrameStack with that many
-frames), ``warm_start`` (`agents.warm_start`) and ``imitation`` (its settings for
-``warm_start: mpc``, `agents.imitation`). ``env_wrapper`` and ``callback`` are
+frames), ``warm_start`` (`agents.warm_start`), ``imitation`` (its settings for
+``warm_start: mpc``, `agents.imitation`), ``train_episode_steps`` (shorter *training*
+episodes; evaluation keeps the level's) and ``reward_shaping`` (training rewards only,
+`agents.shaping`). ``env_wrapper`` and ``callback`` are
 rejected with an error (no wrapper or callback classes are importable by name here).
 Evaluation (`agents.policies.load_policy`) applies the same normalisation and stacking from
 the sidecar.
