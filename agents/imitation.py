@@ -41,6 +41,7 @@ class ImitationSettings:
     epochs: int = 8            # passes over all labels so far, after every round
     batch_size: int = 1024
     learning_rate: float = 1e-3
+    episode_steps: int | None = None   # control steps per imitation episode (None: the run's)
 
     @classmethod
     def from_hyper(cls, value: Any) -> ImitationSettings:
@@ -55,8 +56,10 @@ class ImitationSettings:
             raise ValueError(f"imitation: unknown keys {sorted(unknown)}; allowed: "
                              f"{sorted(cls.__annotations__)}")
         settings = cls(**value)
-        for name in ("rounds", "episodes", "epochs", "batch_size"):
+        for name in ("rounds", "episodes", "epochs", "batch_size", "episode_steps"):
             v = getattr(settings, name)
+            if name == "episode_steps" and v is None:
+                continue
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"imitation.{name} must be a positive integer, got {v!r}")
         lr = settings.learning_rate
@@ -195,6 +198,8 @@ def imitate(model: Any, config: EnvConfig, max_episode_steps: int, seed: int,
     per_run = settings.rounds * settings.episodes
     data: dict[str, list[np.ndarray]] = {"obs": [], "action": [], "ret": []}
     history = []
+    if settings.episode_steps is not None:   # shorter episodes: fewer mpc queries per round
+        max_episode_steps = min(max_episode_steps, settings.episode_steps)
     policy.set_training_mode(False)
     for r in range(settings.rounds):
         first = IMITATION_SEED + seed * per_run + r * settings.episodes

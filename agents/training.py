@@ -8,9 +8,8 @@ entry of its own uses the ``SaddleTrap-v0`` entry (a note says so).
 Zoo keys honoured besides the algorithm's own arguments: ``n_envs``, ``n_timesteps``,
 ``policy``, ``noise_type``/``noise_std`` (off-policy action noise), ``normalize`` (``true`` or
 ``"dict(norm_obs=True, norm_reward=False)"``: VecNormalize, its statistics saved next to
-every model as ``<model>.vecnormalize.json``), ``frame_stack`` (VecFrameStack with that many
-frames), ``warm_start`` (`agents.warm_start`) and ``imitation`` (its settings for
-``warm_start: mpc``, `agents.imitation`). ``env_wrapper`` and ``callback`` are
+    selector = _selection_callback(eval_env, settings, run_dir, n_envs, began)
+    callbacks = [_checkpoint_callback(run_dir / "checkpoints", settings, n_envs), selector]
 rejected with an error (no wrapper or callback classes are importable by name here).
 Evaluation (`agents.policies.load_policy`) applies the same normalisation and stacking from
 the sidecar.
@@ -71,7 +70,8 @@ HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
 ALGO_NAMES = ("ppo", "sac", "td3", "a2c")
 # Keys of the zoo format that are not constructor arguments of the algorithm.
 ZOO_ONLY_KEYS = {"n_envs", "n_timesteps", "policy", "noise_type", "noise_std", "normalize",
-                 "env_wrapper", "frame_stack", "callback", "warm_start", "imitation"}
+                 "env_wrapper", "frame_stack", "callback", "warm_start", "imitation",
+                 "train_episode_steps", "reward_shaping"}
 # Zoo keys this trainer cannot honour: an error, never silently dropped.
 REJECTED_KEYS = {"env_wrapper": "environment wrappers by class name are not supported; wrap "
                                 "in code (agents.training.make_vec_env) instead",
@@ -274,6 +274,20 @@ def wrap_env(env, norm_kw: dict[str, Any] | None, frame_stack: int, training: bo
     return env
 
 
+def train_episode_steps(hyper: dict[str, Any], steps: int) -> int:
+    """Length of the *training* episodes: the recipe's ``train_episode_steps`` if set (at
+    most ``steps``), else ``steps``. Model selection, the comparison and every evaluation
+    keep the full episode (``steps``); a training episode cut short is a time-limit
+    truncation, which PPO bootstraps from the value of its last state. On Capture, where
+    balls are lost in the first seconds, this spends the samples where the decisions are."""
+    k = hyper.get("train_episode_steps")
+    if k is None:
+        return steps
+    if isinstance(k, bool) or not isinstance(k, int) or k < 1:
+        raise ValueError(f"train_episode_steps must be a positive integer, got {k!r}")
+    return min(k, steps)
+
+
 def _action_noise(hyper: dict[str, Any]):
     kind = hyper.get("noise_type")
     if kind is None:
@@ -450,11 +464,15 @@ def write_sidecar(model_path: Path, settings: TrainSettings,
     Path(model_path).with_suffix(".json").write_text(json.dumps(sidecar, indent=2, default=list))
 
 
-def _selection_callback(eval_env, settings: TrainSettings, run_dir: Path, n_envs: int):
+def _selection_callback(eval_env, settings: TrainSettings, run_dir: Path, n_envs: int,
+                        began: float | None = None):
     """SB3's EvalCallback (writes evaluations.npz and best_model.zip, the first best), which
     also keeps ``selected_model.zip``: the latest snapshot whose mean validation return is
     at least the best so far (ties go to the later snapshot; see the module docstring)."""
     from stable_baselines3.common.callbacks import EvalCallback
+
+    began = time.time() if began is None else began
+    dt = settings.environment()[1].control_period
 
     class SelectingEvalCallback(EvalCallback):
         def __init__(self, *args, **kwargs):
@@ -475,6 +493,14 @@ def _selection_callback(eval_env, settings: TrainSettings, run_dir: Path, n_envs
 
         def _select(self) -> None:
             self.last_eval_steps = self.num_timesteps
+            # The curve against wall-clock time (since train() began: warm start and
+            # imitation included), for the learning curve and agents.time_to_target.
+            lengths = np.asarray(self.evaluations_length[-1], dtype=float)
+            with open(run_dir / "evaluations_wall.csv", "a") as f:
+                if f.tell() == 0:
+                    f.write("timesteps,wall_seconds,mean_return,mean_trapping_time\n")
+                f.write(f"{self.num_timesteps},{time.time() - began:.2f},"
+                        f"{self.last_mean_reward},{lengths.mean() * dt}\n")
             if self.last_mean_reward >= self.selected_mean:
                 self.selected_mean = float(self.last_mean_reward)
                 self.selected_steps = int(self.num_timesteps)
@@ -539,6 +565,7 @@ def train(settings: TrainSettings, resume: str | Path | None = None, trust: bool
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.logger import configure
 
+    began = time.time()
     settings.validate()
     torch.set_num_threads(settings.torch_threads)
     cls = algo_class(settings.algo)
@@ -560,9 +587,16 @@ def train(settings: TrainSettings, resume: str | Path | None = None, trust: bool
     (run_dir / "config.json").write_text(json.dumps(asdict(settings), indent=2, default=list))
 
     steps = settings.max_episode_steps
-    env = make_vec_env(n_envs, settings.seed, settings.env_kwargs, steps, settings.env_id)
+    env = make_vec_env(n_envs, settings.seed, settings.env_kwargs,
+                       train_episode_steps(hyper, steps), settings.env_id)
     eval_env = make_vec_env(min(settings.eval_episodes, 16), VALIDATION_SEED + settings.seed,
                             settings.env_kwargs, steps, settings.env_id)
+    if hyper.get("reward_shaping") is not None:      # training rewards only (agents.shaping)
+        from .shaping import shape
+
+        env = shape(env, hyper["reward_shaping"], settings.environment()[1])
+        eval_env = shape(eval_env, hyper["reward_shaping"], settings.environment()[1],
+                         training=False)
     if resume is not None:
         model = _resume(cls, Path(resume), env, hyper, norm_kw, frame_stack, settings, trust)
     else:
@@ -579,7 +613,7 @@ def train(settings: TrainSettings, resume: str | Path | None = None, trust: bool
             (run_dir / "warm_start.json").write_text(json.dumps(done, indent=2))
     eval_env = wrap_env(eval_env, norm_kw, frame_stack, training=False)
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
-    selector = _selection_callback(eval_env, settings, run_dir, n_envs)
+    selector = _selection_callback(eval_env, settings, run_dir, n_envs, began)
     callbacks = [_checkpoint_callback(run_dir / "checkpoints", settings, n_envs), selector]
     if settings.progress_bar:
         callbacks.append(_progress_callback())
@@ -639,34 +673,66 @@ def compare(run_dir: Path, settings: TrainSettings) -> str:
                         max_episode_steps=steps, examples=0, env_id=settings.env_id,
                         progress=settings.progress_bar)
     text = markdown(table)
+    refs = {row["policy"]: row["trapping_time"]["mean"] for row in table["policies"]
+            if row["policy"] in ("best-const", "mpc")}
+    plot_learning_curve(run_dir, refs, f" ({settings.compare_episodes} fresh ep.)")
     (run_dir / "comparison.md").write_text(text)
     (run_dir / "comparison.json").write_text(json.dumps(table, indent=1) + "\n")
     print(text)
     return text
 
 
-def plot_learning_curve(run_dir: Path) -> Path | None:
-    """Mean evaluation return vs timesteps (from evaluations.npz) as PNG and CSV."""
+def plot_learning_curve(run_dir: Path, references: dict[str, float] | None = None,
+                        reference_note: str = "") -> Path | None:
+    """Validation trapping time against timesteps and against wall-clock seconds (from
+    evaluations.npz and evaluations_wall.csv) as PNG, and the curve as CSV. ``references``
+    (policy name -> mean trapping time, e.g. best-const and mpc from the closing
+    comparison) are drawn as horizontal lines."""
     data_file = run_dir / "evaluations.npz"
     if not data_file.is_file():
         return None
     data = np.load(data_file, allow_pickle=False)
     steps, results, lengths = data["timesteps"], data["results"], data["ep_lengths"]
-    rows = ["timesteps,mean_return,std_return,mean_length"]
-    rows += [f"{s},{r.mean()},{r.std()},{n.mean()}" for s, r, n in zip(steps, results, lengths)]
+    dt = 0.02
+    config_file = run_dir / "config.json"
+    if config_file.is_file():
+        try:
+            saved = json.loads(config_file.read_text())
+            dt = resolve_env(saved["env_id"], saved.get("env_kwargs") or {})[1].control_period
+        except (KeyError, ValueError, TypeError):
+            pass
+    wall: dict[int, float] = {}
+    wall_file = run_dir / "evaluations_wall.csv"
+    if wall_file.is_file():
+        for line in wall_file.read_text().splitlines()[1:]:
+            cells = line.split(",")
+            wall[int(cells[0])] = float(cells[1])
+    seconds = [wall.get(int(s), float("nan")) for s in steps]
+    rows = ["timesteps,mean_return,std_return,mean_length,wall_seconds"]
+    rows += [f"{s},{r.mean()},{r.std()},{n.mean()},{w}"
+             for s, r, n, w in zip(steps, results, lengths, seconds)]
     (run_dir / "learning_curve.csv").write_text("\n".join(rows) + "\n")
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6, 3.5), dpi=100)
-    mean, std = results.mean(axis=1), results.std(axis=1)
-    ax.plot(steps, mean, color="C0")
-    ax.fill_between(steps, mean - std, mean + std, color="C0", alpha=0.2)
-    ax.set_xlabel("timesteps")
-    ax.set_ylabel("evaluation return")
-    ax.set_title(run_dir.name)
+    trap = lengths.mean(axis=1) * dt
+    have_wall = bool(wall) and np.isfinite(seconds).any()
+    fig, axes = plt.subplots(1, 2 if have_wall else 1, figsize=(10 if have_wall else 6, 3.5),
+                             dpi=100, sharey=True, squeeze=False)
+    xs = [(steps, "timesteps")] + ([(np.asarray(seconds), "wall-clock seconds since training "
+                                     "began")] if have_wall else [])
+    for ax, (x, label) in zip(axes[0], xs):
+        ax.plot(x, trap, color="C0", marker="o", ms=3,
+                label=f"validation ({lengths.shape[1]} episodes)")
+        for k, (name, value) in enumerate((references or {}).items()):
+            ax.axhline(value, color=("0.4", "C3", "C2")[k % 3], ls=("--", "-.", ":")[k % 3],
+                       label=f"{name} {value:.2f}{reference_note}")
+        ax.set_xlabel(label)
+    axes[0][0].set_ylabel("mean trapping time [s]")
+    axes[0][-1].legend(fontsize=7, loc="lower right")
+    fig.suptitle(run_dir.name, fontsize=9)
     fig.tight_layout()
     out = run_dir / "learning_curve.png"
     fig.savefig(out)

@@ -1,0 +1,88 @@
+"""agents.time_to_target (tiny budgets: the machinery, not learning) and the training
+pieces it reads: the wall-clock evaluation log and short training episodes."""
+
+import csv
+import json
+
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from agents import time_to_target as ttt  # noqa: E402
+
+
+def test_first_time_and_median_time():
+    curve = [{"wall_seconds": 10.0, "mean_trapping_time": 7.0},
+             {"wall_seconds": 20.0, "mean_trapping_time": 8.0},
+             {"wall_seconds": 30.0, "mean_trapping_time": 9.5}]
+    assert ttt.first_time(curve, 8.0) == 20.0
+    assert ttt.first_time(curve, 8.0, strict=True) == 30.0
+    assert ttt.first_time(curve, 9.6) is None
+    assert ttt.median_time([30.0, None, 10.0]) == 30.0
+    assert ttt.median_time([None, None, 10.0]) is None
+
+
+def test_the_runner_writes_curves_targets_and_the_figure(tmp_path):
+    hyper = tmp_path / "ppo.yml"
+    hyper.write_text("SaddleTrap-v0:\n  n_envs: 4\n  n_steps: 32\n  batch_size: 64\n"
+                     "  n_epochs: 1\n  policy_kwargs: 'dict(net_arch=[16])'\n"
+                     "  train_episode_steps: 10\n")
+    out = tmp_path / "ttt"
+    summary = ttt.run("SaddleTrap-v0", [0], str(hyper), out, label="tiny",
+                      total_timesteps=256, eval_freq=128, eval_episodes=2, final_episodes=2,
+                      max_episode_steps=20, log=lambda *_: None)
+    for name in ("time_to_target.csv", "time_to_target.json", "time_to_target.png"):
+        assert (out / name).is_file(), name
+    rows = list(csv.DictReader(open(out / "time_to_target.csv")))
+    assert {r["seed"] for r in rows} == {"0"}
+    walls = [float(r["wall_seconds"]) for r in rows if r["seed"] == "0"]
+    assert walls == sorted(walls) and walls[0] > 0
+    saved = json.loads((out / "time_to_target.json").read_text())
+    assert saved["targets"]["mpc"]["mean"] > 0 and len(saved["seeds"]) == 1
+    assert set(saved["fresh_episodes"]["policies"]) >= {"best-const", "mpc"}
+    assert summary["median_to_mpc_mean"] == saved["median_to_mpc_mean"]
+    # Training episodes were cut at 10 steps; evaluation kept the full 20.
+    run = out / "runs" / "tiny_seed0"
+    lengths = [float(r["mean_trapping_time"]) for r in csv.DictReader(
+        open(run / "evaluations_wall.csv"))]
+    assert max(lengths) > 10 * 0.02
+
+
+def test_train_episode_steps_is_checked():
+    from agents.training import train_episode_steps
+
+    assert train_episode_steps({}, 500) == 500
+    assert train_episode_steps({"train_episode_steps": 150}, 500) == 150
+    assert train_episode_steps({"train_episode_steps": 900}, 500) == 500
+    with pytest.raises(ValueError, match="train_episode_steps"):
+        train_episode_steps({"train_episode_steps": 0}, 500)
+
+
+def test_distance_shaping_changes_training_rewards_only():
+    import numpy as np
+
+    from agents.shaping import check_shaping, shape
+    from agents.training import make_vec_env
+    from saddle_env.envs import EnvConfig
+
+    config = EnvConfig()
+    plain = make_vec_env(3, 0, {}, 5, "SaddleTrap-v0")
+    shaped = shape(make_vec_env(3, 0, {}, 5, "SaddleTrap-v0"), {"distance": 2.0}, config)
+    passing = shape(make_vec_env(3, 0, {}, 5, "SaddleTrap-v0"), {"distance": 2.0}, config,
+                    training=False)
+    assert shape(plain, None, config) is plain
+    for env in (plain, shaped, passing):
+        env.reset()
+    action = np.zeros((3, 1), np.float32)
+    for _ in range(5):   # the last step ends every episode (time limit): terminal obs used
+        o1, r1, d1, i1 = plain.step(action)
+        _, r2, _, _ = shaped.step(action)
+        _, r3, _, _ = passing.step(action)
+        last = np.array([i1[k]["terminal_observation"] if d1[k] else o1[k] for k in range(3)])
+        np.testing.assert_allclose(r2, r1 - 2.0 * (last[:, 0] ** 2 + last[:, 1] ** 2),
+                                   rtol=1e-6)
+        np.testing.assert_array_equal(r3, r1)
+    assert d1.all()
+    for bad in ({"distanse": 1.0}, {"distance": -1.0}, 3):
+        with pytest.raises(ValueError, match="reward_shaping"):
+            check_shaping(bad)
