@@ -8,8 +8,11 @@ entry of its own uses the ``SaddleTrap-v0`` entry (a note says so).
 Zoo keys honoured besides the algorithm's own arguments: ``n_envs``, ``n_timesteps``,
 ``policy``, ``noise_type``/``noise_std`` (off-policy action noise), ``normalize`` (``true`` or
 ``"dict(norm_obs=True, norm_reward=False)"``: VecNormalize, its statistics saved next to
-    selector = _selection_callback(eval_env, settings, run_dir, n_envs, began)
-    callbacks = [_checkpoint_callback(run_dir / "checkpoints", settings, n_envs), selector]
+every model as ``<model>.vecnormalize.json``), ``frame_stack`` (VecFrameStack with that many
+frames), ``warm_start`` (`agents.warm_start`), ``imitation`` (its settings for
+``warm_start: mpc``, `agents.imitation`), ``train_episode_steps`` (shorter *training*
+episodes; evaluation keeps the level's) and ``reward_shaping`` (training rewards only,
+`agents.shaping`). ``env_wrapper`` and ``callback`` are
 rejected with an error (no wrapper or callback classes are importable by name here).
 Evaluation (`agents.policies.load_policy`) applies the same normalisation and stacking from
 the sidecar.
