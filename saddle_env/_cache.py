@@ -1,10 +1,11 @@
 """Keep numba's on-disk cache honest, one source file at a time.
 
 numba checks a cached function against its *own* source file only (numba 0.68: a hash of
-the file's content; earlier versions its time stamp and size). Our compiled functions call functions of other files, and numba links the
-callees' code into each caller's cached object: after an edit of `_kernels.py` alone the
-cached callers in `integrators`, `lockstep`, `envs._step` and `agents` would keep running
-the old physics. They also freeze module constants (`scene.P_A`, ...) as they compile.
+the file's content; earlier versions its time stamp and size). Our compiled functions call
+functions of other files, and numba links the callees' code into each caller's cached
+object: after an edit of `_kernels.py` alone the cached callers in `integrators`,
+`lockstep`, `envs._step` and `agents` would keep running the old physics. They also freeze
+module constants (`scene.P_A`, ...) as they compile.
 
 So on import, every module of the package (and every module of `agents` that compiles
 code) gets a digest of its own source and of every module it imports from these trees,

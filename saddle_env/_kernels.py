@@ -170,6 +170,14 @@ def ir_inline(f):
     return one_signature(_ir_inline(f))
 
 
+def jit_per_constant(f):
+    """`jit` that keeps numba's compile per constant argument, for a copy loop whose length
+    is a constant at each call (`envs._step._load`, `_store`: `ROW_WIDTH` or
+    `STATE_WIDTH`): compiled per constant, the loop has a fixed length the compiler unrolls.
+    Typed plain (`one_signature`), the 1024-ball vector env stepped 15 % slower (measured)."""
+    return _jit(f)
+
+
 def inline(f):
     """`jit`, always inlined by LLVM into its callers."""
     return one_signature(_inline(f))

@@ -1,4 +1,5 @@
-"""A compile of saddle_env's code that takes more than a moment says so, once (saddle_env/_notice.py)."""
+"""A compile of saddle_env's code that takes more than a moment says so, once
+(saddle_env/_notice.py)."""
 
 from __future__ import annotations
 

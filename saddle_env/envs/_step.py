@@ -50,8 +50,8 @@ import numpy as np
 
 from .._kernels import (DRIVE_AMP, DRIVE_FREQ, DRIVE_FX, DRIVE_FY, DRIVE_PHASE, DRIVE_RATE,
                         DRIVE_THETA0, DRIVE_W0, DRIVE_WIDTH, ROW_WIDTH, STATE_WIDTH, angle_at,
-                        contact_velocity, geometry, ir_inline, jit, lab_rest_velocity, rhs,
-                        state_from_velocity)
+                        contact_velocity, geometry, ir_inline, jit, jit_per_constant,
+                        lab_rest_velocity, rhs, state_from_velocity)
 from ..integrators import EVENT_DETACH, STATUS_DETACH, StepControl, Tableau, integrate_h, reaches
 from ..lockstep import (BLOCK_WIDTH, LANES, PARAM_WIDTH, accepted, block_size, carve_block,
                         next_step, rk_step_block, take)
@@ -251,7 +251,7 @@ def _carve(buf, ibuf, stages, dt):
     return sc, record, ws, rates, ibuf[4:4 + LANES]
 
 
-@jit
+@jit_per_constant
 def _load(i, width, P, scales, Y, balls, noise, record):
     """Copy ball i's rows into the thread's private record, so the per-ball work touches
     only the thread's own memory (the shared arrays are read and written once per ball).
@@ -269,7 +269,7 @@ def _load(i, width, P, scales, Y, balls, noise, record):
         nz[k] = noise[i, k]
 
 
-@jit
+@jit_per_constant
 def _store(i, width, Y, balls, obs, out, record):
     """Write the record back: state (``width`` slots, as `_load`), ball columns,
     observation and outputs."""
@@ -427,7 +427,7 @@ def _step_range_scalar(lo, hi, models, P, scales, Y, balls, cfg, actions, active
 # in its parallel loop fails on the inlined body ("unexpected cycle in lookup()").
 _step_range_inlined = ir_inline(_step_range.py_func)
 
-# The two entry points take the method and the step settings as the plain tuples of their
+# The entry points take the method and the step settings as the plain tuples of their
 # records' fields and rebuild the records inside: numba's dispatcher types a namedtuple
 # argument in Python, ~0.5 µs a call (measured), a tenth of a single ball's control step.
 @jit
