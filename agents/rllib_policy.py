@@ -150,10 +150,12 @@ def _module_as_data(path: Path, side: dict[str, Any]) -> Any:
                               f"'module' config, and RLlib's own files are pickles")
     algo = str(side.get("algo", "")).lower()
     if algo == "ppo":
+        from ray.rllib.algorithms.ppo import PPOConfig as config_class
         from ray.rllib.algorithms.ppo.torch.default_ppo_torch_rl_module import (
             DefaultPPOTorchRLModule as module_class,
         )
     elif algo == "sac":
+        from ray.rllib.algorithms.sac import SACConfig as config_class
         from ray.rllib.algorithms.sac.torch.default_sac_torch_rl_module import (
             DefaultSACTorchRLModule as module_class,
         )
@@ -163,11 +165,23 @@ def _module_as_data(path: Path, side: dict[str, Any]) -> Any:
     if not isinstance(env_kwargs, dict):
         raise ValueError(f"{path}: sidecar env_kwargs must be a dict, got {env_kwargs!r}")
     _, config = resolve_env(str(side.get("env_id", "")) or None, env_kwargs)
+    # The algorithm's config adds what its module needs beyond the sidecar's keys (SAC's
+    # twin_q), exactly as training built it (agents.rllib_backend.build_config).
+    model_config = config_class().rl_module(
+        model_config=DefaultModelConfig(**_module_config(side, path))).model_config
     spec = RLModuleSpec(module_class=module_class, observation_space=observation_space(config),
                         action_space=action_space(), inference_only=False,
-                        model_config=DefaultModelConfig(**_module_config(side, path)))
+                        model_config=model_config)
     module = spec.build()
     state = load_tensors(weights, str(weights))
+    if isinstance(state, dict):
+        # The learner's module also holds target networks (SAC's target_*), which a policy
+        # does not use; everything else must match exactly.
+        extra = [k for k in state if k not in module.state_dict()]
+        if extra and not all(str(k).startswith("target_") for k in extra):
+            raise ValueError(f"{weights}: tensors {extra[:3]} do not belong to the sidecar's "
+                             f"{algo} module")
+        state = {k: v for k, v in state.items() if k not in extra}
     try:
         module.load_state_dict(state, strict=True)
     except (RuntimeError, TypeError, ValueError, AttributeError) as exc:

@@ -186,6 +186,15 @@ def test_sac_runs_on_rllib(tmp_path):
     out = _run("-m", "agents.evaluation", "--policy", str(final), "--episodes", "2",
                "--max-episode-steps", "20", "--json", "--no-progress")
     assert json.loads(out.stdout)["policies"][0]["kind"] == "RLlib SAC"
+    # rebuilt as data (target networks left out), it acts as RLlib's own unpickled module
+    from agents.rllib_policy import load_policy
+    from saddle_env.envs import EnvConfig
+    from saddle_env.envs.observation import observation_space
+    space = observation_space(EnvConfig())
+    space.seed(4)
+    obs = np.stack([space.sample() for _ in range(128)])
+    assert np.array_equal(load_policy(final).predict(obs)[0],
+                          load_policy(final, trust=True).predict(obs)[0])
 
 
 @pytest.mark.slow
