@@ -75,6 +75,17 @@ WINDOWS = (2, 6, 15, 40)   # steps a candidate's deviation lasts before its tail
 # --------------------------------------------------------------------------------------
 # One ball's state in an engine, and batches of copies of it
 # --------------------------------------------------------------------------------------
+
+def _book(engine: Any, active: np.ndarray, k: int, dt: float, t: np.ndarray,
+          loss: np.ndarray, status: np.ndarray) -> None:
+    """After step ``k`` of the balls ``active``: add their trapped time, record the step and
+    cause of each loss, and drop the lost balls from ``active`` (in place)."""
+    t[active] += engine.out[active, S.O_TRAPPED] * dt
+    lost = active & (engine.out[:, S.O_STATUS] > 0)
+    loss[lost] = k
+    status[lost] = engine.out[lost, S.O_STATUS]
+    active &= ~lost
+
 def copy_rng(rng: np.random.Generator) -> np.random.Generator:
     """An independent generator in ``rng``'s exact state (its future draws, without
     advancing it); 3x cheaper than `copy.deepcopy`, which it falls back to."""
@@ -159,11 +170,7 @@ def run_plans(engine: TrapEngine, rngs: list, plans: np.ndarray) -> Rollout:
     for k in range(steps):
         acts[:] = plans[:, k].astype(np.float64)
         engine.step(acts, active, rngs)
-        t[active] += engine.out[active, S.O_TRAPPED] * dt
-        lost = active & (engine.out[:, S.O_STATUS] > 0)
-        loss[lost] = k
-        status[lost] = engine.out[lost, S.O_STATUS]
-        active &= ~lost
+        _book(engine, active, k, dt, t, loss, status)
         if not active.any():
             break
     return Rollout(t, loss, status)
@@ -292,11 +299,7 @@ class ClairvoyantPlanner:
             actions[:] = 0.0
             actions[idx] = np.clip(a.astype(np.float64), -1.0, 1.0)
             twin.step(actions, alive.copy(), trngs)
-            t[idx] += twin.out[idx, S.O_TRAPPED] * dt
-            lost = alive & (twin.out[:, S.O_STATUS] > 0)
-            loss[lost] = k
-            status[lost] = twin.out[lost, S.O_STATUS]
-            alive &= ~lost
+            _book(twin, alive, k, dt, t, loss, status)
             if not alive.any():
                 break
         # After a loss the plan holds its last action (never executed: the episode is over).
