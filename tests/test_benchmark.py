@@ -114,6 +114,42 @@ def test_bad_cells_are_one_line_errors(capsys):
         assert exc.value.code == 2 and needle in capsys.readouterr().err
 
 
+def test_the_recurrent_adapter_acts_as_sb3s_own_recurrent_loop():
+    """RecurrentPPO is evaluated through `RecurrentPolicy` in padded batches of 100 balls;
+    its trapping times must equal SB3's documented single-episode loop (state passed back,
+    episode_start only on the first step). An untrained LSTM already makes actions that
+    depend on its state, so a wrong state layout or a reset at the wrong step shows."""
+    import gymnasium as gym
+    import torch
+    from sb3_contrib import RecurrentPPO
+
+    from agents.evaluation import evaluate
+    from saddle_env.envs import get_level
+
+    torch.manual_seed(0)
+    level = get_level(GUSTY)
+    env = gym.make(GUSTY)
+    model = RecurrentPPO("MlpLstmPolicy", env, seed=0, device="cpu",
+                         policy_kwargs={"lstm_hidden_size": 16})
+    seeds = list(range(5000, 5006))
+    table, details = evaluate([("rec", B.RecurrentPolicy(model))], level.config(), len(seeds),
+                              seeds[0], max_episode_steps=120, examples=0, env_id=GUSTY)
+    batched = np.asarray(details[table["policies"][0]["policy"]]["time"])
+    alone = []
+    for seed in seeds:
+        single = gym.make(GUSTY, max_episode_steps=120)
+        obs, _ = single.reset(seed=seed)
+        state, start, done = None, np.ones(1, dtype=bool), False
+        while not done:
+            action, state = model.predict(obs[None], state=state, episode_start=start,
+                                          deterministic=True)
+            start[:] = False
+            obs, _, terminated, truncated, info = single.step(action[0])
+            done = terminated or truncated
+        alone.append(info["time"])
+    np.testing.assert_allclose(batched, alone, atol=1e-6)
+
+
 def test_two_cells_run_as_tasks_on_a_local_ray(tmp_path):
     pytest.importorskip("ray")
     argv = ["--levels", GUSTY, "--algos", "ppo", "--seeds", "0", "1", "--budget", "64",
