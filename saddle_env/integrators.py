@@ -30,8 +30,8 @@ from scipy.integrate._ivp import dop853_coefficients as _dop853_tableau
 from scipy.integrate._ivp import rk as _scipy_rk
 
 from ._kernels import (ONSET, PHASE_SLOT, ROW_WIDTH, SLIP, STATE_WIDTH, STICK, coulomb_contact,
-                       integrated_size, jit, rhs, rolling_spin, rolling_velocity, serial_twin,
-                       spin_held, stick_margin, stop_rolling, stop_slip, work_slot)
+                       integrated_size, ir_inline, jit, rhs, rolling_spin, rolling_velocity,
+                       serial_twin, spin_held, stick_margin, stop_rolling, stop_slip, work_slot)
 from .scene import COULOMB, P_A, P_B, P_G, P_R, P_RESIST, P_RIM, P_SPIN_BAND, ROLLING
 
 # Event flags (a bit mask) and the status codes `integrate` returns.
@@ -192,6 +192,15 @@ def _dop853() -> Method:
 
 
 METHODS: dict[str, Method] = {m.name: m for m in (_rk4(), _dopri5(), _dop853())}
+
+
+@ir_inline
+def _copy_row(dst, src):
+    """dst[:] = src, element by element: numba compiles an array-to-slice assignment with a
+    formatted shape-mismatch error (string formatting, ~2 s of a cold compile, measured in
+    docs/coldstart.md), which a loop over rows of one length never needs."""
+    for j in range(dst.shape[0]):
+        dst[j] = src[j]
 
 
 @jit
@@ -560,7 +569,7 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
     if fired:
         return Outcome(fired, t, h_start, accepted_normal)
     while k < m and t_out[k] <= t:
-        Y_out[k, :] = y
+        _copy_row(Y_out[k], y)
         k += 1
     stats[3] += k
     if k == m:
@@ -614,12 +623,12 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
             if at_stop or rate < 0.0:
                 cut = SLIP_STOP_FRACTION * spin / -rate if rate < 0.0 else np.inf
                 if at_stop or hstep > cut:
-                    ytmp[:] = y
+                    _copy_row(ytmp, y)
                     stop_rolling(model, p, prof, t, ytmp)
                     stats[2] += 1
                     if spin_held(p, ytmp, dy, rhs(model, p, prof, t, ytmp, dy, True)):
                         if at_stop:
-                            y[:] = ytmp
+                            _copy_row(y, ytmp)
                             normal = rhs(model, p, prof, t, y, K[0], want_normal)
                             stats[2] += 1
                             just_stopped = True
@@ -666,13 +675,13 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
                 yend = ynew.copy()
                 reach = _probe_dip(TRANSITION, model, p, prof, t, y, hstep, d, tab, K, ytmp,
                                    ynew, dy)
-                ynew[:] = yend
+                _copy_row(ynew, yend)
             if reach > 0.0:
                 yend = ynew.copy()
                 switch_tau = _locate(TRANSITION, model, p, prof, t, y, reach, d, tab, K,
                                      ytmp, ynew, dy)
                 yswitch = ynew.copy()
-                ynew[:] = yend
+                _copy_row(ynew, yend)
         fired = _fired(events, model, p, prof, t + hstep, ynew, dy, normal) if events else 0
         if not fired and stage_normal < 0.0:
             # N is positive at both ends but a stage point saw it negative: a brief dip
@@ -683,7 +692,7 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
             if tau_dip > 0.0:
                 tau = _locate(STATUS_DETACH, model, p, prof, t, y, tau_dip, d, tab, K,
                               ytmp, ynew, dy)
-                y[:] = ynew
+                _copy_row(y, ynew)
                 stats[2] += 1
                 return Outcome(STATUS_DETACH, t + tau, h_start, accepted_normal)
             # a false alarm: the stage values are low-order estimates; redo the full step
@@ -702,14 +711,14 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
                                   dy)
                     if best_kind == 0 or tau < best_tau:
                         best_tau, best_kind = tau, kind
-                        ybest[:] = ynew
+                        _copy_row(ybest, ynew)
             if switch_tau < 0.0 or best_tau <= switch_tau:
-                y[:] = ybest
+                _copy_row(y, ybest)
                 stats[2] += 1
                 return Outcome(best_kind, t + best_tau, h_start, accepted_normal)
         if switch_tau >= 0.0:
             # Slip starts at t + switch_tau from v_s = 0; go on from there.
-            y[:] = yswitch
+            _copy_row(y, yswitch)
             t = target if (clipped and switch_tau >= hstep) else t + switch_tau
             y[PHASE_SLOT] = ONSET
             rolling_velocity(p, y, y)
@@ -719,7 +728,7 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
             if want_normal:
                 accepted_normal = normal
             if clipped and t >= target:
-                Y_out[k, :] = y
+                _copy_row(Y_out[k], y)
                 k += 1
                 stats[3] += 1
             if adaptive:
@@ -736,7 +745,7 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
                 y[j] = ynew[j]
                 K[0, j] = K[s, j]
         if clipped:
-            Y_out[k, :] = y
+            _copy_row(Y_out[k], y)
             k += 1
             stats[3] += 1
         if adaptive:
