@@ -151,7 +151,7 @@ def run_cell(level_id: str, algo_name: str, seed: int, *, budget: int | None = N
     import torch
 
     from .evaluation import evaluate
-    from .training import make_vec_env
+    from .sb3_backend import make_vec_env
 
     torch.set_num_threads(torch_threads)
     level = get_level(level_id)

@@ -158,7 +158,8 @@ def profile_imitation(env_id: str, rounds: int, episodes: int, epochs: int = 10,
     from . import imitation
     from .cli_args import resolve_env
     from .mpc import ModelPredictiveController
-    from .training import load_hyperparams, make_vec_env, parse_policy_kwargs
+    from .recipes import load_hyperparams, parse_policy_kwargs
+    from .sb3_backend import make_vec_env
 
     torch.set_num_threads(1)
     level, config = resolve_env(env_id, {})

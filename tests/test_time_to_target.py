@@ -49,7 +49,7 @@ def test_the_runner_writes_curves_targets_and_the_figure(tmp_path):
 
 
 def test_train_episode_steps_is_checked():
-    from agents.training import train_episode_steps
+    from agents.recipes import train_episode_steps
 
     assert train_episode_steps({}, 500) == 500
     assert train_episode_steps({"train_episode_steps": 150}, 500) == 150
@@ -62,7 +62,7 @@ def test_distance_shaping_changes_training_rewards_only():
     import numpy as np
 
     from agents.shaping import check_shaping, shape
-    from agents.training import make_vec_env
+    from agents.sb3_backend import make_vec_env
     from saddle_env.envs import EnvConfig
 
     config = EnvConfig()
