@@ -382,7 +382,9 @@ def _checkpoint_callback(folder: Path, settings: TrainSettings, n_envs: int):
 
 def _new_model(cls, hyper: dict[str, Any], env, settings: TrainSettings):
     """The algorithm as the hyperparameters describe it, untrained."""
-    kwargs = {k: v for k, v in hyper.items() if k not in ZOO_ONLY_KEYS}
+    from .schedules import with_schedules
+
+    kwargs = with_schedules({k: v for k, v in hyper.items() if k not in ZOO_ONLY_KEYS})
     kwargs["policy_kwargs"] = parse_policy_kwargs(kwargs.get("policy_kwargs"))
     noise = _action_noise(hyper)
     if noise is not None:
