@@ -46,6 +46,7 @@ from .cli_args import MissingExtra, install_hint, level_overrides, missing, reso
 from .recipes import ZOO_ONLY_KEYS, parse_policy_kwargs, train_episode_steps, wrapper_settings
 from .run_report import append_curve_point
 from .runs import Stop, TrainSettings, sigterm_stops
+from .schedules import with_schedules
 from .seeds import VALIDATION_SEED
 
 # What training imports beyond the core install (all in the "train" extra).
@@ -193,7 +194,7 @@ def _checkpoint_callback(folder: Path, settings: TrainSettings, n_envs: int):
 
 def _new_model(cls, hyper: dict[str, Any], env, settings: TrainSettings):
     """The algorithm as the hyperparameters describe it, untrained."""
-    kwargs = {k: v for k, v in hyper.items() if k not in ZOO_ONLY_KEYS}
+    kwargs = with_schedules({k: v for k, v in hyper.items() if k not in ZOO_ONLY_KEYS})
     kwargs["policy_kwargs"] = parse_policy_kwargs(kwargs.get("policy_kwargs"))
     noise = _action_noise(hyper)
     if noise is not None:
