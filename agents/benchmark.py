@@ -24,6 +24,7 @@ import os
 import platform
 import signal
 import sys
+import tempfile
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -55,6 +56,10 @@ class Algo:
     policy: str = "MlpPolicy"
     kwargs: dict[str, Any] = field(default_factory=dict)
     note: str = ""
+    # A project recipe instead of library defaults: the level whose entry in
+    # agents/hyperparams/ppo.yml the row runs on every level, through `agents.training.train`
+    # (warm start, wrappers, model selection on validation episodes, as `train.py` does).
+    recipe_of: str | None = None
 
 
 # Generic hyperparameters: each library's defaults, as a first try would use them. The only
@@ -72,6 +77,13 @@ ALGOS: dict[str, Algo] = {a.name: a for a in (
     Algo("recurrent-ppo", "sb3_contrib", "RecurrentPPO", budget=200_000, n_envs=8,
          policy="MlpLstmPolicy",
          note="sb3-contrib defaults (n_steps 128, batch 128, 10 epochs, LSTM 256, 64x64)"),
+    Algo("ppo-fast", "stable_baselines3", "PPO", budget=3_000_000, n_envs=64,
+         recipe_of="SaddleTrap-Capture-v0",
+         note="the project's fast recipe (time to target, docs/training_profile.md): the "
+              "Capture entry of agents/hyperparams/ppo.yml on every level (64 balls, 128x128, "
+              "150-step training episodes, orbit-size reward shaping, normalised "
+              "observations, warm start at the level's best constant speed), the model "
+              "selected on validation episodes; no imitation"),
 )}
 
 
@@ -157,14 +169,21 @@ def run_cell(level_id: str, algo_name: str, seed: int, *, budget: int | None = N
     level = get_level(level_id)
     algo = ALGOS[algo_name]
     steps = int(budget or algo.budget)
-    cls = getattr(importlib.import_module(algo.library), algo.cls)
-    env = make_vec_env(algo.n_envs, seed, {}, level.max_episode_steps, level.id)
+    hyperparameters = {**algo.kwargs, "n_envs": algo.n_envs}
     began = time.time()
-    model = cls(algo.policy, env, seed=seed, device="cpu", verbose=0, **algo.kwargs)
-    model.learn(steps)
+    if algo.recipe_of is not None:
+        with tempfile.TemporaryDirectory(prefix="saddle-benchmark-") as work:
+            policy, steps_done, hyperparameters = _train_recipe(level, algo, seed, steps,
+                                                                Path(work), torch_threads)
+    else:
+        cls = getattr(importlib.import_module(algo.library), algo.cls)
+        env = make_vec_env(algo.n_envs, seed, {}, level.max_episode_steps, level.id)
+        model = cls(algo.policy, env, seed=seed, device="cpu", verbose=0, **algo.kwargs)
+        model.learn(steps)
+        env.close()
+        steps_done = int(model.num_timesteps)
+        policy = RecurrentPolicy(model) if algo.cls == "RecurrentPPO" else model
     train_s = time.time() - began
-    env.close()
-    policy = RecurrentPolicy(model) if algo.cls == "RecurrentPPO" else model
     began = time.time()
     table, details = evaluate([(algo_name, policy)], level.config(), episodes, TEST_SEED,
                               max_episode_steps=level.max_episode_steps, examples=0,
@@ -174,9 +193,9 @@ def run_cell(level_id: str, algo_name: str, seed: int, *, budget: int | None = N
     per_episode = details[row["policy"]]
     return {"level": level.id, "algo": algo_name, "seed": seed,
             "library": f"{algo.library}.{algo.cls}", "policy": algo.policy,
-            "hyperparameters": {**algo.kwargs, "n_envs": algo.n_envs}, "note": algo.note,
-            "budget_steps": steps, "steps_done": int(model.num_timesteps),
-            "train_wall_s": round(train_s, 1), "steps_per_s": round(model.num_timesteps
+            "hyperparameters": hyperparameters, "note": algo.note,
+            "budget_steps": steps, "steps_done": steps_done,
+            "train_wall_s": round(train_s, 1), "steps_per_s": round(steps_done
                                                                     / max(train_s, 1e-9)),
             "eval_wall_s": round(eval_s, 1),
             "test": {"seed": TEST_SEED, "episodes": episodes},
@@ -185,6 +204,35 @@ def run_cell(level_id: str, algo_name: str, seed: int, *, budget: int | None = N
             "versions": _versions(), "machine": f"{platform.machine()}, {os.cpu_count()} cores",
             "load_average_at_end": list(os.getloadavg()),
             "date": time.strftime("%Y-%m-%d %H:%M")}
+
+
+def _train_recipe(level: Any, algo: Algo, seed: int, steps: int, work: Path,
+                  torch_threads: int) -> tuple[Any, int, dict[str, Any]]:
+    """Train ``algo``'s recipe (the ppo.yml entry of ``algo.recipe_of``) on ``level`` with
+    `agents.training.train` in ``work``; the selected network as a policy, the steps done and
+    the recipe. A run stopped by Ctrl-C or SIGTERM raises KeyboardInterrupt (no result)."""
+    import yaml
+
+    from .policies import load_policy
+    from .recipes import load_hyperparams
+    from .training import TrainSettings, train
+
+    recipe = load_hyperparams("ppo", algo.recipe_of)
+    file = work / "recipe.yml"
+    file.write_text(yaml.safe_dump({level.id: recipe}))
+    settings = TrainSettings(algo="ppo", env_id=level.id, seed=seed, total_timesteps=steps,
+                             hyperparams=str(file), log_dir=str(work), run_name="run",
+                             compare_episodes=0, progress_bar=False,
+                             torch_threads=torch_threads).validate()
+    run_dir = train(settings)
+    if not (run_dir / "final_model.zip").is_file():
+        raise KeyboardInterrupt            # the back end stopped early: not a finished cell
+    model = run_dir / "selected_model.zip"
+    if not model.is_file():
+        model = run_dir / "final_model.zip"
+    rollout = int(settings.n_envs) * int(recipe["n_steps"])     # PPO learns whole rollouts
+    steps_done = -(-steps // rollout) * rollout
+    return load_policy(model, level.config()), steps_done, recipe
 
 
 def write_result(out: Path, result: dict[str, Any]) -> Path:

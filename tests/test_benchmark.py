@@ -38,6 +38,23 @@ def test_a_real_cell_writes_its_result_and_a_rerun_skips_it(tmp_path, monkeypatc
     assert "already have results" in capsys.readouterr().err
 
 
+@pytest.mark.slow
+def test_the_fast_recipe_row_trains_through_train_and_evaluates_the_selected_network(
+        tmp_path, monkeypatch):
+    """ppo-fast runs the Capture recipe (warm start, wrappers, normalisation, selection) on
+    another level through agents.training.train, and the test set sees its network."""
+    assert B.ALGOS["ppo-fast"].recipe_of == "SaddleTrap-Capture-v0"
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    result = B.run_cell(GUSTY, "ppo-fast", 1, budget=100, episodes=3)
+    rollout = 64 * 256                            # the recipe's balls x steps per rollout
+    assert result["steps_done"] == rollout and result["hyperparameters"]["n_envs"] == 64
+    assert result["hyperparameters"]["train_episode_steps"] == 150
+    assert len(result["episode_times"]) == 3
+    assert not list(tmp_path.glob("saddle-benchmark-*"))   # the run folder was temporary
+
+
 def _fake_cell(level, algo, seed, budget=None, episodes=B.TEST_EPISODES):
     rng = np.random.default_rng(hash((level, algo, seed)) % 2 ** 32)
     mean = {"ppo": 8.0, "sac": 5.0}[algo] + rng.normal(0, 0.3)
