@@ -209,6 +209,22 @@ def test_sac_runs_on_rllib(tmp_path):
 
 
 @pytest.mark.slow
+def test_the_profile_times_rllibs_pieces(tmp_path):
+    pytest.importorskip("ray")
+    from agents.profile_training import profile_training
+
+    hyper = tmp_path / "ppo.yml"
+    hyper.write_text("SaddleTrap-v0:\n  n_envs: 4\n  n_steps: 64\n  batch_size: 64\n"
+                     "  n_epochs: 2\n  policy_kwargs: \"dict(net_arch=[16])\"\n")
+    result = profile_training("SaddleTrap-v0", 300, None, str(hyper), backend="rllib")
+    rows = {r["category"]: r for r in result["rows"]}
+    for part in ("env stepping", "policy forward", "advantages (GAE)", "gradient updates",
+                 "start-up"):
+        assert rows[part]["calls"] > 0 and rows[part]["seconds"] > 0, part
+    assert result["path"] == "rllib-ppo" and result["total_timesteps"] >= 300
+
+
+@pytest.mark.slow
 def test_sigterm_leaves_a_checkpoint_that_resumes(tmp_path):
     pytest.importorskip("ray")
     hyper = tmp_path / "small.yml"
