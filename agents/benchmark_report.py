@@ -299,6 +299,8 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
               "python -m agents.benchmark                        # every missing cell, in turn",
               "python -m agents.benchmark --only SaddleTrap-Storm-v0/sac/1   # one cell",
               "python -m agents.benchmark --address HOST:PORT    # as Ray tasks on a cluster",
+              "python -m agents.benchmark --algos ppo-fast --keep-runs RUNS   # keep the runs "
+              "(curves) for agents.time_to_target --reuse",
               "python -m agents.benchmark --report               # this page and its figures",
               "python -m agents.benchmark --report --json        # the same data as JSON",
               "```", "",
