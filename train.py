@@ -20,7 +20,7 @@ import time
 
 def build_parser() -> argparse.ArgumentParser:
     # Only the core install is needed to build the parser (and print --help).
-    from agents.training import ALGO_NAMES, TrainSettings
+    from agents.runs import ALGO_NAMES, BACKENDS, TrainSettings
     from saddle_env.envs import LEVEL_IDS
 
     d = TrainSettings()
@@ -65,103 +65,66 @@ def build_parser() -> argparse.ArgumentParser:
                          "checkpoints), which runs code it carries: only for files you trust "
                          "(docs/security.md). Default: checkpoints are read as data")
     rl = ap.add_argument_group("Ray RLlib (--backend rllib; docs/scaling.md)")
-    rl.add_argument("--backend", choices=("sb3", "rllib"), default="sb3",
+    rl.add_argument("--backend", choices=BACKENDS, default=d.backend,
                     help="sb3: Stable-Baselines3 in this process; rllib: Ray RLlib, on a local "
                          "Ray or a cluster (--address); needs the [rllib] extra")
-    rl.add_argument("--num-env-runners", type=int, default=None, metavar="N",
+    rl.add_argument("--num-env-runners", type=int, default=d.num_env_runners, metavar="N",
                     help="RLlib env runners (N >= 1; default 2), each stepping --n-envs balls "
                          "through the native vector env")
-    rl.add_argument("--address", default=None, metavar="HOST:PORT",
+    rl.add_argument("--address", default=d.address, metavar="HOST:PORT",
                     help="join a running Ray cluster (the `ray start --head` address, or auto); "
                          "default: start a local Ray")
-    rl.add_argument("--num-cpus", type=int, default=None,
+    rl.add_argument("--num-cpus", type=int, default=d.num_cpus,
                     help="CPUs of the local Ray (default: the machine's cores)")
     return ap
 
 
-def _run(parser: argparse.ArgumentParser, prepare, train) -> int:
-    """Both backends: build and check the settings (``prepare()``), ``train(settings)``,
-    print the run folder. Bad input and a missing extra end as one-line errors (exit 2)."""
+# Flags whose value goes into the TrainSettings field of another name.
+FIELD_OF_FLAG = {"env": "env_id"}
+
+
+def settings_from_args(args: argparse.Namespace):
+    """The run's settings: each TrainSettings field from the flag of its name (or
+    `FIELD_OF_FLAG`'s), validated; from the checkpoint's run folder for ``--resume``."""
+    from agents.cli_args import parse_env_kwargs
+    from agents.runs import TrainSettings, settings_for_resume
+
+    progress_bar = not args.no_progress_bar
+    if args.resume:
+        return settings_for_resume(args.resume, args.total_timesteps, progress_bar,
+                                   num_env_runners=args.num_env_runners,
+                                   address=args.address, num_cpus=args.num_cpus)
+    flags = vars(args)
+    values = {FIELD_OF_FLAG.get(flag, flag): value for flag, value in flags.items()}
+    values.update(env_kwargs=parse_env_kwargs(args.env_kwargs), progress_bar=progress_bar)
+    known = TrainSettings.__dataclass_fields__
+    return TrainSettings(**{k: v for k, v in values.items() if k in known}).validate()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Build the settings, train through the one seam (`agents.training.train`), print the
+    run folder. Bad input and a missing extra end as one-line errors (exit 2)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
     from agents.cli_args import MissingExtra
 
     try:
-        settings = prepare()
+        settings = settings_from_args(args)
+        if settings.address is not None:
+            from agents.rllib_backend import check_reachable
+
+            check_reachable(settings.address)   # a one-line error within seconds, not a hang
+        from agents.training import check_dependencies, train
+
+        check_dependencies(settings)
         start = time.time()
-        run_dir = train(settings)
+        run_dir = train(settings, resume=args.resume, trust=args.trust_model)
     except MissingExtra as exc:
         parser.exit(2, f"{parser.prog}: error: {exc}\n")
     except ValueError as exc:
         parser.error(str(exc))
     print(f"run folder: {run_dir}  ({time.time() - start:.0f} s)")
     return 0
-
-
-def _main_rllib(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
-    """train.py --backend rllib (or --resume of an RLlib checkpoint): all Ray code is in
-    agents/rllib_backend.py."""
-    from agents import rllib_backend as rb
-    from agents.cli_args import parse_env_kwargs
-
-    def prepare():
-        if args.num_env_runners is not None and args.num_env_runners < 1:
-            raise ValueError(f"--num-env-runners must be >= 1, got {args.num_env_runners}")
-        if not args.resume and args.algo not in rb.RLLIB_ALGOS:
-            raise ValueError(f"--algo {args.algo} is not available with --backend rllib "
-                             f"(choose from {', '.join(rb.RLLIB_ALGOS)})")
-        if args.address is not None:
-            rb.check_reachable(args.address)   # a one-line error within seconds, not a hang
-        rb.check_dependencies()
-        if args.resume:
-            return rb.settings_for_resume(
-                args.resume, args.total_timesteps, not args.no_progress_bar,
-                num_env_runners=args.num_env_runners, address=args.address,
-                num_cpus=args.num_cpus)
-        return rb.RllibSettings(
-            algo=args.algo, env_id=args.env, env_kwargs=parse_env_kwargs(args.env_kwargs),
-            seed=args.seed, n_envs=args.n_envs, total_timesteps=args.total_timesteps,
-            hyperparams=args.hyperparams, log_dir=args.log_dir, run_name=args.run_name,
-            save_freq=args.save_freq, max_episode_steps=args.max_episode_steps,
-            progress_bar=not args.no_progress_bar, torch_threads=args.torch_threads,
-            num_env_runners=(rb.DEFAULT_ENV_RUNNERS if args.num_env_runners is None
-                             else args.num_env_runners),
-            address=args.address, num_cpus=args.num_cpus).validate()
-
-    return _run(parser, prepare, lambda settings: rb.train(settings, resume=args.resume,
-                                                           trust=args.trust_model))
-
-
-def _is_rllib_checkpoint(path: str) -> bool:
-    from agents.rllib_backend import is_checkpoint
-
-    return is_checkpoint(path)
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.backend == "rllib" or (args.resume and _is_rllib_checkpoint(args.resume)):
-        return _main_rllib(parser, args)
-    if args.num_env_runners is not None or args.address is not None:
-        parser.error("--num-env-runners and --address need --backend rllib")
-    from agents.cli_args import parse_env_kwargs
-    from agents.training import TrainSettings, check_dependencies, settings_for_resume, train
-
-    def prepare():
-        check_dependencies(not args.no_progress_bar)
-        if args.resume:
-            return settings_for_resume(args.resume, args.total_timesteps,
-                                       not args.no_progress_bar)
-        return TrainSettings(
-            algo=args.algo, env_id=args.env, env_kwargs=parse_env_kwargs(args.env_kwargs),
-            seed=args.seed, n_envs=args.n_envs, total_timesteps=args.total_timesteps,
-            hyperparams=args.hyperparams, log_dir=args.log_dir, run_name=args.run_name,
-            eval_freq=args.eval_freq, eval_episodes=args.eval_episodes,
-            save_freq=args.save_freq, max_episode_steps=args.max_episode_steps,
-            progress_bar=not args.no_progress_bar, torch_threads=args.torch_threads,
-            compare_episodes=args.compare_episodes).validate()
-
-    return _run(parser, prepare, lambda settings: train(settings, resume=args.resume,
-                                                        trust=args.trust_model))
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ import os
 import platform
 import signal
 import sys
+import tempfile
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -55,6 +56,10 @@ class Algo:
     policy: str = "MlpPolicy"
     kwargs: dict[str, Any] = field(default_factory=dict)
     note: str = ""
+    # A project recipe instead of library defaults: the level whose entry in
+    # agents/hyperparams/ppo.yml the row runs on every level, through `agents.training.train`
+    # (warm start, wrappers, model selection on validation episodes, as `train.py` does).
+    recipe_of: str | None = None
 
 
 # Generic hyperparameters: each library's defaults, as a first try would use them. The only
@@ -72,6 +77,13 @@ ALGOS: dict[str, Algo] = {a.name: a for a in (
     Algo("recurrent-ppo", "sb3_contrib", "RecurrentPPO", budget=200_000, n_envs=8,
          policy="MlpLstmPolicy",
          note="sb3-contrib defaults (n_steps 128, batch 128, 10 epochs, LSTM 256, 64x64)"),
+    Algo("ppo-fast", "stable_baselines3", "PPO", budget=3_000_000, n_envs=64,
+         recipe_of="SaddleTrap-Capture-v0",
+         note="the project's fast recipe (time to target, docs/training_profile.md): the "
+              "Capture entry of agents/hyperparams/ppo.yml on every level (64 balls, 128x128, "
+              "150-step training episodes, orbit-size reward shaping, normalised "
+              "observations, warm start at the level's best constant speed), the model "
+              "selected on validation episodes; no imitation"),
 )}
 
 
@@ -143,28 +155,43 @@ def _versions() -> dict[str, str]:
 
 
 def run_cell(level_id: str, algo_name: str, seed: int, *, budget: int | None = None,
-             episodes: int = TEST_EPISODES, torch_threads: int = 1) -> dict[str, Any]:
+             episodes: int = TEST_EPISODES, torch_threads: int = 1,
+             keep_runs: str | None = None) -> dict[str, Any]:
     """Train ``algo_name`` on ``level_id`` from training seed ``seed`` for its budget, then
-    evaluate the final network on the level's test set; the result as a JSON-ready dict."""
+    evaluate the final network on the level's test set; the result as a JSON-ready dict.
+    ``keep_runs``: a recipe row's run folder is kept in ``<keep_runs>/<level>/runs/
+    <algo>_seed<s>`` (its curve, models, recipe), where ``agents.time_to_target --reuse``
+    reads it; otherwise it is temporary."""
     import importlib
 
     import torch
 
     from .evaluation import evaluate
-    from .training import make_vec_env
+    from .sb3_backend import make_vec_env
 
     torch.set_num_threads(torch_threads)
     level = get_level(level_id)
     algo = ALGOS[algo_name]
     steps = int(budget or algo.budget)
-    cls = getattr(importlib.import_module(algo.library), algo.cls)
-    env = make_vec_env(algo.n_envs, seed, {}, level.max_episode_steps, level.id)
+    hyperparameters = {**algo.kwargs, "n_envs": algo.n_envs}
     began = time.time()
-    model = cls(algo.policy, env, seed=seed, device="cpu", verbose=0, **algo.kwargs)
-    model.learn(steps)
+    if algo.recipe_of is not None:
+        if keep_runs:
+            policy, steps_done, hyperparameters = _train_recipe(
+                level, algo, seed, steps, Path(keep_runs) / level.id, torch_threads)
+        else:
+            with tempfile.TemporaryDirectory(prefix="saddle-benchmark-") as work:
+                policy, steps_done, hyperparameters = _train_recipe(level, algo, seed, steps,
+                                                                    Path(work), torch_threads)
+    else:
+        cls = getattr(importlib.import_module(algo.library), algo.cls)
+        env = make_vec_env(algo.n_envs, seed, {}, level.max_episode_steps, level.id)
+        model = cls(algo.policy, env, seed=seed, device="cpu", verbose=0, **algo.kwargs)
+        model.learn(steps)
+        env.close()
+        steps_done = int(model.num_timesteps)
+        policy = RecurrentPolicy(model) if algo.cls == "RecurrentPPO" else model
     train_s = time.time() - began
-    env.close()
-    policy = RecurrentPolicy(model) if algo.cls == "RecurrentPPO" else model
     began = time.time()
     table, details = evaluate([(algo_name, policy)], level.config(), episodes, TEST_SEED,
                               max_episode_steps=level.max_episode_steps, examples=0,
@@ -174,9 +201,9 @@ def run_cell(level_id: str, algo_name: str, seed: int, *, budget: int | None = N
     per_episode = details[row["policy"]]
     return {"level": level.id, "algo": algo_name, "seed": seed,
             "library": f"{algo.library}.{algo.cls}", "policy": algo.policy,
-            "hyperparameters": {**algo.kwargs, "n_envs": algo.n_envs}, "note": algo.note,
-            "budget_steps": steps, "steps_done": int(model.num_timesteps),
-            "train_wall_s": round(train_s, 1), "steps_per_s": round(model.num_timesteps
+            "hyperparameters": hyperparameters, "note": algo.note,
+            "budget_steps": steps, "steps_done": steps_done,
+            "train_wall_s": round(train_s, 1), "steps_per_s": round(steps_done
                                                                     / max(train_s, 1e-9)),
             "eval_wall_s": round(eval_s, 1),
             "test": {"seed": TEST_SEED, "episodes": episodes},
@@ -185,6 +212,39 @@ def run_cell(level_id: str, algo_name: str, seed: int, *, budget: int | None = N
             "versions": _versions(), "machine": f"{platform.machine()}, {os.cpu_count()} cores",
             "load_average_at_end": list(os.getloadavg()),
             "date": time.strftime("%Y-%m-%d %H:%M")}
+
+
+def _train_recipe(level: Any, algo: Algo, seed: int, steps: int, work: Path,
+                  torch_threads: int) -> tuple[Any, int, dict[str, Any]]:
+    """Train ``algo``'s recipe (the ppo.yml entry of ``algo.recipe_of``) on ``level`` with
+    `agents.training.train` into ``work/runs/<algo>_seed<s>`` (the layout of
+    `agents.time_to_target`, the recipe beside it as ``work/<algo>.yml``); the selected
+    network as a policy, the steps done and the recipe. A run stopped by Ctrl-C or SIGTERM
+    raises KeyboardInterrupt (no result)."""
+    import yaml
+
+    from .policies import load_policy
+    from .recipes import load_hyperparams
+    from .training import TrainSettings, train
+
+    recipe = load_hyperparams("ppo", algo.recipe_of)
+    work.mkdir(parents=True, exist_ok=True)
+    file = work / f"{algo.name}.yml"
+    file.write_text(yaml.safe_dump({level.id: recipe}))
+    settings = TrainSettings(algo="ppo", env_id=level.id, seed=seed, total_timesteps=steps,
+                             hyperparams=str(file), log_dir=str(work / "runs"),
+                             run_name=f"{algo.name}_seed{seed}",
+                             compare_episodes=0, progress_bar=False,
+                             torch_threads=torch_threads).validate()
+    run_dir = train(settings)
+    if not (run_dir / "final_model.zip").is_file():
+        raise KeyboardInterrupt            # the back end stopped early: not a finished cell
+    model = run_dir / "selected_model.zip"
+    if not model.is_file():
+        model = run_dir / "final_model.zip"
+    rollout = int(settings.n_envs) * int(recipe["n_steps"])     # PPO learns whole rollouts
+    steps_done = -(-steps // rollout) * rollout
+    return load_policy(model, level.config()), steps_done, recipe
 
 
 def write_result(out: Path, result: dict[str, Any]) -> Path:
@@ -197,12 +257,11 @@ def write_result(out: Path, result: dict[str, Any]) -> Path:
     return path
 
 
-def _run_local(todo: list[tuple[str, str, int]], out: Path, budget: int | None,
-               episodes: int) -> int:
+def _run_local(todo: list[tuple[str, str, int]], out: Path, cell: dict[str, Any]) -> int:
     for i, (lv, algo, seed) in enumerate(todo, 1):
         print(f"[{i}/{len(todo)}] {lv}/{algo}/{seed}: training "
-              f"{budget or ALGOS[algo].budget:,} steps", file=sys.stderr, flush=True)
-        result = run_cell(lv, algo, seed, budget=budget, episodes=episodes)
+              f"{cell['budget'] or ALGOS[algo].budget:,} steps", file=sys.stderr, flush=True)
+        result = run_cell(lv, algo, seed, **cell)
         path = write_result(out, result)
         print(f"  {result['trapping_time']['mean']:.2f} s "
               f"[{result['trapping_time']['low']:.2f}, {result['trapping_time']['high']:.2f}], "
@@ -210,7 +269,7 @@ def _run_local(todo: list[tuple[str, str, int]], out: Path, budget: int | None,
     return len(todo)
 
 
-def _run_ray(todo: list[tuple[str, str, int]], out: Path, budget: int | None, episodes: int,
+def _run_ray(todo: list[tuple[str, str, int]], out: Path, cell: dict[str, Any],
              address: str) -> int:
     """Every cell as a Ray task (one CPU each) on the cluster at ``address``; results are
     written by the driver as they arrive."""
@@ -228,7 +287,7 @@ def _run_ray(todo: list[tuple[str, str, int]], out: Path, budget: int | None, ep
         ray.init(address=address, logging_level="ERROR", log_to_driver=False)
     try:
         task = ray.remote(num_cpus=1)(run_cell)
-        pending = {task.remote(lv, a, s, budget=budget, episodes=episodes): (lv, a, s)
+        pending = {task.remote(lv, a, s, **cell): (lv, a, s)
                    for lv, a, s in todo}
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
@@ -264,6 +323,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run the cells as tasks on this Ray cluster (the [rllib] extra's Ray); "
                         "'local' starts a local Ray of two CPUs")
     p.add_argument("--redo", action="store_true", help="rerun cells that have a result")
+    p.add_argument("--keep-runs", default=None, metavar="DIR",
+                   help="keep recipe rows' run folders in DIR/<level>/runs/ (curves, models), "
+                        "where `python -m agents.time_to_target --out DIR/<level> --label "
+                        "ppo-fast --hyperparams DIR/<level>/ppo-fast.yml --reuse` reads them; "
+                        "on a cluster DIR must be on a filesystem every node shares"),
     p.add_argument("--report", action="store_true",
                    help="write docs/benchmark.md and its figures from the result files")
     p.add_argument("--json", action="store_true", help="with --report: print the data as JSON")
@@ -311,8 +375,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     signal.signal(signal.SIGTERM, stop)
     try:
-        n = (_run_ray(todo, out, args.budget, args.episodes, args.address) if args.address
-             else _run_local(todo, out, args.budget, args.episodes))
+        cell = {"budget": args.budget, "episodes": args.episodes, "keep_runs": args.keep_runs}
+        n = (_run_ray(todo, out, cell, args.address) if args.address
+             else _run_local(todo, out, cell))
     except KeyboardInterrupt:
         print(f"interrupted: the finished cells' results are in {out}; the same command "
               f"resumes", file=sys.stderr)

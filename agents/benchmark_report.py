@@ -233,7 +233,10 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
              "library's generic hyperparameters (no per-level tuning, no imitation), trained "
              "on each non-calm level from several seeds for one fixed budget of env steps; "
              "each run's final network is evaluated alone, deterministic, on the level's frozen "
-             f"test set ({test_episodes} episodes from seed 2,000,000, docs/leaderboard.md).",
+             f"test set ({test_episodes} episodes from seed 2,000,000, docs/leaderboard.md). "
+             "The `ppo-fast` row is the exception: the project's fast recipe, one recipe for "
+             "every level, trained as `train.py` trains (its model selected on validation "
+             "episodes).",
              "", "## Scores", "",
              "**Normalised score**: a run's mean trapping time T mapped so that uniform random "
              "actions score 0 and the level's upper reference 1, (T - T_random) / (T_upper - "
@@ -296,6 +299,8 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
               "python -m agents.benchmark                        # every missing cell, in turn",
               "python -m agents.benchmark --only SaddleTrap-Storm-v0/sac/1   # one cell",
               "python -m agents.benchmark --address HOST:PORT    # as Ray tasks on a cluster",
+              "python -m agents.benchmark --algos ppo-fast --keep-runs RUNS   # keep the runs "
+              "(curves) for agents.time_to_target --reuse",
               "python -m agents.benchmark --report               # this page and its figures",
               "python -m agents.benchmark --report --json        # the same data as JSON",
               "```", "",
@@ -309,12 +314,15 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
               "the driver writes the files as they arrive.", "",
               "**Adding a row.** Add an `Algo` to `ALGOS` in `agents/benchmark.py` (library, "
               "class, policy, budget, the keywords it runs with), run its cells, commit the "
-              "files and regenerate this page. A method outside SB3 needs `run_cell` to train "
+              "files and regenerate this page. A recipe of `agents/hyperparams/ppo.yml` is a "
+              "row with `recipe_of` (the level whose entry it runs everywhere). A method "
+              "outside SB3 needs `run_cell` to train "
               "it and hand `agents.evaluation.evaluate` an object with SB3's `predict`.", "",
               "**Seeds.** Training run s steps episodes seeded from s (training episodes); the "
-              "test set is seeds 2,000,000 onwards (`agents/seeds.py`), used for nothing else; "
-              "no model selection is done (the final network is evaluated), so no validation "
-              "episodes are spent.", ""]
+              "test set is seeds 2,000,000 onwards (`agents/seeds.py`), used for nothing else. "
+              "The generic rows do no model selection (the final network is evaluated); the "
+              "recipe row selects on the validation episodes (seeds from 1,000,000), which "
+              "neither training nor the test set uses.", ""]
     prov = data.get("provenance")
     if prov:
         vers = ", ".join(f"{k} {'/'.join(v)}" for k, v in prov["versions"].items())

@@ -1,6 +1,6 @@
 """What every command line of ``agents/`` shares: one grammar for ``--env-kwargs``, resolving
-``--env ID`` plus overrides to a validated `EnvConfig`, and one-line errors for a missing
-optional dependency ("extra").
+``--env ID`` plus overrides to a validated `EnvConfig`, reading a Ray ``--address``, and
+one-line errors for a missing optional dependency ("extra").
 
 ``--env-kwargs`` accepts, in every tool:
 
@@ -150,5 +150,20 @@ def saved_settings(cls: type, config: Path, total_timesteps: int | None = None,
     return settings
 
 
+def parse_address(address: str) -> tuple[str, int] | None:
+    """(host, port) of ``--address`` (``HOST:PORT`` or ``ray://HOST:PORT``); None for
+    ``auto`` (the cluster this machine joined with ``ray start``)."""
+    text = address.strip()
+    if text == "auto":
+        return None
+    bare = text.removeprefix("ray://")
+    host, sep, port = bare.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"--address must be HOST:PORT (the head's `ray start --head` "
+                         f"address, e.g. 10.0.0.1:6379), ray://HOST:PORT or auto; got {address!r}")
+    return host.strip("[]"), int(port)
+
+
 __all__ = ["EXTRA_OF", "MissingExtra", "install_hint", "level_overrides", "missing",
-           "parse_env_kwargs", "parse_value", "require", "resolve_env", "saved_settings"]
+           "parse_address", "parse_env_kwargs", "parse_value", "require", "resolve_env",
+           "saved_settings"]

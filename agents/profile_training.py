@@ -1,25 +1,30 @@
 """Where a training run's time goes: ``python -m agents.profile_training``.
 
-Runs a short SB3 PPO training (the main job's recipe unless told otherwise, through
-`agents.training.train`, so with its callbacks, evaluation and model selection) and,
-with ``--imitation``, a few DAgger rounds of the imitation warm start, with timers around
-the pieces of one iteration:
+Runs a short training (the main job's recipe unless told otherwise, through
+`agents.training.train`, so with its callbacks, evaluation and model selection) on SB3
+(PPO, SAC, TD3, A2C) or RLlib (PPO, SAC; its env runner in this process,
+``num_env_runners=0``, so that every piece is in reach of the timers) and, with
+``--imitation``, a few DAgger rounds of the imitation warm start, with timers around the
+pieces of one iteration:
 
 | category | what is timed |
 |---|---|
-| env stepping | the batch env's ``step_wait`` / ``step`` (the compiled physics and its Python shell) |
-| policy forward | the rollout's ``policy(obs)`` and ``predict_values`` (SB3), the network's actions (imitation) |
-| advantages (GAE) | ``RolloutBuffer.compute_returns_and_advantage`` |
-| gradient updates | ``PPO.train`` (every epoch and minibatch), imitation's ``fit`` |
-| evaluation + selection | ``evaluate_policy`` inside the selection callback, and model saves (selected model, checkpoints) |
+| env stepping | the batch env's ``step_wait`` / ``step`` (the compiled physics and its Python shell); RLlib: ``EnvRunner._try_env_step`` |
+| policy forward | the rollout's ``policy(obs)`` and ``predict_values`` (SB3 on-policy), ``_sample_action`` (SB3 off-policy), ``forward_exploration`` (RLlib), the network's actions (imitation) |
+| advantages (GAE) | ``RolloutBuffer.compute_returns_and_advantage``; RLlib: its GAE connector (the value forward included) |
+| gradient updates | the algorithm's ``train`` (SB3: every epoch and minibatch), RLlib's ``TorchLearner._update``, imitation's ``fit`` |
+| evaluation + selection | ``evaluate_policy`` inside the selection callback, and model saves (selected model, checkpoints); RLlib: its checkpoints (it selects on training episodes) |
 | mpc queries | ``ModelPredictiveController.predict`` and ``executed`` (imitation labels) |
 | warm start | the best-constant search or cache read that sets the starting action |
-| other | the rest of the wall time: SB3's rollout loop (tensor conversion, buffer adds, callbacks, progress) |
+| start-up | building the environments and the model; RLlib: starting Ray and building the algorithm |
+| other | the rest of the wall time: the rollout loop (tensor conversion, buffer adds, callbacks), RLlib's connectors and metrics |
 
 A timer inside another timed section does not count: the outer one has it (an evaluation's
 env steps are evaluation). The closing comparison (``compare_episodes``) is left out.
 
     python -m agents.profile_training                         # main job's recipe, 6e5 steps
+    python -m agents.profile_training --algo sac --total-timesteps 60000 --eval-freq 15000
+    python -m agents.profile_training --backend rllib         # needs the [rllib] extra
     python -m agents.profile_training --imitation --rounds 2 --episodes 64
     python -m agents.profile_training --hyperparams my.yml --total-timesteps 300000
 
@@ -38,7 +43,7 @@ from collections import defaultdict
 from typing import Any
 
 CATEGORIES = ("env stepping", "policy forward", "advantages (GAE)", "gradient updates",
-              "evaluation + selection", "mpc queries", "warm start", "other")
+              "evaluation + selection", "mpc queries", "warm start", "start-up", "other")
 
 
 class Timers:
@@ -98,52 +103,110 @@ def markdown(rows: list[dict[str, Any]], wall: float, title: str) -> str:
     return "\n".join(out)
 
 
-def _sb3_timers() -> Timers:
-    from stable_baselines3 import PPO
+def _sb3_timers(algo: str) -> Timers:
     from stable_baselines3.common import base_class, callbacks
     from stable_baselines3.common.buffers import RolloutBuffer
+    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
     from stable_baselines3.common.policies import ActorCriticPolicy
 
     from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
 
-    from . import warm_start
+    from . import sb3_backend, warm_start
+    from .sb3_backend import algo_class
 
     t = Timers()
     t.wrap(SaddleTrapSB3VecEnv, "step_wait", "env stepping")
-    t.wrap(ActorCriticPolicy, "forward", "policy forward")
+    t.wrap(ActorCriticPolicy, "forward", "policy forward")            # PPO, A2C rollouts
     t.wrap(ActorCriticPolicy, "predict_values", "policy forward")
+    t.wrap(OffPolicyAlgorithm, "_sample_action", "policy forward")    # SAC, TD3 collection
     t.wrap(RolloutBuffer, "compute_returns_and_advantage", "advantages (GAE)")
-    t.wrap(PPO, "train", "gradient updates")
+    t.wrap(algo_class(algo), "train", "gradient updates")
     t.wrap(callbacks, "evaluate_policy", "evaluation + selection")
     t.wrap(base_class.BaseAlgorithm, "save", "evaluation + selection")
     t.wrap(warm_start, "warm_start", "warm start")
+    t.wrap(sb3_backend, "make_vec_env", "start-up")
+    t.wrap(sb3_backend, "_new_model", "start-up")
     return t
 
 
-def profile_sb3(env_id: str, total_timesteps: int, eval_freq: int | None,
-                hyperparams: str | None, seed: int = 0, n_envs: int | None = None,
-                run_name: str | None = None) -> dict[str, Any]:
-    """Time the pieces of a short `agents.training.train` run (no closing comparison)."""
-    from .training import TrainSettings, train
+def _rllib_timers() -> Timers:
+    """Timers around RLlib's pieces in the driver process: with no remote env runners
+    (``num_env_runners=0``) the sampling runs there too, so every part is timed."""
+    from ray.rllib.algorithms.algorithm_config import AlgorithmConfig
+    from ray.rllib.connectors.learner.general_advantage_estimation import (
+        GeneralAdvantageEstimation,
+    )
+    from ray.rllib.core.learner.torch.torch_learner import TorchLearner
+    from ray.rllib.core.rl_module.torch.torch_rl_module import TorchRLModule
+    from ray.rllib.env.env_runner import EnvRunner
 
-    timers = _sb3_timers()
+    from . import rllib_backend
+
+    t = Timers()
+    t.wrap(EnvRunner, "_try_env_step", "env stepping")
+    t.wrap(TorchRLModule, "forward_exploration", "policy forward")
+    t.wrap(GeneralAdvantageEstimation, "__call__", "advantages (GAE)")  # values + GAE
+    t.wrap(TorchLearner, "_update", "gradient updates")               # every minibatch
+    t.wrap(rllib_backend, "save_checkpoint", "evaluation + selection")
+    t.wrap(rllib_backend, "init_ray", "start-up")
+    t.wrap(AlgorithmConfig, "build_algo", "start-up")
+    return t
+
+
+def _timed_train(settings: Any, timers: Timers) -> tuple[float, int]:
+    """Wall seconds of `agents.training.train` (no closing comparison) under ``timers``,
+    and the env steps it trained (whole rollouts or iterations: at least the budget)."""
+    from .run_report import read_curve
+    from .training import train
+
+    start = time.perf_counter()
+    try:
+        run_dir = train(settings)
+    finally:
+        wall = time.perf_counter() - start
+        timers.restore()
+    curve = read_curve(run_dir)
+    done = int(curve["timesteps"][-1]) if curve is not None else 0
+    return wall, max(done, int(settings.total_timesteps))
+
+
+def profile_training(env_id: str, total_timesteps: int, eval_freq: int | None,
+                     hyperparams: str | None, seed: int = 0, n_envs: int | None = None,
+                     run_name: str | None = None, algo: str = "ppo",
+                     backend: str = "sb3") -> dict[str, Any]:
+    """Time the pieces of a short `agents.training.train` run of ``algo`` on ``backend``.
+    RLlib runs with its env runner in the driver process (``num_env_runners=0``), where
+    the timers can see it; its PPO has no separate evaluation (the curve is the training
+    episodes'), so "evaluation + selection" is its checkpoint saves."""
+    from .training import TrainSettings
+
     with tempfile.TemporaryDirectory() as tmp:
         settings = TrainSettings(env_id=env_id, seed=seed, total_timesteps=total_timesteps,
                                  eval_freq=eval_freq, hyperparams=hyperparams, n_envs=n_envs,
-                                 log_dir=tmp, run_name=run_name or "profile",
+                                 log_dir=tmp, run_name=run_name or "profile", algo=algo,
+                                 backend=backend, num_cpus=2 if backend == "rllib" else None,
                                  progress_bar=False, compare_episodes=0).validate()
-        start = time.perf_counter()
-        try:
-            train(settings)
-        finally:
-            wall = time.perf_counter() - start
-            timers.restore()
+        if backend == "rllib":
+            from . import rllib_backend
+
+            build = rllib_backend.build_config
+            def in_driver(*args, **kwargs):
+                return build(*args, **kwargs).env_runners(num_env_runners=0)
+
+            rllib_backend.build_config = in_driver
+            timers = _rllib_timers()
+            try:
+                wall, steps = _timed_train(settings, timers)
+            finally:
+                rllib_backend.build_config = build
+        else:
+            timers = _sb3_timers(algo)
+            wall, steps = _timed_train(settings, timers)
         used = dict(settings.hyperparams_used)
-    return {"path": "sb3-ppo", "env_id": env_id, "total_timesteps": total_timesteps,
+    return {"path": f"{backend}-{algo}", "env_id": env_id, "total_timesteps": steps,
             "eval_freq": settings.eval_freq, "n_envs": settings.n_envs,
             "hyperparams": {k: str(v) for k, v in used.items()},
-            "wall": wall, "steps_per_s": total_timesteps / wall,
-            "rows": timers.table(wall)}
+            "wall": wall, "steps_per_s": steps / wall, "rows": timers.table(wall)}
 
 
 def profile_imitation(env_id: str, rounds: int, episodes: int, epochs: int = 10,
@@ -158,7 +221,8 @@ def profile_imitation(env_id: str, rounds: int, episodes: int, epochs: int = 10,
     from . import imitation
     from .cli_args import resolve_env
     from .mpc import ModelPredictiveController
-    from .training import load_hyperparams, make_vec_env, parse_policy_kwargs
+    from .recipes import load_hyperparams, parse_policy_kwargs
+    from .sb3_backend import make_vec_env
 
     torch.set_num_threads(1)
     level, config = resolve_env(env_id, {})
@@ -193,6 +257,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--total-timesteps", type=int, default=600_000)
     ap.add_argument("--eval-freq", type=int, default=150_000,
                     help="steps between evaluations (the main job's: a twentieth of 3e6)")
+    ap.add_argument("--algo", default="ppo", choices=("ppo", "sac", "td3", "a2c"))
+    ap.add_argument("--backend", default="sb3", choices=("sb3", "rllib"),
+                    help="rllib: RLlib's PPO or SAC with its env runner in this process")
     ap.add_argument("--hyperparams", default=None, metavar="FILE.yml")
     ap.add_argument("--n-envs", type=int, default=None)
     ap.add_argument("--imitation", action="store_true",
@@ -207,9 +274,11 @@ def main(argv: list[str] | None = None) -> int:
         title = (f"imitation on {args.env}: {args.rounds} rounds x {args.episodes} episodes, "
                  f"{args.epochs} epochs")
     else:
-        result = profile_sb3(args.env, args.total_timesteps, args.eval_freq, args.hyperparams,
-                             n_envs=args.n_envs)
-        title = (f"SB3 PPO on {args.env}: {args.total_timesteps:,} steps, evaluation every "
+        result = profile_training(args.env, args.total_timesteps, args.eval_freq,
+                                  args.hyperparams, n_envs=args.n_envs, algo=args.algo,
+                                  backend=args.backend)
+        title = (f"{'SB3' if args.backend == 'sb3' else 'RLlib'} {args.algo.upper()} on "
+                 f"{args.env}: {result['total_timesteps']:,} steps, evaluation every "
                  f"{result['eval_freq']:,}; {result['steps_per_s']:,.0f} steps/s overall")
     result["command"] = "python -m agents.profile_training " + " ".join(argv or sys.argv[1:])
     print(markdown(result["rows"], result["wall"], title))

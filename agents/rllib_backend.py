@@ -1,4 +1,5 @@
-"""Training on Ray RLlib (``train.py --backend rllib``) and running its checkpoints.
+"""The Ray RLlib back end of `agents.training` (``train.py --backend rllib``), and running
+its checkpoints.
 
 All Ray code of the project lives here, and ray is imported only inside the functions that
 need it: importing this module (or `saddle_env`, or `agents`) never imports ray. Install it
@@ -30,6 +31,10 @@ checkpoint directory holds ``saddle_env.json`` (the level, the overriding option
 episode length, the algorithm, the steps), which ``saddle-eval --policy DIR`` reads.
 ``--resume DIR`` rebuilds the algorithm from the run's settings (the number of env runners
 and ``--address`` may change) and restores the checkpoint, the lifetime step count included.
+As every back end's run (`agents.training`), a finished one ends with ``learning_curve.png``
+(here from the training episodes' running mean, ``evaluations_wall.csv``: RLlib has no
+validation during training) and the comparison of ``final/`` with best-const and mpc on
+fresh episodes (``comparison.md``).
 
 **Faults.** ``restart_failed_env_runners``: an env runner that dies is replaced by a fresh
 one (same index, same seeds) and training goes on with the learner's state intact.
@@ -44,7 +49,6 @@ import signal
 import socket
 import sys
 import time
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -52,15 +56,8 @@ import numpy as np
 
 from saddle_env.envs.vector import SaddleTrapVectorEnv
 
-from .cli_args import (
-    MissingExtra,
-    install_hint,
-    level_overrides,
-    missing,
-    resolve_env,
-    saved_settings,
-)
-from .model_files import untrusted
+from .cli_args import MissingExtra, install_hint, level_overrides, missing, parse_address
+from .recipes import parse_policy_kwargs
 from .rllib_policy import (  # noqa: F401  (the checkpoint side, importable without training)
     CHECKPOINT_MARKER,
     MODULE_PATH,
@@ -72,11 +69,14 @@ from .rllib_policy import (  # noqa: F401  (the checkpoint side, importable with
     latest_checkpoint,
     load_policy,
 )
+from .run_report import append_curve_point
+from .runs import BACKEND_ALGOS, Stop, TrainSettings, sigterm_stops
 
-RLLIB_ALGOS = ("ppo", "sac")
+RLLIB_ALGOS = BACKEND_ALGOS["rllib"]
 RLLIB_MODULES = ("ray", "torch", "yaml")
 ENV_NAME = "saddle_env_vector"       # the name of `make_env` in Ray's registry
-DEFAULT_ENV_RUNNERS = 2
+# Resuming restores RLlib's own checkpoint, which is pickled: only with --trust-model.
+RESUME_NEEDS_TRUST = True
 LOCAL_OBJECT_STORE = 300 * 1024 ** 2   # bytes: the payloads are small
 CONNECT_TIMEOUT_S = 3.0
 # Zoo keys translated into RLlib settings, per algorithm (everything else: a note).
@@ -133,100 +133,25 @@ def make_env(env_config: dict[str, Any]):
 # ---------------------------------------------------------------------------------------
 # settings
 # ---------------------------------------------------------------------------------------
-@dataclass
-class RllibSettings:
-    """What an RLlib run needs; saved as ``config.json`` in the run folder."""
-
-    algo: str = "ppo"
-    env_id: str = "SaddleTrap-Capture-v0"
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
-    seed: int = 0
-    num_env_runners: int = DEFAULT_ENV_RUNNERS
-    n_envs: int | None = None            # balls per env runner (None: the hyperparams' n_envs)
-    total_timesteps: int | None = None   # None: the hyperparams' n_timesteps
-    hyperparams: str | None = None
-    log_dir: str = "runs"
-    run_name: str | None = None
-    address: str | None = None           # None: a local Ray; else a running cluster's head
-    num_cpus: int | None = None          # local Ray only (None: the machine's cores)
-    save_freq: int = 50_000
-    max_episode_steps: int | None = None
-    progress_bar: bool = True
-    torch_threads: int = 1
-    backend: str = "rllib"
-    hyperparams_used: dict[str, Any] = field(default_factory=dict)
-
-    POSITIVE = ("num_env_runners", "n_envs", "total_timesteps", "save_freq",
-                "max_episode_steps", "torch_threads", "num_cpus")
-
-    def validate(self) -> RllibSettings:
-        if self.algo not in RLLIB_ALGOS:
-            raise ValueError(f"--algo {self.algo} is not available with --backend rllib "
-                             f"(choose from {', '.join(RLLIB_ALGOS)})")
-        for name in self.POSITIVE:
-            value = getattr(self, name)
-            if value is not None and (isinstance(value, bool) or not isinstance(value, int)
-                                      or value < 1):
-                raise ValueError(f"--{name.replace('_', '-')} must be a positive integer "
-                                 f"(>= 1), got {value}")
-        if self.address is not None:
-            parse_address(self.address)
-        level, _ = self.environment()
-        if self.max_episode_steps is None:
-            self.max_episode_steps = level.max_episode_steps
-        return self
-
-    def environment(self):
-        try:
-            return resolve_env(self.env_id, self.env_kwargs)
-        except TypeError as exc:
-            raise ValueError(f"--env-kwargs: {exc}") from None
-
-    def env_config(self) -> dict[str, Any]:
-        level, config = self.environment()
-        return {"env_id": level.id, "env_kwargs": level_overrides(level, config),
-                "max_episode_steps": self.max_episode_steps, "seed": self.seed}
+def env_config(settings: TrainSettings) -> dict[str, Any]:
+    """What `make_env` needs on an env runner: the level, its overriding options, the
+    episode length and the base seed."""
+    level, config = settings.environment()
+    return {"env_id": level.id, "env_kwargs": level_overrides(level, config),
+            "max_episode_steps": settings.max_episode_steps, "seed": settings.seed}
 
 
-def check_dependencies() -> None:
+def check_dependencies(progress_bar: bool = True) -> None:
+    """One line naming the extra to install if Ray or torch is missing."""
     lacking = missing(RLLIB_MODULES)
     if lacking:
         raise MissingExtra(f"--backend rllib needs {', '.join(lacking)}, not installed: "
                            f"{install_hint('rllib')} (torch==2.13.0 CPU first)")
 
 
-def settings_for_resume(checkpoint: str | os.PathLike, total_timesteps: int | None = None,
-                        progress_bar: bool = True, **overrides: Any) -> RllibSettings:
-    """The settings of the run a checkpoint belongs to (``<run>/checkpoints/<ckpt>`` or
-    ``<run>/final``), with a new budget, runner count or address if given."""
-    ckpt = Path(checkpoint).resolve()
-    config = ckpt.parent.parent / "config.json"
-    if not is_checkpoint(ckpt) or not config.is_file():
-        config = ckpt.parent / "config.json"
-    if not is_checkpoint(ckpt) or not config.is_file():
-        raise ValueError(f"--resume: need an RLlib checkpoint directory inside a run folder "
-                         f"with config.json, got {str(checkpoint)!r}")
-    settings = saved_settings(RllibSettings, config, total_timesteps, progress_bar, **overrides)
-    return settings.validate()
-
-
 # ---------------------------------------------------------------------------------------
 # Ray
 # ---------------------------------------------------------------------------------------
-def parse_address(address: str) -> tuple[str, int] | None:
-    """(host, port) of ``--address`` (``HOST:PORT`` or ``ray://HOST:PORT``); None for
-    ``auto`` (the cluster this machine joined with ``ray start``)."""
-    text = address.strip()
-    if text == "auto":
-        return None
-    bare = text.removeprefix("ray://")
-    host, sep, port = bare.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise ValueError(f"--address must be HOST:PORT (the head's `ray start --head` "
-                         f"address, e.g. 10.0.0.1:6379), ray://HOST:PORT or auto; got {address!r}")
-    return host.strip("[]"), int(port)
-
-
 def check_reachable(address: str, timeout: float = CONNECT_TIMEOUT_S) -> None:
     """A one-line ValueError, within ``timeout`` seconds, if nothing listens at
     ``address`` (ray.init would otherwise retry for a long time)."""
@@ -269,8 +194,6 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> bool:
 
 
 def _net_arch(hyper: dict[str, Any], default: list[int]) -> list[int]:
-    from .training import parse_policy_kwargs
-
     arch = parse_policy_kwargs(hyper.get("policy_kwargs")).get("net_arch", default)
     if isinstance(arch, dict):
         arch = arch.get("pi", default)
@@ -286,7 +209,7 @@ def module_config(algo: str, hyper: dict[str, Any]) -> dict[str, Any]:
     return {"fcnet_hiddens": _net_arch(hyper, [256, 256]), "fcnet_activation": "relu"}
 
 
-def build_config(settings: RllibSettings, hyper: dict[str, Any]):
+def build_config(settings: TrainSettings, hyper: dict[str, Any]):
     """The RLlib AlgorithmConfig of a run (Ray must be initialised: the CPUs per env
     runner are shared out among the cluster's CPUs if there are more runners than CPUs)."""
     import ray
@@ -323,7 +246,7 @@ def build_config(settings: RllibSettings, hyper: dict[str, Any]):
             replay_buffer_config={"type": "PrioritizedEpisodeReplayBuffer",
                                   "capacity": int(hyper.get("buffer_size", 200_000))})
     config = (config
-              .environment(env=ENV_NAME, env_config=settings.env_config())
+              .environment(env=ENV_NAME, env_config=env_config(settings))
               .env_runners(num_env_runners=runners, num_envs_per_env_runner=n_envs,
                            gym_env_vectorize_mode="vector_entry_point",
                            num_cpus_per_env_runner=cpus_per_runner,
@@ -348,10 +271,6 @@ def _note_unused(hyper: dict[str, Any], algo: str) -> None:
 # ---------------------------------------------------------------------------------------
 # training
 # ---------------------------------------------------------------------------------------
-class _Stop(Exception):
-    """Raised in the main thread by SIGTERM so that the run checkpoints and exits."""
-
-
 # progress.csv columns: (name, path in RLlib's result dict)
 COLUMNS = (
     ("iteration", ("training_iteration",)),
@@ -438,7 +357,7 @@ def lifetime_steps(algo) -> int:
                                  default=0) or 0)
 
 
-def save_checkpoint(algo, path: Path, settings: RllibSettings, steps: int,
+def save_checkpoint(algo, path: Path, settings: TrainSettings, steps: int,
                     extra: dict[str, Any] | None = None) -> Path:
     """RLlib's checkpoint at ``path``, and in it our sidecar and the policy network's
     weights as plain tensors (`WEIGHTS_FILE`): RLlib's own files are pickles, which
@@ -464,36 +383,18 @@ def save_checkpoint(algo, path: Path, settings: RllibSettings, steps: int,
     return path
 
 
-def train(settings: RllibSettings, resume: str | os.PathLike | None = None,
-          trust: bool = False) -> Path:
-    """Train (or resume) on RLlib; return the run folder. Resuming restores RLlib's own
-    checkpoint, which is pickled: it needs ``trust`` (``--trust-model``)."""
-    check_dependencies()
-    settings.validate()
-    if resume is not None and not trust:
-        raise untrusted(resume, "resuming restores RLlib's checkpoint, which is pickled "
-                                "(evaluating it does not need this)")
-    from .training import load_hyperparams
-
-    hyper = load_hyperparams(settings.algo, settings.env_id, settings.hyperparams, note=True)
-    settings.hyperparams_used = hyper
+def run(settings: TrainSettings, hyper: dict[str, Any], run_dir: Path,
+        resume: str | os.PathLike | None = None, trust: bool = False,
+        began: float | None = None) -> Path | None:
+    """Train (or resume: RLlib's own checkpoint, pickled, which `agents.training` lets
+    through only with trust) in ``run_dir``; return the final checkpoint, or None if the
+    run was interrupted (a checkpoint was saved). Starts a local Ray or joins
+    ``settings.address`` unless Ray is already up (then leaves it running)."""
     _note_unused(hyper, settings.algo)
-    settings.n_envs = int(settings.n_envs or hyper.get("n_envs", 16))
-    settings.total_timesteps = int(settings.total_timesteps
-                                   or float(hyper.get("n_timesteps", 1e5)))
-    if resume is not None:
-        ckpt = Path(resume).resolve()
-        run_dir = ckpt.parent.parent if ckpt.parent.name == "checkpoints" else ckpt.parent
-    else:
-        name = settings.run_name or (f"{settings.algo}_rllib_seed{settings.seed}_"
-                                     f"{time.strftime('%Y%m%d-%H%M%S')}")
-        run_dir = Path(settings.log_dir) / name
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.json").write_text(json.dumps(asdict(settings), indent=2, default=list))
-
     started = init_ray(settings.address, settings.num_cpus)
     try:
-        return _train(settings, hyper, run_dir, resume)
+        return _train(settings, hyper, run_dir, resume,
+                      time.time() if began is None else began)
     finally:
         if started:
             import ray
@@ -501,8 +402,10 @@ def train(settings: RllibSettings, resume: str | os.PathLike | None = None,
             ray.shutdown()
 
 
-def _train(settings: RllibSettings, hyper: dict[str, Any], run_dir: Path,
-           resume: str | os.PathLike | None) -> Path:
+def _train(settings: TrainSettings, hyper: dict[str, Any], run_dir: Path,
+           resume: str | os.PathLike | None, began: float) -> Path | None:
+    import contextlib
+
     import torch
 
     torch.set_num_threads(settings.torch_threads)
@@ -510,6 +413,7 @@ def _train(settings: RllibSettings, hyper: dict[str, Any], run_dir: Path,
     if resume is not None:
         algo.restore_from_path(str(Path(resume).resolve()))
     steps = lifetime_steps(algo)
+    dt = settings.environment()[1].control_period
     print(f"RLlib {settings.algo.upper()} on {settings.env_id}: {settings.num_env_runners} env "
           f"runner(s) x {settings.n_envs} balls (native vector env), "
           f"{steps:,} of {settings.total_timesteps:,} steps done; run folder {run_dir}",
@@ -517,30 +421,29 @@ def _train(settings: RllibSettings, hyper: dict[str, Any], run_dir: Path,
     log = RunLog(run_dir)
     bar = _progress_bar(settings, steps)
     last_save = steps
-    interrupted = False
-
-    def on_sigterm(signum, frame):
-        raise _Stop()
-
-    previous = signal.signal(signal.SIGTERM, on_sigterm)
     start = time.time()
+    final = None
     try:
-        while steps < settings.total_timesteps:
-            result = algo.train()
-            steps = lifetime_steps(algo)
-            row = result_row(result, time.time() - start)
-            row["env_steps"] = steps
-            log.add(row)
-            if bar is not None:
-                bar.update(steps - bar.n)
-                ret = row["episode_return_mean"]
-                bar.set_postfix_str("" if ret is None else f"return {ret:.1f}")
-            if steps - last_save >= settings.save_freq:
-                save_checkpoint(algo, run_dir / "checkpoints" / f"checkpoint_{steps}", settings,
-                                steps)
-                last_save = steps
-    except (KeyboardInterrupt, _Stop):
-        interrupted = True
+        with sigterm_stops():
+            while steps < settings.total_timesteps:
+                result = algo.train()
+                steps = lifetime_steps(algo)
+                row = result_row(result, time.time() - start)
+                row["env_steps"] = steps
+                log.add(row)
+                if row["episode_len_mean"] is not None:   # the curve: training episodes
+                    append_curve_point(run_dir, steps, time.time() - began,
+                                       row["episode_return_mean"],
+                                       row["episode_len_mean"] * dt)
+                if bar is not None:
+                    bar.update(steps - bar.n)
+                    ret = row["episode_return_mean"]
+                    bar.set_postfix_str("" if ret is None else f"return {ret:.1f}")
+                if steps - last_save >= settings.save_freq:
+                    save_checkpoint(algo, run_dir / "checkpoints" / f"checkpoint_{steps}",
+                                    settings, steps)
+                    last_save = steps
+    except (KeyboardInterrupt, Stop):
         # Ctrl-C or SIGTERM again while saving would leave a half-written checkpoint.
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
         signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -549,23 +452,20 @@ def _train(settings: RllibSettings, hyper: dict[str, Any], run_dir: Path,
                                settings, steps)
         print(f"\ninterrupted at {steps} steps; checkpoint saved to {path}\n"
               f"continue with: python train.py --resume {path} --trust-model", flush=True)
+    else:
+        final = save_checkpoint(algo, run_dir / "final", settings, steps)
+        print(f"trained {steps:,} env steps in {time.time() - start:.0f} s; checkpoint "
+              f"{final}\nevaluate with: saddle-eval --policy {final}", flush=True)
     finally:
-        signal.signal(signal.SIGTERM, previous)
         if bar is not None:
             bar.close()
         log.close()
-    if not interrupted:
-        path = save_checkpoint(algo, run_dir / "final", settings, steps)
-        print(f"trained {steps:,} env steps in {time.time() - start:.0f} s; checkpoint {path}\n"
-              f"evaluate with: saddle-eval --policy {path}", flush=True)
-    import contextlib
-
-    with contextlib.suppress(Exception):   # shutting down; the checkpoint is on disk
-        algo.stop()
-    return run_dir
+        with contextlib.suppress(Exception):   # shutting down; the checkpoint is on disk
+            algo.stop()
+    return final
 
 
-def _progress_bar(settings: RllibSettings, done: int):
+def _progress_bar(settings: TrainSettings, done: int):
     if not settings.progress_bar:
         return None
     try:
@@ -576,8 +476,7 @@ def _progress_bar(settings: RllibSettings, done: int):
                 dynamic_ncols=True)
 
 
-__all__ = ["CHECKPOINT_MARKER", "ENV_NAME", "RLLIB_ALGOS", "RllibPolicy", "RllibSettings",
-           "RunnerVectorEnv", "build_config", "check_dependencies", "check_reachable",
-           "checkpoint_sidecar", "init_ray", "is_checkpoint", "latest_checkpoint",
-           "load_policy", "make_env", "parse_address", "save_checkpoint",
-           "settings_for_resume", "train"]
+__all__ = ["CHECKPOINT_MARKER", "ENV_NAME", "RESUME_NEEDS_TRUST", "RLLIB_ALGOS",
+           "RllibPolicy", "RunnerVectorEnv", "build_config", "check_dependencies",
+           "check_reachable", "checkpoint_sidecar", "env_config", "init_ray", "is_checkpoint",
+           "latest_checkpoint", "load_policy", "make_env", "run", "save_checkpoint"]

@@ -73,7 +73,8 @@ def sb3_rates(n_envs: int, seconds: float) -> dict:
     import torch
     from stable_baselines3 import PPO
 
-    from .training import load_hyperparams, make_vec_env, parse_policy_kwargs
+    from .recipes import load_hyperparams, parse_policy_kwargs
+    from .sb3_backend import make_vec_env
 
     torch.set_num_threads(1)
     hyper = load_hyperparams("ppo", ENV_ID)
@@ -126,11 +127,12 @@ def rllib_rates(runners: int, n_envs: int, seconds: float, mode: str = "vector_e
     from ray.rllib.utils.metrics import NUM_ENV_STEPS_SAMPLED_LIFETIME
 
     from . import rllib_backend as rb
-    from .training import load_hyperparams
+    from .recipes import load_hyperparams
+    from .runs import TrainSettings
 
     hyper = load_hyperparams("ppo", ENV_ID)
-    settings = rb.RllibSettings(env_id=ENV_ID, num_env_runners=runners, n_envs=n_envs
-                                ).validate()
+    settings = TrainSettings(backend="rllib", env_id=ENV_ID, num_env_runners=runners,
+                             n_envs=n_envs).validate()
     config = rb.build_config(settings, hyper)
     if mode != "vector_entry_point":
         config = config.env_runners(gym_env_vectorize_mode=mode)

@@ -93,9 +93,11 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
         label: str = "recipe", total_timesteps: int | None = None,
         eval_freq: int | None = None, eval_episodes: int = 64, final_episodes: int = 200,
         max_episode_steps: int | None = None, figure: Path | None = None,
-        log: Any = print) -> dict[str, Any]:
+        log: Any = print, reuse: bool = False) -> dict[str, Any]:
     """Train ``seeds`` with the recipe, measure the targets, write the files; return the
-    summary (what the JSON holds)."""
+    summary (what the JSON holds). ``reuse``: a seed whose run folder
+    (``<out>/runs/<label>_seed<s>``) holds a finished run is read, not trained again (its
+    wall time is that of its last evaluation)."""
     from .training import TrainSettings, train
 
     out.mkdir(parents=True, exist_ok=True)
@@ -112,15 +114,22 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
                                  run_name=f"{label}_seed{s}", compare_episodes=0,
                                  max_episode_steps=max_episode_steps,
                                  progress_bar=False).validate()
-        started = time.time()
-        run_dir = train(settings)
-        wall = time.time() - started
-        curve = read_curve(run_dir)
+        run_dir = out / "runs" / f"{label}_seed{s}"
+        if reuse and (run_dir / "final_model.zip").is_file() \
+                and (run_dir / "evaluations_wall.csv").is_file():
+            curve = read_curve(run_dir)          # a finished run of this recipe and seed
+            wall = curve[-1]["wall_seconds"]
+            log(f"seed {s}: reusing the finished run {run_dir}")
+        else:
+            started = time.time()
+            run_dir = train(settings)
+            wall = time.time() - started
+            curve = read_curve(run_dir)
         run_dirs.append(run_dir)
         for row in curve:
             rows.append({"label": label, "seed": s, **row})
         per_seed.append({"seed": s, "wall_seconds": round(wall, 1),
-                         "timesteps": settings.total_timesteps,
+                         "timesteps": settings.total_timesteps or int(curve[-1]["timesteps"]),
                          "best_validation": max(r["mean_trapping_time"] for r in curve),
                          "to_best_const_high": first_time(curve, bc_high, strict=True),
                          "to_mpc_mean": first_time(curve, mpc_mean)})
@@ -213,11 +222,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-episode-steps", type=int, default=None)
     ap.add_argument("--out", default="time-to-target")
     ap.add_argument("--figure", default=None, metavar="PNG")
+    ap.add_argument("--reuse", action="store_true",
+                    help="read, rather than retrain, a seed whose run folder in OUT/runs "
+                         "already holds a finished run")
     args = ap.parse_args(argv)
     summary = run(args.env, args.seeds, args.hyperparams, Path(args.out), args.label,
                   args.total_timesteps, args.eval_freq, args.eval_episodes,
                   args.final_episodes, args.max_episode_steps,
-                  Path(args.figure) if args.figure else None)
+                  Path(args.figure) if args.figure else None, reuse=args.reuse)
     print(json.dumps({k: summary[k] for k in ("median_to_best_const_high",
                                               "median_to_mpc_mean")}, indent=1))
     return 0

@@ -38,7 +38,36 @@ def test_a_real_cell_writes_its_result_and_a_rerun_skips_it(tmp_path, monkeypatc
     assert "already have results" in capsys.readouterr().err
 
 
-def _fake_cell(level, algo, seed, budget=None, episodes=B.TEST_EPISODES):
+@pytest.mark.slow
+def test_the_fast_recipe_row_trains_through_train_and_evaluates_the_selected_network(
+        tmp_path, monkeypatch):
+    """ppo-fast runs the Capture recipe (warm start, wrappers, normalisation, selection) on
+    another level through agents.training.train, and the test set sees its network. Its run
+    folder is temporary, or kept where agents.time_to_target --reuse reads it untrained."""
+    import tempfile
+
+    from agents import time_to_target
+
+    assert B.ALGOS["ppo-fast"].recipe_of == "SaddleTrap-Capture-v0"
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    result = B.run_cell(GUSTY, "ppo-fast", 1, budget=100, episodes=3)
+    rollout = 64 * 256                            # the recipe's balls x steps per rollout
+    assert result["steps_done"] == rollout and result["hyperparameters"]["n_envs"] == 64
+    assert result["hyperparameters"]["train_episode_steps"] == 150
+    assert len(result["episode_times"]) == 3
+    assert not list(tmp_path.glob("saddle-benchmark-*"))   # the run folder was temporary
+
+    kept = tmp_path / "kept"
+    again = B.run_cell(GUSTY, "ppo-fast", 1, budget=100, episodes=3, keep_runs=str(kept))
+    assert again["episode_times"] == result["episode_times"]    # the same run, kept
+    monkeypatch.setattr("agents.training.train", lambda *a, **k: pytest.fail("trained"))
+    summary = time_to_target.run(GUSTY, [1], str(kept / GUSTY / "ppo-fast.yml"),
+                                 kept / GUSTY, label="ppo-fast", final_episodes=0,
+                                 log=lambda *_: None, reuse=True)
+    assert summary["seeds"][0]["timesteps"] == rollout
+
+
+def _fake_cell(level, algo, seed, budget=None, episodes=B.TEST_EPISODES, **_):
     rng = np.random.default_rng(hash((level, algo, seed)) % 2 ** 32)
     mean = {"ppo": 8.0, "sac": 5.0}[algo] + rng.normal(0, 0.3)
     return {"level": level, "algo": algo, "seed": seed, "budget_steps": 10,

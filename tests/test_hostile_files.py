@@ -272,7 +272,9 @@ def test_hyperparameter_strings_are_parsed_not_run(tmp_path, canary, capsys, tex
 # -- train.py --resume -----------------------------------------------------------------------
 def _run_folder(tmp_path, algo="sac"):
     """A run folder as train.py leaves it, with one checkpoint (made without training)."""
-    from agents.training import TrainSettings, _new_model, _save_checkpoint, load_hyperparams
+    from agents.recipes import load_hyperparams
+    from agents.runs import TrainSettings
+    from agents.sb3_backend import _new_model, _save_checkpoint
     from dataclasses import asdict
 
     from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
@@ -316,7 +318,9 @@ def test_resume_reads_checkpoints_as_data_and_refuses_pickles(tmp_path, canary, 
 
 
 def test_resume_as_data_restores_weights_optimiser_and_buffer(tmp_path):
-    from agents.training import TrainSettings, _resume, load_hyperparams
+    from agents.recipes import load_hyperparams
+    from agents.runs import TrainSettings
+    from agents.sb3_backend import _resume
     from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
 
     ckpt = _run_folder(tmp_path)

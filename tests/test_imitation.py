@@ -37,7 +37,7 @@ def test_settings_are_checked():
 
 
 def test_imitation_without_mpc_warm_start_is_an_error(tmp_path):
-    from agents.training import load_hyperparams
+    from agents.recipes import load_hyperparams
 
     f = tmp_path / "ppo.yml"
     f.write_text("SaddleTrap-Storm-v0:\n  warm_start: best-const\n  imitation: {rounds: 2}\n")

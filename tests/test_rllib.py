@@ -76,10 +76,10 @@ def test_env_runners_step_disjoint_seeds_through_the_native_vector_env():
 
 
 @pytest.mark.parametrize("argv, needle", [
-    (["--num-env-runners", "0"], "--num-env-runners must be >= 1, got 0"),
-    (["--num-env-runners", "-2"], "--num-env-runners must be >= 1"),
+    (["--num-env-runners", "0"], "--num-env-runners must be a positive integer (>= 1), got 0"),
+    (["--num-env-runners", "-2"], "--num-env-runners must be a positive integer (>= 1)"),
     (["--address", "nonsense"], "--address must be HOST:PORT"),
-    (["--algo", "td3"], "--algo td3 is not available with --backend rllib"),
+    (["--algo", "td3"], "--algo must be one of ['ppo', 'sac'] with --backend rllib, got 'td3'"),
 ])
 def test_bad_rllib_flags_are_one_line_errors(argv, needle):
     proc = _run("train.py", "--backend", "rllib", *argv, check=False, timeout=60)
@@ -100,7 +100,7 @@ def test_an_unreachable_address_is_a_quick_one_line_error():
 
 def test_runner_flags_need_the_rllib_backend():
     proc = _run("train.py", "--num-env-runners", "2", check=False, timeout=60)
-    assert proc.returncode == 2 and "need --backend rllib" in proc.stderr
+    assert proc.returncode == 2 and "--num-env-runners needs --backend rllib" in proc.stderr
 
 
 # -- on a local Ray ------------------------------------------------------------------------
@@ -109,7 +109,8 @@ def _train(tmp_path, *extra, name="run"):
     hyper.write_text(SMALL)
     return _run("train.py", "--backend", "rllib", "--env", "SaddleTrap-v0",
                 "--num-env-runners", "1", "--num-cpus", "2", "--hyperparams", str(hyper),
-                "--log-dir", str(tmp_path), "--run-name", name, "--no-progress-bar", *extra)
+                "--log-dir", str(tmp_path), "--run-name", name, "--no-progress-bar",
+                "--compare-episodes", "0", *extra)
 
 
 def _steps(run_dir: Path) -> list[int]:
@@ -121,10 +122,20 @@ def _steps(run_dir: Path) -> list[int]:
 
 def test_rllib_run_checkpoints_resumes_and_is_evaluated(tmp_path):
     pytest.importorskip("ray")
-    _train(tmp_path, "--total-timesteps", "1000", "--save-freq", "500")
+    _train(tmp_path, "--total-timesteps", "1000", "--save-freq", "500",
+           "--compare-episodes", "2", "--max-episode-steps", "50")
     run = tmp_path / "run"
     final = run / "final"
     assert (final / "rllib_checkpoint.json").is_file()
+    # the seam's closing outputs, as for every back end: the curve (training episodes, one
+    # point per iteration) and the final checkpoint beside best-const and mpc
+    compared = json.loads((run / "comparison.json").read_text())
+    assert [p["policy"] for p in compared["policies"]][1:] == ["best-const", "mpc"]
+    assert compared["policies"][0]["policy"].endswith("final")
+    assert compared["episodes"] == 2
+    # (a point per iteration in which some training episode had ended)
+    curve = (run / "learning_curve.csv").read_text().splitlines()
+    assert 1 <= len(curve) - 1 <= len(_steps(run)) and (run / "learning_curve.png").is_file()
     side = json.loads((final / "saddle_env.json").read_text())
     assert side["env_id"] == "SaddleTrap-v0" and side["algo"] == "ppo"
     first = _steps(run)
@@ -181,7 +192,7 @@ def test_sac_runs_on_rllib(tmp_path):
     _run("train.py", "--backend", "rllib", "--algo", "sac", "--env", "SaddleTrap-v0",
          "--num-env-runners", "1", "--num-cpus", "2", "--hyperparams", str(hyper),
          "--total-timesteps", "600", "--log-dir", str(tmp_path), "--run-name", "sac",
-         "--no-progress-bar")
+         "--no-progress-bar", "--compare-episodes", "0")
     final = tmp_path / "sac" / "final"
     out = _run("-m", "agents.evaluation", "--policy", str(final), "--episodes", "2",
                "--max-episode-steps", "20", "--json", "--no-progress")
@@ -198,6 +209,22 @@ def test_sac_runs_on_rllib(tmp_path):
 
 
 @pytest.mark.slow
+def test_the_profile_times_rllibs_pieces(tmp_path):
+    pytest.importorskip("ray")
+    from agents.profile_training import profile_training
+
+    hyper = tmp_path / "ppo.yml"
+    hyper.write_text("SaddleTrap-v0:\n  n_envs: 4\n  n_steps: 64\n  batch_size: 64\n"
+                     "  n_epochs: 2\n  policy_kwargs: \"dict(net_arch=[16])\"\n")
+    result = profile_training("SaddleTrap-v0", 300, None, str(hyper), backend="rllib")
+    rows = {r["category"]: r for r in result["rows"]}
+    for part in ("env stepping", "policy forward", "advantages (GAE)", "gradient updates",
+                 "start-up"):
+        assert rows[part]["calls"] > 0 and rows[part]["seconds"] > 0, part
+    assert result["path"] == "rllib-ppo" and result["total_timesteps"] >= 300
+
+
+@pytest.mark.slow
 def test_sigterm_leaves_a_checkpoint_that_resumes(tmp_path):
     pytest.importorskip("ray")
     hyper = tmp_path / "small.yml"
@@ -207,7 +234,8 @@ def test_sigterm_leaves_a_checkpoint_that_resumes(tmp_path):
         [sys.executable, "train.py", "--backend", "rllib", "--env", "SaddleTrap-v0",
          "--num-env-runners", "2", "--num-cpus", "2", "--hyperparams", str(hyper),
          "--total-timesteps", "100000000", "--log-dir", str(tmp_path), "--run-name", "run",
-         "--no-progress-bar"], cwd=ROOT, env=ENV, stdout=subprocess.PIPE,
+         "--no-progress-bar", "--compare-episodes", "0"], cwd=ROOT, env=ENV,
+        stdout=subprocess.PIPE,
         stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.time() + 300
@@ -237,12 +265,13 @@ def test_a_killed_env_runner_is_replaced_and_training_goes_on(tmp_path):
     import ray
 
     from agents import rllib_backend as rb
-    from agents.training import load_hyperparams
+    from agents.recipes import load_hyperparams
+    from agents.runs import TrainSettings
 
     hyper = tmp_path / "small.yml"
     hyper.write_text(SMALL)
-    settings = rb.RllibSettings(env_id="SaddleTrap-v0", num_env_runners=2, num_cpus=2,
-                                hyperparams=str(hyper), n_envs=4).validate()
+    settings = TrainSettings(backend="rllib", env_id="SaddleTrap-v0", num_env_runners=2,
+                             num_cpus=2, hyperparams=str(hyper), n_envs=4).validate()
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     rb.init_ray(None, 2)
     try:

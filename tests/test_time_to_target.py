@@ -49,7 +49,7 @@ def test_the_runner_writes_curves_targets_and_the_figure(tmp_path):
 
 
 def test_train_episode_steps_is_checked():
-    from agents.training import train_episode_steps
+    from agents.recipes import train_episode_steps
 
     assert train_episode_steps({}, 500) == 500
     assert train_episode_steps({"train_episode_steps": 150}, 500) == 150
@@ -62,7 +62,7 @@ def test_distance_shaping_changes_training_rewards_only():
     import numpy as np
 
     from agents.shaping import check_shaping, shape
-    from agents.training import make_vec_env
+    from agents.sb3_backend import make_vec_env
     from saddle_env.envs import EnvConfig
 
     config = EnvConfig()
@@ -86,3 +86,28 @@ def test_distance_shaping_changes_training_rewards_only():
     for bad in ({"distanse": 1.0}, {"distance": -1.0}, 3):
         with pytest.raises(ValueError, match="reward_shaping"):
             check_shaping(bad)
+
+
+def test_reuse_reads_a_finished_run_instead_of_training_it_again(tmp_path, monkeypatch):
+    hyper = tmp_path / "ppo.yml"
+    hyper.write_text("SaddleTrap-v0:\n  n_envs: 4\n  n_steps: 32\n  batch_size: 64\n"
+                     "  n_epochs: 1\n  policy_kwargs: 'dict(net_arch=[16])'\n")
+    out = tmp_path / "ttt"
+    kw = dict(total_timesteps=256, eval_freq=128, eval_episodes=2, final_episodes=0,
+              max_episode_steps=20)
+    first = ttt.run("SaddleTrap-v0", [0], str(hyper), out, label="tiny", log=lambda *_: None,
+                    **kw)
+    import agents.training
+
+    def no_training(*_, **__):
+        raise AssertionError("trained again")
+
+    monkeypatch.setattr(agents.training, "train", no_training)
+    said = []
+    again = ttt.run("SaddleTrap-v0", [0], str(hyper), out, label="tiny", log=said.append,
+                    reuse=True, **kw)
+    assert any("reusing" in line for line in said)
+    assert again["seeds"][0]["best_validation"] == first["seeds"][0]["best_validation"]
+    assert again["seeds"][0]["timesteps"] == first["seeds"][0]["timesteps"]
+    with pytest.raises(AssertionError, match="trained again"):   # without reuse: trains
+        ttt.run("SaddleTrap-v0", [0], str(hyper), out, label="tiny", log=lambda *_: None, **kw)

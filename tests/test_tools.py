@@ -172,7 +172,7 @@ def test_the_progress_bar_ends_at_the_steps_taken():
     takes 384, and the bar's total says so instead of ending at 384/300."""
     sb3 = pytest.importorskip("stable_baselines3")
     pytest.importorskip("rich")
-    from agents.training import _progress_callback
+    from agents.sb3_backend import progress_callback as _progress_callback
     from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
 
     model = sb3.PPO("MlpPolicy", SaddleTrapSB3VecEnv(num_envs=2), seed=0, n_steps=64,

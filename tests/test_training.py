@@ -132,6 +132,96 @@ def test_parsers():
         parse_policy_kwargs("open('x')")
 
 
+def _train_py():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("train_cli", ROOT / "train.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_every_setting_is_declared_once_and_every_flag_reaches_it():
+    """train.py's flags take their defaults from TrainSettings and land in the field of
+    their name: parsing nothing gives the dataclass's defaults, and a flag given a value
+    unlike its default puts that value, and only that one, in its field."""
+    from dataclasses import asdict, fields
+
+    from agents.runs import TrainSettings
+
+    cli = _train_py()
+    parser = cli.build_parser()
+    assert cli.settings_from_args(parser.parse_args([])) == TrainSettings().validate()
+    given = {"algo": ("--algo", "sac", "sac"), "env_id": ("--env", "SaddleTrap-Gusty-v0", None),
+             "seed": ("--seed", "7", 7), "n_envs": ("--n-envs", "3", 3),
+             "total_timesteps": ("--total-timesteps", "999", 999),
+             "hyperparams": ("--hyperparams", "x.yml", "x.yml"),
+             "log_dir": ("--log-dir", "elsewhere", "elsewhere"),
+             "run_name": ("--run-name", "r", "r"), "eval_freq": ("--eval-freq", "5", 5),
+             "eval_episodes": ("--eval-episodes", "6", 6), "save_freq": ("--save-freq", "8", 8),
+             "max_episode_steps": ("--max-episode-steps", "9", 9),
+             "torch_threads": ("--torch-threads", "2", 2),
+             "compare_episodes": ("--compare-episodes", "0", 0),
+             "progress_bar": ("--no-progress-bar", None, False),
+             "env_kwargs": ("--env-kwargs", "R=0.03", {"R": 0.03}),
+             "backend": ("--backend", "rllib", "rllib"),
+             "num_env_runners": ("--num-env-runners", "3", 3),
+             "address": ("--address", "10.0.0.1:6379", "10.0.0.1:6379"),
+             "num_cpus": ("--num-cpus", "2", 2)}
+    settable = {f.name for f in fields(TrainSettings)} - {"hyperparams_used", "device"}
+    assert set(given) == settable          # a new setting needs a flag (and a line here)
+    base = asdict(TrainSettings())
+    for name, (flag, value, want) in given.items():
+        argv = [flag] if value is None else [flag, value]
+        if name in ("num_env_runners", "address", "num_cpus"):
+            argv += ["--backend", "rllib"]
+        got = asdict(cli.settings_from_args(parser.parse_args(argv)))
+        assert got[name] == (value if want is None else want), name
+        changed = {k for k in base if got[k] != base[k]}
+        # besides the flag's own field: the back end it needs, and what validate() fills
+        assert changed <= {name, "backend", "max_episode_steps", "num_env_runners"}, name
+
+
+def test_the_seam_runs_any_back_end_and_closes_a_finished_run(tmp_path, monkeypatch):
+    """A back end is a module with check_dependencies, RESUME_NEEDS_TRUST and run: the seam
+    checks the settings, fills them from the recipe, saves config.json in the run folder,
+    and draws the curve and compares only when the run finished."""
+    import types
+
+    from agents import runs, training
+
+    calls = []
+    fake = types.SimpleNamespace(
+        RESUME_NEEDS_TRUST=True, check_dependencies=lambda progress_bar: calls.append("deps"),
+        run=lambda settings, hyper, run_dir, resume, trust, began: (
+            calls.append(("run", settings.n_envs, settings.total_timesteps, hyper["n_envs"]))
+            or outcome))
+    monkeypatch.setitem(training.BACKENDS, "fake", fake)
+    monkeypatch.setitem(runs.BACKEND_ALGOS, "fake", ("ppo",))
+    monkeypatch.setitem(runs.DEFAULT_N_ENVS, "fake", 5)
+    monkeypatch.setattr(training, "plot_learning_curve", lambda d: calls.append("curve"))
+    monkeypatch.setattr(training, "compare", lambda d, s, m: calls.append(("compare", m)))
+    settings = runs.TrainSettings(backend="fake", env_id="SaddleTrap-v0", log_dir=str(tmp_path),
+                                  run_name="r", compare_episodes=3)
+    outcome = tmp_path / "model"
+    run_dir = training.train(settings)
+    saved = json.loads((run_dir / "config.json").read_text())
+    assert saved["backend"] == "fake" and saved["n_envs"] == calls[1][3] == calls[1][1]
+    assert calls == ["deps", calls[1], "curve", ("compare", outcome)]
+    outcome = None                                   # interrupted: no curve, no comparison
+    calls.clear()
+    training.train(runs.TrainSettings(backend="fake", env_id="SaddleTrap-v0",
+                                      log_dir=str(tmp_path), run_name="r2"))
+    assert [c if isinstance(c, str) else c[0] for c in calls] == ["deps", "run"]
+    ckpt = run_dir / "checkpoints" / "c.zip"
+    ckpt.parent.mkdir()
+    ckpt.write_bytes(b"")
+    with pytest.raises(ValueError, match="--trust-model"):
+        training.train(settings, resume=ckpt)        # this back end resumes from pickles
+    with pytest.raises(ValueError, match="--algo must be one of"):
+        training.train(runs.TrainSettings(backend="fake", algo="sac"))
+
+
 def test_shipped_models_load_and_act_in_the_task_they_were_trained_on():
     import gymnasium as gym
 

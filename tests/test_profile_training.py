@@ -1,0 +1,26 @@
+"""agents.profile_training: the timers see each piece of an SB3 run (a tiny SAC run: the
+off-policy path) and the shares add up to the wall time."""
+
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from agents import profile_training as P  # noqa: E402
+
+
+def test_a_tiny_sac_run_is_split_into_its_pieces(tmp_path):
+    recipe = tmp_path / "sac.yml"
+    recipe.write_text("SaddleTrap-v0:\n  n_envs: 4\n  learning_starts: 64\n  batch_size: 32\n"
+                      "  train_freq: 4\n  gradient_steps: 1\n  buffer_size: 1000\n"
+                      "  policy_kwargs: 'dict(net_arch=[16])'\n")
+    result = P.profile_training("SaddleTrap-v0", 400, 200, str(recipe), algo="sac")
+    rows = {r["category"]: r for r in result["rows"]}
+    assert set(rows) == set(P.CATEGORIES)
+    assert rows["gradient updates"]["calls"] >= (400 - 64) // 16      # one per 4 x 4 steps
+    assert rows["env stepping"]["calls"] >= 100 and rows["policy forward"]["calls"] >= 100
+    assert rows["evaluation + selection"]["calls"] >= 2 and rows["start-up"]["calls"] >= 2
+    assert rows["advantages (GAE)"]["calls"] == 0                     # off-policy: none
+    assert sum(r["seconds"] for r in result["rows"]) == pytest.approx(result["wall"], abs=0.05)
+    assert result["path"] == "sb3-sac" and result["total_timesteps"] >= 400
+    md = P.markdown(result["rows"], result["wall"], "t")
+    assert "| gradient updates |" in md
