@@ -29,9 +29,10 @@ import numpy as np
 from scipy.integrate._ivp import dop853_coefficients as _dop853_tableau
 from scipy.integrate._ivp import rk as _scipy_rk
 
-from ._kernels import (ONSET, PHASE_SLOT, ROW_WIDTH, SLIP, STATE_WIDTH, STICK, coulomb_contact,
-                       integrated_size, ir_inline, jit, rhs, rolling_spin, rolling_velocity,
-                       serial_twin, spin_held, stick_margin, stop_rolling, stop_slip, work_slot)
+from ._kernels import (COULOMB_ON, ONSET, PHASE_SLOT, RESIST_ON, ROW_WIDTH, SLIP, STATE_WIDTH,
+                       STICK, coulomb_contact, integrated_size, ir_inline, jit, rhs, rolling_spin,
+                       rolling_velocity, serial_twin, specialisable, spin_held, stick_margin,
+                       stop_rolling, stop_slip, work_slot)
 from .scene import COULOMB, P_A, P_B, P_G, P_R, P_RESIST, P_RIM, P_SPIN_BAND, ROLLING
 
 # Event flags (a bit mask) and the status codes `integrate` returns.
@@ -223,7 +224,7 @@ def _stages(model, p, prof, t, y, h, d, tab, K, ytmp, ynew, want_normal):
     stage points (a by-product of the right-hand side) if ``want_normal``, else +inf."""
     C, A, B = tab.C, tab.A, tab.B
     s = B.shape[0]
-    full = model == COULOMB
+    full = COULOMB_ON and model == COULOMB
     lowest = np.inf
     for i in range(1, s):
         for j in range(d):
@@ -286,7 +287,7 @@ def _event_value(kind, model, p, prof, t, y, dy):
     """Signed event function: positive while nothing has happened."""
     if kind == STATUS_DETACH:
         return rhs(model, p, prof, t, y, dy, True)
-    if kind == TRANSITION:
+    if COULOMB_ON and kind == TRANSITION:
         return stick_margin(p, prof, t, y)
     rim = p[P_RIM]
     return rim * rim - (y[0] * y[0] + y[1] * y[1])
@@ -554,8 +555,9 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
     m = t_out.shape[0]
     k = 0
     t = t0
-    coulomb = model == COULOMB
-    resisted = (model == ROLLING or coulomb) and p[P_RESIST] != 0.0
+    # the flags: see `_kernels.specialise`
+    coulomb = COULOMB_ON and model == COULOMB
+    resisted = RESIST_ON and (model == ROLLING or coulomb) and p[P_RESIST] != 0.0
     just_stopped = False  # a spin was just stopped: take a step before stopping one again
     if resisted:
         _set_spin_band(p, y, atol, rtol, scale)
@@ -802,3 +804,6 @@ def state_scale(p: np.ndarray, model: int) -> np.ndarray:
                          f"g = {g:g} m/s^2, R = {R:g} m give a speed scale of "
                          f"{sc[2]:g}): use physical values")
     return sc
+
+
+specialisable(__name__)

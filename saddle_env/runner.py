@@ -19,12 +19,13 @@ from typing import Literal
 import numpy as np
 
 from . import _kernels as K
+from . import integrators
 from .integrators import (EVENT_DETACH, EVENT_ESCAPE, EVENT_KINDS, LOG_PHASE, LOG_T, METHODS,
                           STATUS_FAILED, STATUS_MAX_STEPS, Method, StepControl, integrate_batch,
-                          integrate_batch_serial, integrate_h, state_scale, step_control,
+                          integrate_batch_serial, state_scale, step_control,
                           transition_log, workspace)
 from .omega import OmegaProfile
-from .scene import COULOMB, Scene, _finite_number
+from .scene import COULOMB, P_RESIST, Scene, _finite_number
 
 # Default accuracy: DOP853 at this tolerance (see docs/accuracy.md).
 DEFAULT_METHOD = "dop853"
@@ -454,7 +455,9 @@ def run(scene: Scene, state: np.ndarray, t_end: float, *,
     stats = np.zeros(4, dtype=np.int64)
     coulomb = scene.contact == "coulomb"
     work = workspace(tab, TRANSITION_LOG_ROWS if coulomb else 0)
-    status, t_final = integrate_h(
+    # compiled for this scene's contact model alone (`_kernels.specialise`)
+    loop = K.specialise((scene.model_code,), p[P_RESIST] != 0.0, integrators).integrate_h
+    status, t_final = loop(
         scene.model_code, p, drive_row(profile, force), y, 0.0, t_out, tab,
         settings.control(settings.max_step_for(profile, float(t_out[-1]))),
         state_scale(p, scene.model_code), Y_out, stats, 0.0, work)[:2]

@@ -108,3 +108,46 @@ def test_a_dip_of_N_inside_one_step_is_not_stepped_over():
     coarse = simulate(sc, s0, 1.0, omega=30.0, method="dop853", dt=0.08, dt_out=0.08)
     assert coarse.event is not None and coarse.event.kind == "detach"
     assert abs(coarse.event.t - tight.event.t) < 1e-3
+
+
+def test_a_copy_compiled_for_one_contact_model_steps_it_identically():
+    """`_kernels.specialise`: the rolling-only loop (what `simulate` runs for a rolling ball)
+    gives the full loop's trajectory bit for bit, and a model it was not compiled for fails
+    (NaN rates) instead of being stepped as another."""
+    from saddle_env import _kernels as K
+    from saddle_env import integrators as I
+    from saddle_env.scene import ROLLING, SLIPPING
+
+    scene = Scene(a=0.159, R=0.02, contact="rolling")
+    p = scene.params()
+    tab = METHODS["dopri5"].tableau
+    ctl = I.step_control(0.0, 1e-9, 1e-9, 1e-3, I.EVENT_DETACH | I.EVENT_ESCAPE, 100_000)
+    drive = np.zeros(K.DRIVE_WIDTH)
+    drive[K.DRIVE_W0] = 30.0
+    t_out = np.linspace(0.0, 0.5, 6)
+    rolling = K.specialise((ROLLING,), False, I)
+    assert rolling is not I and rolling.integrate_h is not I.integrate_h
+    assert K.specialise((ROLLING,), False, I) is rolling  # made once
+    def padded(scene):  # a state row as the loop takes it (STATE_WIDTH slots)
+        y = np.zeros(K.STATE_WIDTH)
+        s = initial_state(scene, x=0.001, y=0.001, start="lab-rest", omega=30.0)
+        y[:len(s)] = s
+        return y
+
+    runs = []
+    for loop in (I.integrate_h, rolling.integrate_h):
+        y = padded(scene)
+        Y = np.zeros((len(t_out), K.STATE_WIDTH))
+        res = loop(ROLLING, p, drive, y, 0.0, t_out, tab, ctl, I.state_scale(p, ROLLING), Y,
+                   np.zeros(4, dtype=np.int64), 0.0, I.workspace(tab))
+        runs.append((res.status, res.t_final, Y))
+    assert runs[0][0] == runs[1][0] == I.STATUS_DONE
+    assert runs[0][1] == runs[1][1]
+    np.testing.assert_array_equal(runs[0][2], runs[1][2])
+    slipping = Scene(a=0.159, R=0.02, contact="slipping")
+    q = slipping.params()
+    y = padded(slipping)
+    res = rolling.integrate_h(SLIPPING, q, drive, y, 0.0, t_out, tab, ctl,
+                              I.state_scale(q, SLIPPING), np.zeros((len(t_out), K.STATE_WIDTH)),
+                              np.zeros(4, dtype=np.int64), 0.0, I.workspace(tab))
+    assert res.status == I.STATUS_FAILED

@@ -48,10 +48,11 @@ from collections import namedtuple
 import numba as nb
 import numpy as np
 
-from .._kernels import (DRIVE_AMP, DRIVE_FREQ, DRIVE_FX, DRIVE_FY, DRIVE_PHASE, DRIVE_RATE,
-                        DRIVE_THETA0, DRIVE_W0, DRIVE_WIDTH, ROW_WIDTH, STATE_WIDTH, angle_at,
-                        contact_velocity, geometry, ir_inline, jit, jit_per_constant,
-                        lab_rest_velocity, rhs, state_from_velocity)
+from .._kernels import (COULOMB_ON, DRIVE_AMP, DRIVE_FREQ, DRIVE_FX, DRIVE_FY, DRIVE_PHASE,
+                        DRIVE_RATE, DRIVE_THETA0, DRIVE_W0, DRIVE_WIDTH, ROLLING_ON, ROW_WIDTH,
+                        SLIPPING_ON, STATE_WIDTH, angle_at, contact_velocity, geometry, ir_inline,
+                        jit, jit_per_constant, lab_rest_velocity, rhs, specialisable,
+                        state_from_velocity)
 from ..integrators import EVENT_DETACH, STATUS_DETACH, StepControl, Tableau, integrate_h, reaches
 from ..lockstep import (BLOCK_WIDTH, LANES, PARAM_WIDTH, accepted, block_size, carve_block,
                         next_step, rk_step_block, take)
@@ -309,7 +310,7 @@ def _coulomb_balls(lo, hi, models, P, scales, Y, balls, cfg, actions, active, ta
     10.2-11.8 ms against 7.7-8.4; measured)."""
     failed = 0
     for i in range(lo, hi):
-        if not active[i] or models[i] != COULOMB:
+        if not COULOMB_ON or not active[i] or models[i] != COULOMB:  # `_kernels.specialise`
             continue
         _load(i, STATE_WIDTH, P, scales, Y, balls, noise, record)
         failed += _scalar_ball(i, COULOMB, STATE_WIDTH, Y, balls, cfg, actions, tab, ctl, obs,
@@ -372,7 +373,7 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
     for model in (ROLLING, SLIPPING):
         m = 0
         for i in range(lo, hi):
-            if not active[i] or models[i] != model:
+            if not (ROLLING_ON or SLIPPING_ON) or not active[i] or models[i] != model:
                 continue
             _load(i, ROW_WIDTH, P, scales, Y, balls, noise, record)
             # A ball with rolling resistance takes the scalar path: its loop may cut a step at
@@ -411,7 +412,7 @@ def _step_range_scalar(lo, hi, models, P, scales, Y, balls, cfg, actions, active
     failed = 0
     for model in (ROLLING, SLIPPING):
         for i in range(lo, hi):
-            if not active[i] or models[i] != model:
+            if not (ROLLING_ON or SLIPPING_ON) or not active[i] or models[i] != model:
                 continue
             _load(i, ROW_WIDTH, P, scales, Y, balls, noise, record)
             failed += _scalar_ball(i, model, ROW_WIDTH, Y, balls, cfg, actions, tab, ctl, obs,
@@ -548,3 +549,5 @@ def normal_over_mg(model, p, y, ball, cfg):
     g = p[P_G]
     return n / g if g > 0 else n
 
+
+specialisable(__name__)

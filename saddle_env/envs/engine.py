@@ -25,7 +25,7 @@ from ..integrators import (
     state_scale,
     step_control,
 )
-from ..scene import N_PARAMS, Scene
+from ..scene import N_PARAMS, P_RESIST, Scene
 from ..simulate import SimulationError, default_max_step
 from . import _step as S
 from .config import EnvConfig
@@ -80,6 +80,14 @@ class TrapEngine:
             np.zeros((self.n, self.obs_dim), dtype=np.float32)
         self.noise = np.zeros((self.n, self.frame_dim))
         self.scenes: list[Scene] = [config.scene()] * self.n
+        # The compiled step for the contact models the configuration draws from, and rolling
+        # resistance if it has any (`_kernels.specialise`: a rolling scene does not compile the
+        # coulomb machinery); a reset that brings something else widens it.
+        self._uses: tuple[frozenset[int], bool] = (
+            frozenset(config.scene(contact=m).model_code
+                      for m in (config.contact_models or (config.contact,))),
+            config.rolling_resistance != 0.0)
+        self._S = K.specialise(*self._uses, S)
         self._scene_cache: dict[tuple, tuple[Scene, np.ndarray, np.ndarray]] = {}
         self._noise_scale = self._build_noise_scale(config)
         self._air_decay = math.exp(-config.control_period / config.air_force_tau)
@@ -87,6 +95,15 @@ class TrapEngine:
         # row for the serial step, one per chunk in parallel.
         self._scratch, self._iscratch = (a[0] for a in self._new_scratch(1))
         self._chunk_scratch = self._new_scratch(self._chunks())
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        del state["_S"]  # compiled code: found again from ``_uses`` on unpickling
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._S = K.specialise(*self._uses, S)
 
     @property
     def lockstep(self) -> bool:
@@ -202,7 +219,12 @@ class TrapEngine:
         mask = np.zeros(self.n, dtype=bool)
         mask[idx] = True
         self._draw_noise(rngs, mask)
-        S.place(idx, self.models, self.P, self.Y, self.balls, self.cfg, x, y, vx, vy, lab_rest,
+        models, resist = self._uses
+        drawn = frozenset(int(m) for m in self.models[idx])
+        if not drawn <= models or (not resist and bool((self.P[idx, P_RESIST] != 0.0).any())):
+            self._uses = (models | drawn, True)
+            self._S = K.specialise(*self._uses, S)
+        self._S.place(idx, self.models, self.P, self.Y, self.balls, self.cfg, x, y, vx, vy, lab_rest,
                 spin, self.noise, self.frame, self.out)
         if self.obs is not self.frame:  # a new episode's history: its first frame, k times
             self.obs[idx] = np.tile(self.frame[idx], self.layout.frames)
@@ -287,11 +309,12 @@ class TrapEngine:
             chunks = self._chunks()
             if self._chunk_scratch[0].shape[0] != chunks:  # the thread count was changed
                 self._chunk_scratch = self._new_scratch(chunks)
-            failed = S.step_parallel(*args, *self._chunk_scratch)
+            failed = self._S.step_parallel(*args, *self._chunk_scratch)
         else:
             # Where no SIMD block can form, the entry compiled without them (less to
             # compile on a first step; the same results).
-            step = S.step_serial if self._lockstep and self.n >= S.MIN_BLOCK else S.step_scalar
+            step = self._S.step_serial if self._lockstep and self.n >= S.MIN_BLOCK else \
+                self._S.step_scalar
             failed = step(*args, self._scratch, self._iscratch)
         if failed:
             bad = int(np.flatnonzero(active & (self.out[:, S.O_STATUS] < 0))[0])
