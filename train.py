@@ -41,6 +41,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="budget in env steps (None: the hyperparams' n_timesteps)")
     ap.add_argument("--hyperparams", default=d.hyperparams, metavar="FILE.yml",
                     help="zoo-format YAML (None: agents/hyperparams/<algo>.yml)")
+    ap.add_argument("--recipe-of", default=d.recipe_of, metavar="ID",
+                    help="train with another level's entry of the hyperparams (e.g. "
+                         "SaddleTrap-Capture-v0: the fast recipe, on any level)")
     ap.add_argument("--log-dir", default=d.log_dir)
     ap.add_argument("--run-name", default=d.run_name)
     ap.add_argument("--eval-freq", type=int, default=d.eval_freq,

@@ -160,7 +160,7 @@ def run_cell(level_id: str, algo_name: str, seed: int, *, budget: int | None = N
     """Train ``algo_name`` on ``level_id`` from training seed ``seed`` for its budget, then
     evaluate the final network on the level's test set; the result as a JSON-ready dict.
     ``keep_runs``: a recipe row's run folder is kept in ``<keep_runs>/<level>/runs/
-    <algo>_seed<s>`` (its curve, models, recipe), where ``agents.time_to_target --reuse``
+    <algo>_seed<s>`` (its curve and models), where ``agents.time_to_target --reuse``
     reads it; otherwise it is temporary."""
     import importlib
 
@@ -216,23 +216,16 @@ def run_cell(level_id: str, algo_name: str, seed: int, *, budget: int | None = N
 
 def _train_recipe(level: Any, algo: Algo, seed: int, steps: int, work: Path,
                   torch_threads: int) -> tuple[Any, int, dict[str, Any]]:
-    """Train ``algo``'s recipe (the ppo.yml entry of ``algo.recipe_of``) on ``level`` with
-    `agents.training.train` into ``work/runs/<algo>_seed<s>`` (the layout of
-    `agents.time_to_target`, the recipe beside it as ``work/<algo>.yml``); the selected
+    """Train ``algo``'s recipe (the ppo.yml entry of ``algo.recipe_of``, as ``train.py
+    --recipe-of`` does) on ``level`` with `agents.training.train` into
+    ``work/runs/<algo>_seed<s>`` (the layout `agents.time_to_target` reads); the selected
     network as a policy, the steps done and the recipe. A run stopped by Ctrl-C or SIGTERM
     raises KeyboardInterrupt (no result)."""
-    import yaml
-
     from .policies import load_policy
-    from .recipes import load_hyperparams
     from .training import TrainSettings, train
 
-    recipe = load_hyperparams("ppo", algo.recipe_of)
-    work.mkdir(parents=True, exist_ok=True)
-    file = work / f"{algo.name}.yml"
-    file.write_text(yaml.safe_dump({level.id: recipe}))
     settings = TrainSettings(algo="ppo", env_id=level.id, seed=seed, total_timesteps=steps,
-                             hyperparams=str(file), log_dir=str(work / "runs"),
+                             recipe_of=algo.recipe_of, log_dir=str(work / "runs"),
                              run_name=f"{algo.name}_seed{seed}",
                              compare_episodes=0, progress_bar=False,
                              torch_threads=torch_threads).validate()
@@ -242,6 +235,7 @@ def _train_recipe(level: Any, algo: Algo, seed: int, steps: int, work: Path,
     model = run_dir / "selected_model.zip"
     if not model.is_file():
         model = run_dir / "final_model.zip"
+    recipe = settings.hyperparams_used
     rollout = int(settings.n_envs) * int(recipe["n_steps"])     # PPO learns whole rollouts
     steps_done = -(-steps // rollout) * rollout
     return load_policy(model, level.config()), steps_done, recipe
@@ -326,7 +320,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--keep-runs", default=None, metavar="DIR",
                    help="keep recipe rows' run folders in DIR/<level>/runs/ (curves, models), "
                         "where `python -m agents.time_to_target --out DIR/<level> --label "
-                        "ppo-fast --hyperparams DIR/<level>/ppo-fast.yml --reuse` reads them; "
+                        "ppo-fast --recipe-of SaddleTrap-Capture-v0 --reuse` reads them; "
                         "on a cluster DIR must be on a filesystem every node shares"),
     p.add_argument("--report", action="store_true",
                    help="write docs/benchmark.md and its figures from the result files")

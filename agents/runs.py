@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from saddle_env.envs import EnvConfig, Level
+from saddle_env.envs import LEVEL_IDS, EnvConfig, Level
 
 from .cli_args import parse_address, resolve_env, saved_settings
 
@@ -51,6 +51,7 @@ class TrainSettings:
     n_envs: int | None = None            # None: the recipe's (RLlib: balls per env runner)
     total_timesteps: int | None = None   # None: the recipe's n_timesteps
     hyperparams: str | None = None       # None: agents/hyperparams/<algo>.yml
+    recipe_of: str | None = None         # the level whose entry is the recipe (None: env_id's)
     log_dir: str = "runs"
     run_name: str | None = None
     eval_freq: int | None = None     # None: 20 evaluations per run (at least 20,000 steps apart)
@@ -102,6 +103,9 @@ class TrainSettings:
                                  f"got {value}")
         if self.address is not None:
             parse_address(self.address)
+        if self.recipe_of is not None and self.recipe_of not in LEVEL_IDS:
+            raise ValueError(f"--recipe-of must be a level id ({', '.join(LEVEL_IDS)}), "
+                             f"got {self.recipe_of!r}")
         if self.backend == "rllib" and self.num_env_runners is None:
             self.num_env_runners = DEFAULT_ENV_RUNNERS
         level, _ = self.environment()

@@ -93,7 +93,8 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
         label: str = "recipe", total_timesteps: int | None = None,
         eval_freq: int | None = None, eval_episodes: int = 64, final_episodes: int = 200,
         max_episode_steps: int | None = None, figure: Path | None = None,
-        log: Any = print, reuse: bool = False) -> dict[str, Any]:
+        log: Any = print, reuse: bool = False, recipe_of: str | None = None
+        ) -> dict[str, Any]:
     """Train ``seeds`` with the recipe, measure the targets, write the files; return the
     summary (what the JSON holds). ``reuse``: a seed whose run folder
     (``<out>/runs/<label>_seed<s>``) holds a finished run is read, not trained again (its
@@ -109,7 +110,7 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
     per_seed, rows, run_dirs = [], [], []
     for s in seeds:
         settings = TrainSettings(env_id=env_id, seed=s, hyperparams=hyperparams,
-                                 total_timesteps=total_timesteps, eval_freq=eval_freq,
+                                 recipe_of=recipe_of, total_timesteps=total_timesteps, eval_freq=eval_freq,
                                  eval_episodes=eval_episodes, log_dir=str(out / "runs"),
                                  run_name=f"{label}_seed{s}", compare_episodes=0,
                                  max_episode_steps=max_episode_steps,
@@ -141,6 +142,7 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
     if final_episodes > 0:
         fresh = final_table(env_id, run_dirs, final_episodes, max_episode_steps)
     summary = {"env_id": env_id, "label": label, "hyperparams": hyperparams,
+               "recipe_of": recipe_of,
                "command": "python -m agents.time_to_target " + " ".join(sys.argv[1:]),
                "targets": ref, "seeds": per_seed,
                "median_to_best_const_high": median_time([p["to_best_const_high"]
@@ -212,6 +214,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--env", default="SaddleTrap-Capture-v0", metavar="ID")
     ap.add_argument("--hyperparams", default=None, metavar="FILE.yml",
                     help="the recipe (None: agents/hyperparams/ppo.yml)")
+    ap.add_argument("--recipe-of", default=None, metavar="ID",
+                    help="use this level's entry of the recipe file (train.py --recipe-of)")
     ap.add_argument("--label", default="recipe")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--total-timesteps", type=int, default=None)
@@ -229,7 +233,8 @@ def main(argv: list[str] | None = None) -> int:
     summary = run(args.env, args.seeds, args.hyperparams, Path(args.out), args.label,
                   args.total_timesteps, args.eval_freq, args.eval_episodes,
                   args.final_episodes, args.max_episode_steps,
-                  Path(args.figure) if args.figure else None, reuse=args.reuse)
+                  Path(args.figure) if args.figure else None, reuse=args.reuse,
+                  recipe_of=args.recipe_of)
     print(json.dumps({k: summary[k] for k in ("median_to_best_const_high",
                                               "median_to_mpc_mean")}, indent=1))
     return 0

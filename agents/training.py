@@ -77,7 +77,8 @@ def train(settings: TrainSettings, resume: str | Path | None = None, trust: bool
     if resume is not None and back.RESUME_NEEDS_TRUST and not trust:
         raise untrusted(resume, f"resuming restores {settings.backend}'s own checkpoint, "
                                 f"which is pickled (evaluating it does not need this)")
-    hyper = load_hyperparams(settings.algo, settings.env_id, settings.hyperparams, note=True)
+    hyper = load_hyperparams(settings.algo, settings.recipe_of or settings.env_id,
+                             settings.hyperparams, note=True)
     settings.take_recipe(hyper)
     run_dir = settings.open_run_folder(resume)
     model = back.run(settings, hyper, run_dir, resume, trust, began)

@@ -61,9 +61,9 @@ def test_the_fast_recipe_row_trains_through_train_and_evaluates_the_selected_net
     again = B.run_cell(GUSTY, "ppo-fast", 1, budget=100, episodes=3, keep_runs=str(kept))
     assert again["episode_times"] == result["episode_times"]    # the same run, kept
     monkeypatch.setattr("agents.training.train", lambda *a, **k: pytest.fail("trained"))
-    summary = time_to_target.run(GUSTY, [1], str(kept / GUSTY / "ppo-fast.yml"),
-                                 kept / GUSTY, label="ppo-fast", final_episodes=0,
-                                 log=lambda *_: None, reuse=True)
+    summary = time_to_target.run(GUSTY, [1], None, kept / GUSTY, label="ppo-fast",
+                                 final_episodes=0, log=lambda *_: None, reuse=True,
+                                 recipe_of="SaddleTrap-Capture-v0")
     assert summary["seeds"][0]["timesteps"] == rollout
 
 

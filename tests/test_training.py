@@ -119,6 +119,15 @@ def test_bad_arguments_exit_2(tmp_path, args, message):
     assert "Traceback" not in proc.stderr
 
 
+def test_recipe_of_must_name_a_level():
+    from agents.runs import TrainSettings
+
+    with pytest.raises(ValueError, match="--recipe-of must be a level id"):
+        TrainSettings(recipe_of="SaddleTrap-Nowhere-v0").validate()
+    assert TrainSettings(env_id="SaddleTrap-Gusty-v0",
+                         recipe_of="SaddleTrap-Capture-v0").validate().recipe_of
+
+
 def test_parsers():
     assert parse_env_kwargs(["R=0.033", "contact:slipping", "ball_radii=[0.02,0.03]"]) == {
         "R": 0.033, "contact": "slipping", "ball_radii": (0.02, 0.03)}
@@ -156,6 +165,7 @@ def test_every_setting_is_declared_once_and_every_flag_reaches_it():
              "seed": ("--seed", "7", 7), "n_envs": ("--n-envs", "3", 3),
              "total_timesteps": ("--total-timesteps", "999", 999),
              "hyperparams": ("--hyperparams", "x.yml", "x.yml"),
+             "recipe_of": ("--recipe-of", "SaddleTrap-Storm-v0", "SaddleTrap-Storm-v0"),
              "log_dir": ("--log-dir", "elsewhere", "elsewhere"),
              "run_name": ("--run-name", "r", "r"), "eval_freq": ("--eval-freq", "5", 5),
              "eval_episodes": ("--eval-episodes", "6", 6), "save_freq": ("--save-freq", "8", 8),
