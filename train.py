@@ -72,8 +72,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="sb3: Stable-Baselines3 in this process; rllib: Ray RLlib, on a local "
                          "Ray or a cluster (--address); needs the [rllib] extra")
     rl.add_argument("--num-env-runners", type=int, default=d.num_env_runners, metavar="N",
-                    help="RLlib env runners (N >= 1; default 2), each stepping --n-envs balls "
-                         "through the native vector env")
+                    help="RLlib env runners (N >= 0; default 2), each stepping --n-envs balls "
+                         "through the native vector env; 0 samples in the driver process")
     rl.add_argument("--address", default=d.address, metavar="HOST:PORT",
                     help="join a running Ray cluster (the `ray start --head` address, or auto); "
                          "default: start a local Ray")

@@ -185,23 +185,10 @@ def profile_training(env_id: str, total_timesteps: int, eval_freq: int | None,
                                  eval_freq=eval_freq, hyperparams=hyperparams, n_envs=n_envs,
                                  log_dir=tmp, run_name=run_name or "profile", algo=algo,
                                  backend=backend, num_cpus=2 if backend == "rllib" else None,
+                                 num_env_runners=0 if backend == "rllib" else None,
                                  progress_bar=False, compare_episodes=0).validate()
-        if backend == "rllib":
-            from . import rllib_backend
-
-            build = rllib_backend.build_config
-            def in_driver(*args, **kwargs):
-                return build(*args, **kwargs).env_runners(num_env_runners=0)
-
-            rllib_backend.build_config = in_driver
-            timers = _rllib_timers()
-            try:
-                wall, steps = _timed_train(settings, timers)
-            finally:
-                rllib_backend.build_config = build
-        else:
-            timers = _sb3_timers(algo)
-            wall, steps = _timed_train(settings, timers)
+        timers = _rllib_timers() if backend == "rllib" else _sb3_timers(algo)
+        wall, steps = _timed_train(settings, timers)
         used = dict(settings.hyperparams_used)
     return {"path": f"{backend}-{algo}", "env_id": env_id, "total_timesteps": steps,
             "eval_freq": settings.eval_freq, "n_envs": settings.n_envs,

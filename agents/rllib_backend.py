@@ -220,7 +220,7 @@ def build_config(settings: TrainSettings, hyper: dict[str, Any]):
     n_envs = int(settings.n_envs)
     runners = int(settings.num_env_runners)
     cpus = float(ray.cluster_resources().get("CPU", 1.0))
-    cpus_per_runner = min(1.0, cpus / runners)
+    cpus_per_runner = min(1.0, cpus / max(runners, 1))
     model = DefaultModelConfig(**module_config(settings.algo, hyper))
     if settings.algo == "ppo":
         from ray.rllib.algorithms.ppo import PPOConfig

@@ -66,14 +66,16 @@ class TrainSettings:
     torch_threads: int = 1
     compare_episodes: int = 200      # the closing comparison (0: none)
     backend: str = "sb3"             # "sb3": Stable-Baselines3 in this process; "rllib": Ray
-    num_env_runners: int | None = None   # RLlib: env runner actors (None: DEFAULT_ENV_RUNNERS)
+    # RLlib: env runner actors (None: DEFAULT_ENV_RUNNERS; 0: sampling in the driver process,
+    # where a profiler's timers can see it)
+    num_env_runners: int | None = None
     address: str | None = None       # RLlib: a running cluster's head (None: a local Ray)
     num_cpus: int | None = None      # RLlib, local Ray only (None: the machine's cores)
     hyperparams_used: dict[str, Any] = field(default_factory=dict)
 
-    NON_NEGATIVE = ("compare_episodes",)
+    NON_NEGATIVE = ("compare_episodes", "num_env_runners")
     POSITIVE = ("n_envs", "total_timesteps", "eval_freq", "eval_episodes", "save_freq",
-                "max_episode_steps", "torch_threads", "num_env_runners", "num_cpus")
+                "max_episode_steps", "torch_threads", "num_cpus")
 
     def validate(self) -> TrainSettings:
         """Check every setting (ValueError naming the flag); fill in the level's episode
@@ -98,6 +100,8 @@ class TrainSettings:
                                  f"(>= 1), got {value}")
         for name in self.NON_NEGATIVE:
             value = getattr(self, name)
+            if value is None:
+                continue
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"--{name.replace('_', '-')} must be an integer >= 0, "
                                  f"got {value}")
