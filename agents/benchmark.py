@@ -221,6 +221,7 @@ def _train_recipe(level: Any, algo: Algo, seed: int, steps: int, work: Path,
     ``work/runs/<algo>_seed<s>`` (the layout `agents.time_to_target` reads); the selected
     network as a policy, the steps done and the recipe. A run stopped by Ctrl-C or SIGTERM
     raises KeyboardInterrupt (no result)."""
+    from .model_files import read_archive
     from .policies import load_policy
     from .training import TrainSettings, train
 
@@ -235,10 +236,9 @@ def _train_recipe(level: Any, algo: Algo, seed: int, steps: int, work: Path,
     model = run_dir / "selected_model.zip"
     if not model.is_file():
         model = run_dir / "final_model.zip"
-    recipe = settings.hyperparams_used
-    rollout = int(settings.n_envs) * int(recipe["n_steps"])     # PPO learns whole rollouts
-    steps_done = -(-steps // rollout) * rollout
-    return load_policy(model, level.config()), steps_done, recipe
+    # PPO learns whole rollouts, so it can pass the budget: the count the final model records
+    steps_done = int(read_archive(run_dir / "final_model.zip").data["num_timesteps"])
+    return load_policy(model, level.config()), steps_done, settings.hyperparams_used
 
 
 def write_result(out: Path, result: dict[str, Any]) -> Path:
