@@ -12,6 +12,7 @@ The curve comes from the run folder alone:
 
 from __future__ import annotations
 
+import csv
 import json
 from pathlib import Path
 from typing import Any
@@ -66,12 +67,14 @@ def compare(run_dir: Path, settings: TrainSettings, model: Path | None = None) -
     return text
 
 
-def _read_wall_csv(run_dir: Path) -> list[list[float]]:
-    path = run_dir / WALL_CSV
+def read_wall_rows(run_dir: Path) -> list[dict[str, float]]:
+    """The rows of a run's ``evaluations_wall.csv`` (`WALL_CSV`) by column name, as floats;
+    [] if the run has none."""
+    path = Path(run_dir) / WALL_CSV
     if not path.is_file():
         return []
-    return [[float(c) for c in line.split(",")] for line in path.read_text().splitlines()[1:]
-            if line.strip()]
+    with open(path, newline="") as f:
+        return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f)]
 
 
 def read_curve(run_dir: Path) -> dict[str, Any] | None:
@@ -84,7 +87,7 @@ def read_curve(run_dir: Path) -> dict[str, Any] | None:
             saved = json.loads(config_file.read_text())
         except ValueError:
             saved = {}
-    wall_rows = _read_wall_csv(run_dir)
+    wall_rows = read_wall_rows(run_dir)
     data_file = run_dir / "evaluations.npz"
     if data_file.is_file():
         data = np.load(data_file, allow_pickle=False)
@@ -94,7 +97,7 @@ def read_curve(run_dir: Path) -> dict[str, Any] | None:
             dt = resolve_env(saved["env_id"], saved.get("env_kwargs") or {})[1].control_period
         except (KeyError, ValueError, TypeError):
             pass
-        wall = {int(r[0]): r[1] for r in wall_rows}
+        wall = {int(r["timesteps"]): r["wall_seconds"] for r in wall_rows}
         return {"timesteps": np.asarray(steps),
                 "wall_seconds": np.array([wall.get(int(s), np.nan) for s in steps]),
                 "mean_return": results.mean(axis=1), "std_return": results.std(axis=1),
@@ -102,10 +105,13 @@ def read_curve(run_dir: Path) -> dict[str, Any] | None:
                 "label": f"validation ({lengths.shape[1]} episodes)"}
     if not wall_rows:
         return None
-    rows = np.asarray(wall_rows, dtype=float)
-    return {"timesteps": rows[:, 0].astype(np.int64), "wall_seconds": rows[:, 1],
-            "mean_return": rows[:, 2], "std_return": np.full(len(rows), np.nan),
-            "trapping_time": rows[:, 3],
+    def column(name: str) -> np.ndarray:
+        return np.array([r[name] for r in wall_rows])
+
+    return {"timesteps": column("timesteps").astype(np.int64),
+            "wall_seconds": column("wall_seconds"), "mean_return": column("mean_return"),
+            "std_return": np.full(len(wall_rows), np.nan),
+            "trapping_time": column("mean_trapping_time"),
             "label": f"training episodes ({saved.get('backend', 'sb3')}, running mean)"}
 
 
@@ -149,4 +155,5 @@ def plot_learning_curve(run_dir: Path, references: dict[str, float] | None = Non
     return out
 
 
-__all__ = ["WALL_CSV", "append_curve_point", "compare", "plot_learning_curve", "read_curve"]
+__all__ = ["WALL_CSV", "append_curve_point", "compare", "plot_learning_curve", "read_curve",
+           "read_wall_rows"]

@@ -67,12 +67,6 @@ def references(env_id: str, episodes: int, seed: int, max_episode_steps: int | N
             "best-const": _trapping(table, "best-const"), "mpc": _trapping(table, "mpc")}
 
 
-def read_curve(run_dir: Path) -> list[dict[str, float]]:
-    """The rows of a run's ``evaluations_wall.csv`` as floats."""
-    with open(run_dir / "evaluations_wall.csv") as f:
-        return [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f)]
-
-
 def first_time(curve: list[dict[str, float]], level: float, strict: bool = False) -> float | None:
     """Wall seconds of the first evaluation at (or, ``strict``, past) ``level``; None if none."""
     for row in curve:
@@ -99,6 +93,7 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
     summary (what the JSON holds). ``reuse``: a seed whose run folder
     (``<out>/runs/<label>_seed<s>``) holds a finished run is read, not trained again (its
     wall time is that of its last evaluation)."""
+    from .run_report import WALL_CSV, read_wall_rows
     from .training import TrainSettings, train
 
     out.mkdir(parents=True, exist_ok=True)
@@ -117,15 +112,15 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
                                  progress_bar=False).validate()
         run_dir = out / "runs" / f"{label}_seed{s}"
         if reuse and (run_dir / "final_model.zip").is_file() \
-                and (run_dir / "evaluations_wall.csv").is_file():
-            curve = read_curve(run_dir)          # a finished run of this recipe and seed
+                and (run_dir / WALL_CSV).is_file():
+            curve = read_wall_rows(run_dir)          # a finished run of this recipe and seed
             wall = curve[-1]["wall_seconds"]
             log(f"seed {s}: reusing the finished run {run_dir}")
         else:
             started = time.time()
             run_dir = train(settings)
             wall = time.time() - started
-            curve = read_curve(run_dir)
+            curve = read_wall_rows(run_dir)
         run_dirs.append(run_dir)
         for row in curve:
             rows.append({"label": label, "seed": s, **row})
