@@ -1,6 +1,6 @@
 """Where the first call's compile time goes: numba compiles, per function and signature.
 
-    python -m saddle_env.compile_profile [--fresh] [--isolated] [--top N] [SCENARIO ...]
+    python -m saddle_env.compile_profile [--fresh] [--isolated] [--top N] [--phases] [SCENARIO ...]
 
 A scenario is ``simulate`` (the README's rolling ball, 10 s) or a registered level id
 (``gym.make(ID).reset(seed=0); step()``); by default ``simulate`` and every level of
@@ -17,17 +17,24 @@ numba reports each compile through its event API (``numba.core.event``, kind
 function's own time (``self``: typing, lowering and optimising its code, including the
 callees' code that LLVM inlines into it) apart from its callees' (``total`` includes them).
 Loads from the on-disk cache are not compiles and cost milliseconds.
+
+``--phases`` adds where the compile's CPU time goes by phase, summed over the functions
+(`CompilePhases`): numba's type inference, its lowering to LLVM IR and its other passes,
+LLVM's optimisation of each function and of each module with its callees linked in, LLVM's
+machine code, the wrappers numba builds for Python and C callers, and the cache write.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import subprocess
 import sys
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 
 @dataclass
@@ -111,6 +118,75 @@ class LLVMSize:
         self._cls._optimize_final_module = self._orig
 
 
+class CompilePhases:
+    """CPU seconds of a compile by phase, each phase's own time (compiles nested inside it
+    are counted in their own phases): numba's passes by name (grouped in `PHASES`), LLVM's
+    three stages, the wrappers numba builds for Python and C callers, and the cache write.
+    Wraps numba internals (``PassManager._runPass``, ``CPUCodeLibrary``'s optimise and
+    finalise steps, ``CPUContext``'s wrapper builders, ``Cache.save_overload``) while
+    active: diagnostic only."""
+
+    # Phase of a numba pass, by its name; other passes count as "numba: other passes".
+    PHASES: ClassVar[dict[str, str]] = {"nopython_type_inference": "numba: type inference",
+                                        "native_lowering": "numba: lowering to LLVM IR"}
+    _TARGETS = (("numba.core.compiler_machinery", "PassManager", "_runPass", None),
+                ("numba.core.codegen", "CPUCodeLibrary", "_optimize_functions",
+                 "LLVM: optimising each function"),
+                ("numba.core.codegen", "CPUCodeLibrary", "_optimize_final_module",
+                 "LLVM: optimising the module, callees linked in"),
+                ("numba.core.codegen", "CPUCodeLibrary", "_finalize_final_module",
+                 "LLVM: machine code"),
+                ("numba.core.cpu", "CPUContext", "create_cpython_wrapper",
+                 "numba: wrapper for Python callers"),
+                ("numba.core.cpu", "CPUContext", "create_cfunc_wrapper",
+                 "numba: wrapper for C callers"),
+                ("numba.core.caching", "Cache", "save_overload", "numba: writing the cache"))
+
+    def __init__(self):
+        self.seconds: dict[str, float] = defaultdict(float)
+        self._stack: list[float] = []   # per open phase: seconds of phases nested in it
+        self._saved: list[tuple[type, str, object]] = []
+
+    def _timed(self, phase, fn):
+        recorder = self
+
+        def timed(*args, **kwargs):
+            label = phase or recorder.PHASES.get(args[2].name(), "numba: other passes")
+            start = time.process_time()
+            recorder._stack.append(0.0)
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                took = time.process_time() - start
+                recorder.seconds[label] += took - recorder._stack.pop()
+                if recorder._stack:
+                    recorder._stack[-1] += took
+
+        return timed
+
+    def __enter__(self):
+        import importlib
+
+        for module, cls_name, attr, phase in self._TARGETS:
+            cls = getattr(importlib.import_module(module), cls_name)
+            original = cls.__dict__[attr]
+            self._saved.append((cls, attr, original))
+            setattr(cls, attr, self._timed(phase, original))
+        return self
+
+    def __exit__(self, *exc):
+        for cls, attr, original in reversed(self._saved):
+            setattr(cls, attr, original)
+        self._saved.clear()
+
+    def table(self) -> str:
+        total = sum(self.seconds.values())
+        lines = [f"{'phase (own CPU seconds)':<48} {'s':>6} {'share':>6}"]
+        for label, sec in sorted(self.seconds.items(), key=lambda kv: -kv[1]):
+            lines.append(f"{label:<48} {sec:>6.2f} {sec / total:>6.0%}")
+        return "\n".join(lines)
+
+
 def run_scenario(name: str) -> None:
     """Run one scenario: ``simulate`` or a level id's first reset and step."""
     import gymnasium as gym
@@ -140,12 +216,15 @@ def _short(name: str) -> str:
     return name.removeprefix("saddle_env.")
 
 
-def _profile_here(names: list[str], top: int,
-                  signatures: bool = False) -> list[tuple[str, float, float]]:
-    """Run the scenarios in this process; print the per-function table; return
-    (scenario, wall seconds, compile seconds) rows."""
+def _profile_here(names: list[str], top: int, signatures: bool = False,
+                  phases: bool = False) -> list[tuple[str, float, float]]:
+    """Run the scenarios in this process; print the per-function table (and, with
+    ``phases``, the seconds by compile phase); return (scenario, wall seconds, compile
+    seconds) rows."""
     results = []
-    with CompileRecorder() as rec, LLVMSize() as size:
+    by_phase = CompilePhases()
+    with CompileRecorder() as rec, LLVMSize() as size, \
+            (by_phase if phases else contextlib.nullcontext()):
         for name in names:
             before = rec.compiled_seconds()
             t0 = time.perf_counter()
@@ -168,6 +247,8 @@ def _profile_here(names: list[str], top: int,
             if signatures:
                 for sig in r.signatures:
                     print("      (" + ", ".join(map(str, sig)) + ")")
+    if phases:
+        print("\n" + by_phase.table())
     return results
 
 
@@ -208,6 +289,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--top", type=int, default=25, help="functions listed (default 25)")
     ap.add_argument("--signatures", action="store_true",
                     help="print the signatures of functions compiled more than once")
+    ap.add_argument("--phases", action="store_true",
+                    help="also the compile's CPU seconds by phase (numba's passes, LLVM)")
     return ap
 
 
@@ -221,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
         from . import _cache
 
         _cache.clear()
-    results = _profile_here(names, args.top, args.signatures)
+    results = _profile_here(names, args.top, args.signatures, args.phases)
     print(f"\n{'scenario':<26} {'wall s':>7} {'compile s':>10}")
     for name, wall, compiled in results:
         print(f"{name:<26} {wall:>7.2f} {compiled:>10.2f}")
