@@ -199,6 +199,11 @@ _FLAG_OF_MODEL = {ROLLING: "ROLLING_ON", SLIPPING: "SLIPPING_ON", COULOMB: "COUL
                   ION_RRF: "ION_ON", ION_PAUL: "ION_ON"}
 _FLAGS = ("ROLLING_ON", "SLIPPING_ON", "COULOMB_ON", "ION_ON", "RESIST_ON")
 
+# Set to 1 in the environment: every caller runs the full kernels (every contact model), no
+# per-scene copies. For a process that meets many sets of contact models (the test suite
+# compiles the full kernels once instead of a copy of the loop for each set it uses).
+FULL_KERNELS_ENV = "SADDLE_ENV_FULL_KERNELS"
+
 # Modules whose compiled functions `specialise` copies, in import order (lower modules first).
 _SPECIALISABLE: list[types.ModuleType] = []
 # Per flag set: module name -> namespace of that module with its copies.
@@ -267,9 +272,10 @@ def specialise(models, resist: bool, module: types.ModuleType):
     are its module's with the other flags False and those functions replaced by their copies
     (across the registered modules), so a whole chain below an entry point is specialised
     together. Made once per flag set and process; compiled (or loaded from the on-disk
-    cache) on first call, as any kernel. With every flag on, the module itself."""
+    cache) on first call, as any kernel. With every flag on, or with `FULL_KERNELS_ENV` set
+    to 1, the module itself."""
     flags = variant_flags(models, resist)
-    if flags == _FLAGS:
+    if flags == _FLAGS or os.environ.get(FULL_KERNELS_ENV, "0") not in ("", "0"):
         return module
     done = _variants.get(flags)
     if done is None:

@@ -15,3 +15,8 @@ if "SADDLE_ENV_BEST_CONST_CACHE" not in os.environ:
     _cache_dir = tempfile.mkdtemp(prefix="saddle-best-const-")
     atexit.register(shutil.rmtree, _cache_dir, ignore_errors=True)   # no litter in /tmp
     os.environ["SADDLE_ENV_BEST_CONST_CACHE"] = os.path.join(_cache_dir, "best_const.json")
+
+# The suite meets every set of contact models, and a per-scene copy of the compiled loop for
+# each set cost its cold run about 70 CPU s (docs/coldstart.md): it runs the full kernels,
+# compiled once. The tests of the copies themselves turn this off (monkeypatch.delenv).
+os.environ.setdefault("SADDLE_ENV_FULL_KERNELS", "1")

@@ -9,7 +9,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import saddle_env as se
-from saddle_env.envs import PAPER_BALL_RADII, SaddleTrapEnv
+from saddle_env.envs import LEVEL_IDS, PAPER_BALL_RADII, SaddleTrapEnv
 from saddle_env.envs.vector import SaddleTrapVectorEnv
 
 ZERO = np.zeros(1, dtype=np.float32)
@@ -427,3 +427,53 @@ def test_vector_env_and_batch_run_in_a_child_forked_after_threads_were_used():
     child.join(300)
     assert child.exitcode == 0
     assert queue.get(timeout=5) == (float(obs.sum()), float(np.nansum(batch.state)))
+
+
+
+def _seeded_steps(env_id: str, options: dict | None = None) -> tuple[object, list[tuple]]:
+    """Seeded episodes of ``env_id`` under a fixed action pattern: the engine and, per reset
+    and step, its outputs."""
+    env = gym.make(env_id)
+    rows = [(env.reset(seed=7, options=options)[0],)]
+    for t in range(60):
+        obs, reward, term, trunc, _ = env.step(np.array([np.sin(0.3 * t)], np.float32))
+        rows.append((obs, reward, term, trunc))
+        if term or trunc:
+            rows.append((env.reset(seed=8 + t, options=options)[0],))
+    return env.unwrapped.engine, rows
+
+
+def _assert_identical(own: list[tuple], full: list[tuple]) -> None:
+    for a, b in zip(own, full, strict=True):
+        for x, y in zip(a, b, strict=True):
+            np.testing.assert_array_equal(x, y)
+
+
+@pytest.mark.parametrize("env_id", LEVEL_IDS)
+def test_each_levels_own_compiled_step_matches_the_full_kernels(env_id, monkeypatch):
+    """A level compiles its step for the contact models it draws (`_kernels.specialise`);
+    seeded episodes through that copy are the full kernels' to the last bit."""
+    from saddle_env import _kernels as K
+    from saddle_env.envs import _step
+
+    monkeypatch.delenv(K.FULL_KERNELS_ENV)           # the suite runs the full kernels
+    engine, own = _seeded_steps(env_id)
+    assert engine._S is not _step                    # a copy, without the other models
+    monkeypatch.setenv(K.FULL_KERNELS_ENV, "1")
+    engine, full = _seeded_steps(env_id)
+    assert engine._S is _step
+    _assert_identical(own, full)
+
+
+def test_a_reset_that_brings_another_contact_model_widens_the_compiled_step(monkeypatch):
+    """A rolling level's copy has no slipping code: a reset with ``contact="slipping"``
+    recompiles the step for both models, and the episodes are the full kernels'."""
+    from saddle_env import _kernels as K
+    from saddle_env.scene import ROLLING, SLIPPING
+
+    monkeypatch.delenv(K.FULL_KERNELS_ENV)
+    options = {"contact": "slipping"}
+    engine, own = _seeded_steps("SaddleTrap-v0", options)
+    assert engine._uses[0] == {ROLLING, SLIPPING}
+    monkeypatch.setenv(K.FULL_KERNELS_ENV, "1")
+    _assert_identical(own, _seeded_steps("SaddleTrap-v0", options)[1])

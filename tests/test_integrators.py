@@ -110,7 +110,7 @@ def test_a_dip_of_N_inside_one_step_is_not_stepped_over():
     assert abs(coarse.event.t - tight.event.t) < 1e-3
 
 
-def test_a_copy_compiled_for_one_contact_model_steps_it_identically():
+def test_a_copy_compiled_for_one_contact_model_steps_it_identically(monkeypatch):
     """`_kernels.specialise`: the rolling-only loop (what `simulate` runs for a rolling ball)
     gives the full loop's trajectory bit for bit, and a model it was not compiled for fails
     (NaN rates) instead of being stepped as another."""
@@ -118,6 +118,7 @@ def test_a_copy_compiled_for_one_contact_model_steps_it_identically():
     from saddle_env import integrators as I
     from saddle_env.scene import ROLLING, SLIPPING
 
+    monkeypatch.delenv(K.FULL_KERNELS_ENV)          # the suite runs the full kernels
     scene = Scene(a=0.159, R=0.02, contact="rolling")
     p = scene.params()
     tab = METHODS["dopri5"].tableau
@@ -151,3 +152,5 @@ def test_a_copy_compiled_for_one_contact_model_steps_it_identically():
                               I.state_scale(q, SLIPPING), np.zeros((len(t_out), K.STATE_WIDTH)),
                               np.zeros(4, dtype=np.int64), 0.0, I.workspace(tab))
     assert res.status == I.STATUS_FAILED
+    monkeypatch.setenv(K.FULL_KERNELS_ENV, "1")      # the switch: the full kernels, no copy
+    assert K.specialise((ROLLING,), False, I) is I
