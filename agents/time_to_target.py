@@ -42,6 +42,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from .runs import BACKEND_ALGOS
 from .seeds import COMPARE_SEED, VALIDATION_SEED
 
 
@@ -87,8 +88,8 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
         label: str = "recipe", total_timesteps: int | None = None,
         eval_freq: int | None = None, eval_episodes: int = 64, final_episodes: int = 200,
         max_episode_steps: int | None = None, figure: Path | None = None,
-        log: Any = print, reuse: bool = False, recipe_of: str | None = None
-        ) -> dict[str, Any]:
+        log: Any = print, reuse: bool = False, recipe_of: str | None = None,
+        algo: str = "ppo") -> dict[str, Any]:
     """Train ``seeds`` with the recipe, measure the targets, write the files; return the
     summary (what the JSON holds). ``reuse``: a seed whose run folder
     (``<out>/runs/<label>_seed<s>``) holds a finished run is read, not trained again (its
@@ -104,7 +105,7 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
     log(f"best-const {ref['best-const']['mean']:.2f} [.., {bc_high:.2f}], mpc {mpc_mean:.2f}")
     per_seed, rows, run_dirs = [], [], []
     for s in seeds:
-        settings = TrainSettings(env_id=env_id, seed=s, hyperparams=hyperparams,
+        settings = TrainSettings(algo=algo, env_id=env_id, seed=s, hyperparams=hyperparams,
                                  recipe_of=recipe_of, total_timesteps=total_timesteps, eval_freq=eval_freq,
                                  eval_episodes=eval_episodes, log_dir=str(out / "runs"),
                                  run_name=f"{label}_seed{s}", compare_episodes=0,
@@ -136,7 +137,7 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
     fresh = None
     if final_episodes > 0:
         fresh = final_table(env_id, run_dirs, final_episodes, max_episode_steps)
-    summary = {"env_id": env_id, "label": label, "hyperparams": hyperparams,
+    summary = {"env_id": env_id, "label": label, "algo": algo, "hyperparams": hyperparams,
                "recipe_of": recipe_of,
                "command": "python -m agents.time_to_target " + " ".join(sys.argv[1:]),
                "targets": ref, "seeds": per_seed,
@@ -211,6 +212,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="the recipe (None: agents/hyperparams/ppo.yml)")
     ap.add_argument("--recipe-of", default=None, metavar="ID",
                     help="use this level's entry of the recipe file (train.py --recipe-of)")
+    ap.add_argument("--algo", choices=BACKEND_ALGOS["sb3"], default="ppo",
+                    help="the Stable-Baselines3 algorithm (its file in agents/hyperparams "
+                         "unless --hyperparams)")
     ap.add_argument("--label", default="recipe")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--total-timesteps", type=int, default=None)
@@ -229,7 +233,7 @@ def main(argv: list[str] | None = None) -> int:
                   args.total_timesteps, args.eval_freq, args.eval_episodes,
                   args.final_episodes, args.max_episode_steps,
                   Path(args.figure) if args.figure else None, reuse=args.reuse,
-                  recipe_of=args.recipe_of)
+                  recipe_of=args.recipe_of, algo=args.algo)
     print(json.dumps({k: summary[k] for k in ("median_to_best_const_high",
                                               "median_to_mpc_mean")}, indent=1))
     return 0

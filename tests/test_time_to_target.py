@@ -48,6 +48,29 @@ def test_the_runner_writes_curves_targets_and_the_figure(tmp_path):
     assert max(lengths) > 10 * 0.02
 
 
+def test_the_runner_trains_the_algorithm_asked_for(tmp_path, monkeypatch):
+    """--algo reaches the training settings (a fake back end writes the curve)."""
+    seen = []
+
+    def fake_train(settings):
+        seen.append(settings.algo)
+        run = tmp_path / "runs" / settings.run_name
+        run.mkdir(parents=True)
+        (run / "evaluations_wall.csv").write_text(
+            "timesteps,wall_seconds,mean_return,mean_trapping_time\n100,1.5,10.0,0.4\n")
+        return run
+
+    monkeypatch.setattr("agents.training.train", fake_train)
+    ttt.main(["--env", "SaddleTrap-v0", "--algo", "sac", "--seeds", "3", "--label", "s",
+              "--eval-episodes", "2", "--final-episodes", "0", "--max-episode-steps", "20",
+              "--out", str(tmp_path)])
+    assert seen == ["sac"]
+    saved = json.loads((tmp_path / "time_to_target.json").read_text())
+    assert saved["algo"] == "sac" and saved["seeds"][0]["best_validation"] == 0.4
+    with pytest.raises(SystemExit):
+        ttt.main(["--algo", "dqn"])
+
+
 def test_train_episode_steps_is_checked():
     from agents.recipes import train_episode_steps
 
