@@ -206,8 +206,16 @@ FULL_KERNELS_ENV = "SADDLE_ENV_FULL_KERNELS"
 
 # Modules whose compiled functions `specialise` copies, in import order (lower modules first).
 _SPECIALISABLE: list[types.ModuleType] = []
-# Per flag set: module name -> namespace of that module with its copies.
-_variants: dict[tuple[str, ...], dict[str, types.SimpleNamespace]] = {}
+class _Variant:
+    """One flag set's copies (by the original's id) and, per registered module name, the
+    namespace of that module with its copies."""
+
+    def __init__(self):
+        self.copies: dict[int, object] = {}
+        self.spaces: dict[str, types.SimpleNamespace] = {}
+
+
+_variants: dict[tuple[str, ...], _Variant] = {}
 
 
 def specialisable(module_name: str) -> None:
@@ -271,32 +279,31 @@ def specialise(models, resist: bool, module: types.ModuleType):
     function that tests a flag, or calls one that does (`_flagged`), is a copy whose globals
     are its module's with the other flags False and those functions replaced by their copies
     (across the registered modules), so a whole chain below an entry point is specialised
-    together. Made once per flag set and process; compiled (or loaded from the on-disk
-    cache) on first call, as any kernel. With every flag on, or with `FULL_KERNELS_ENV` set
-    to 1, the module itself."""
+    together. Made once per flag set and process (a module registered later is added when
+    first asked for); compiled (or loaded from the on-disk cache) on first call, as any
+    kernel. With every flag on, or with `FULL_KERNELS_ENV` set to 1, the module itself."""
     flags = variant_flags(models, resist)
     if flags == _FLAGS or os.environ.get(FULL_KERNELS_ENV, "0") not in ("", "0"):
         return module
-    done = _variants.get(flags)
-    if done is None:
+    variant = _variants.setdefault(flags, _Variant())
+    if module.__name__ not in variant.spaces:
         flagged = _flagged()
         tag = "_".join(f[:-3].lower() for f in flags) or "none"
         values = {f: f in flags for f in _FLAGS}
-        copies: dict[int, object] = {}
-        done = {}
         for mod in _SPECIALISABLE:  # lower modules first: their copies exist
+            if mod.__name__ in variant.spaces:
+                continue
             space = dict(vars(mod))
             space.update(values)
-            for k, v in vars(mod).items():
-                if (_is_compiled(v) and id(v) in flagged and id(v) not in copies
+            for v in vars(mod).values():
+                if (_is_compiled(v) and id(v) in flagged and id(v) not in variant.copies
                         and v.py_func.__globals__ is vars(mod)):
-                    copies[id(v)] = _copy_of(v, space, tag)
+                    variant.copies[id(v)] = _copy_of(v, space, tag)
             for k, v in list(space.items()):  # this module's and lower modules' functions
-                if _is_compiled(v) and id(v) in copies:
-                    space[k] = copies[id(v)]
-            done[mod.__name__] = types.SimpleNamespace(**space)
-        _variants[flags] = done
-    return done[module.__name__]
+                if _is_compiled(v) and id(v) in variant.copies:
+                    space[k] = variant.copies[id(v)]
+            variant.spaces[mod.__name__] = types.SimpleNamespace(**space)
+    return variant.spaces[module.__name__]
 
 
 @jit

@@ -15,6 +15,7 @@ sample for sample.
 from __future__ import annotations
 
 import math
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -22,9 +23,10 @@ import numba as nb
 import numpy as np
 
 from . import _kernels as K
+from ._kernels import rhs
 from .integrators import integrate_h, state_scale, workspace
 from .runner import DEFAULT_EVENTS, Settings, default_max_step, padded_width
-from .scene import N_PARAMS
+from .scene import N_PARAMS, P_RESIST
 
 
 @dataclass
@@ -89,7 +91,7 @@ def integrate_segments(models, P, scales, Y, drives, durations, sample, tab, ctl
                 if not math.isfinite(Y_out[r, j, k, 0]):
                     break
                 t_out[r, j, k] = elapsed + t[k]
-                N_out[r, j, k] = K.rhs(model, p, prof, t[k], Y_out[r, j, k], dy, True)
+                N_out[r, j, k] = rhs(model, p, prof, t[k], Y_out[r, j, k], dy, True)
             elapsed += T
             if st != 0:
                 break
@@ -152,7 +154,10 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
     state = np.full((n, S, m, K.STATE_WIDTH), np.nan)
     normal = np.full((n, S, m), np.nan)
     status = np.zeros(n, dtype=np.int64)
-    kernel = integrate_segments if K.threads_usable() else integrate_segments_serial
+    # compiled for the contact models (and rolling resistance) of these runs alone
+    own = K.specialise(np.unique(codes), bool((P[:, P_RESIST] != 0.0).any()),
+                       sys.modules[__name__])
+    kernel = own.integrate_segments if K.threads_usable() else own.integrate_segments_serial
     kernel(codes, P, np.ascontiguousarray(scales, dtype=float), Y, drives, durations,
            float(sample), settings.method.tableau, settings.control(max_step), t, state, normal,
            status)
@@ -167,5 +172,7 @@ def _speed_bound(drives: np.ndarray, durations: np.ndarray) -> float:
     w1 = w0 + drives[..., K.DRIVE_RATE] * np.maximum(durations, 0.0)
     return float(np.max(np.maximum(np.abs(w0), np.abs(w1)) + np.abs(drives[..., K.DRIVE_AMP])))
 
+
+K.specialisable(__name__)
 
 __all__ = ["Prediction", "predict_batch"]

@@ -146,3 +146,31 @@ def test_bad_shapes_are_refused():
     with pytest.raises(ValueError, match="sample"):
         predict_batch(scene.model_code, scene.params()[None], np.zeros((1, 5)),
                       np.zeros((1, 1, 8)), np.ones((1, 1)), 0.0)
+
+
+def test_a_batch_compiled_for_its_own_contact_models_predicts_identically(monkeypatch):
+    """`predict_batch` compiles its kernel for the batch's contact models alone
+    (`_kernels.specialise`, as the environment does): a rolling batch's prediction is the
+    full kernels' bit for bit, and mixing in a slipping run takes a copy for both."""
+    import sys
+
+    scenes = [CASES[0][0], CASES[1][0]]
+    Y0 = np.array([_padded(s, _start(c)) for s, c in zip(scenes, CASES)])
+    drives = _drives([[(c[2], c[3]), (OmegaProfile(24.0), (0.0, 0.0))] for c in CASES[:2]])
+    durations = np.array([[0.2, 0.15], [0.25, 0.1]])
+    P = np.array([s.params() for s in scenes])
+    models = np.array([s.model_code for s in scenes])
+
+    def predict(k):
+        return predict_batch(models[:k], P[:k], Y0[:k], drives[:k], durations[:k], 0.05,
+                             rtol=RTOL, max_step=MAX_STEP)
+
+    monkeypatch.delenv(K.FULL_KERNELS_ENV)           # the suite runs the full kernels
+    own = [predict(1), predict(2)]
+    module = sys.modules["saddle_env.prediction"]
+    assert K.specialise(models[:1], False, module) is not module
+    monkeypatch.setenv(K.FULL_KERNELS_ENV, "1")
+    for k, pred in zip((1, 2), own):
+        full = predict(k)
+        for name in ("t", "state", "normal", "status", "final_state"):
+            np.testing.assert_array_equal(getattr(pred, name), getattr(full, name))
