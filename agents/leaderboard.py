@@ -34,6 +34,7 @@ from .model_files import TRUST_FLAG
 from .seeds import SEARCH_SEED, TEST_SEED, VALIDATION_SEED
 
 MODELS_DIR = Path(__file__).parent / "models"
+REPO_ROOT = Path(__file__).resolve().parents[1]
 TEST_EPISODES = 1000           # 200-episode sets move the kept fraction by about 7 points
 BASELINE_POLICIES = ("zero", "random", "const-1.0", "const-1.2", "const-1.5", "best-const",
                      "mpc")
@@ -58,6 +59,19 @@ def policy_specs(env_id: str, models_dir: Path = MODELS_DIR) -> list[str]:
     """What the leaderboard runs on ``env_id``: every baseline, then the agents in
     ``models_dir`` (the shipped ones by default)."""
     return list(BASELINE_POLICIES) + [str(p) for p in shipped_agents(env_id, models_dir)]
+
+
+def shown_spec(spec: str) -> str:
+    """How a policy is named in the results: a file inside this repository by its path from
+    the repository's root (the results do not carry one machine's folders), anything else
+    as given."""
+    path = Path(spec)
+    if path.is_absolute():
+        try:
+            return str(path.resolve().relative_to(REPO_ROOT))
+        except ValueError:
+            pass
+    return spec
 
 
 def policy_key(spec: str) -> str:
@@ -314,7 +328,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     except ValueError as exc:   # one bad submission does not stop the board
                         print(f"{lid}: skipped {spec}: {exc}", file=sys.stderr, flush=True)
                         continue
-                    row = {**row, "key": key}
+                    row = {**row, "policy": shown_spec(spec), "key": key}
                     eps = {"time": np.round(np.asarray(res["time"], float), 6).tolist(),
                            "kept": np.asarray(res["kept"], bool).tolist()}
                     computed += 1

@@ -130,3 +130,14 @@ def test_updating_one_level_keeps_the_others_on_the_board(tmp_path, monkeypatch)
     page = (tmp_path / "leaderboard.md").read_text()
     assert f"## {first}" in page and f"## {second}" in page
     assert f"figures/leaderboard_{first}.png" in page
+
+
+def test_a_shipped_model_is_named_by_its_path_in_the_repository(tmp_path):
+    """The results name a model file inside the repository from its root, not from one
+    machine's folders; a baseline or a file elsewhere stays as given."""
+    from agents.leaderboard import MODELS_DIR, shown_spec
+
+    assert shown_spec(str(MODELS_DIR / "ppo_gusty.zip")) == "agents/models/ppo_gusty.zip"
+    assert shown_spec("mpc") == "mpc"
+    elsewhere = str(tmp_path / "mine.zip")
+    assert shown_spec(elsewhere) == elsewhere
