@@ -474,6 +474,6 @@ def test_a_reset_that_brings_another_contact_model_widens_the_compiled_step(monk
     monkeypatch.delenv(K.FULL_KERNELS_ENV)
     options = {"contact": "slipping"}
     engine, own = _seeded_steps("SaddleTrap-v0", options)
-    assert engine._uses[0] == {ROLLING, SLIPPING}
+    assert engine._uses == ({ROLLING, SLIPPING}, False)    # no resistance was drawn
     monkeypatch.setenv(K.FULL_KERNELS_ENV, "1")
     _assert_identical(own, _seeded_steps("SaddleTrap-v0", options)[1])

@@ -221,8 +221,9 @@ class TrapEngine:
         self._draw_noise(rngs, mask)
         models, resist = self._uses
         drawn = frozenset(int(m) for m in self.models[idx])
-        if not drawn <= models or (not resist and bool((self.P[idx, P_RESIST] != 0.0).any())):
-            self._uses = (models | drawn, True)
+        resisted = resist or bool((self.P[idx, P_RESIST] != 0.0).any())
+        if not drawn <= models or resisted != resist:   # widen only by what was drawn
+            self._uses = (models | drawn, resisted)
             self._S = K.specialise(*self._uses, S)
         self._S.place(idx, self.models, self.P, self.Y, self.balls, self.cfg, x, y, vx, vy, lab_rest,
                 spin, self.noise, self.frame, self.out)
