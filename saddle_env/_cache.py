@@ -30,6 +30,9 @@ _PACKAGE = Path(__file__).resolve().parent
 # Packages whose compiled functions call into saddle_env's kernels.
 _TREES = [_PACKAGE, _PACKAGE.parent / "agents"]
 _STAMP = _PACKAGE / "__pycache__" / "numba-sources.json"
+# The stamp's key for the import graph it was computed from (`_graph`); every other key is a
+# module's digest (a stamp written before the graph was kept has no such key).
+_GRAPH_KEY = "(import graph)"
 
 
 def _module_name(path: Path) -> str:
@@ -82,11 +85,31 @@ def _imports(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
     return found
 
 
-def digests() -> dict[str, str]:
-    """Module name -> digest of its source and of every source it depends on."""
+def _graph(modules: dict[str, Path], known: dict) -> dict:
+    """Each module's own digest and the modules it imports (`_imports`), parsing only the
+    files whose content changed since ``known`` (the same record from the stamp): parsing
+    every file took about 0.3 s of each ``import saddle_env``, a third of the import. A new
+    or removed module re-parses them all (it can change what an import names)."""
+    names = hashlib.sha256("\n".join(sorted(modules)).encode()).hexdigest()
+    reuse = known.get("modules") == names
+    files = {}
+    for m, p in modules.items():
+        own = hashlib.sha256(p.read_bytes()).hexdigest()
+        seen = known.get("files", {}).get(m) if reuse else None
+        if seen and seen[0] == own:
+            files[m] = seen
+        else:
+            files[m] = [own, sorted(_imports(m, p, modules))]
+    return {"modules": names, "files": files}
+
+
+def digests(graph: dict | None = None) -> dict[str, str]:
+    """Module name -> digest of its source and of every source it depends on (from
+    ``graph``, a `_graph` record; by default made afresh)."""
     modules = _sources()
-    direct = {m: _imports(m, p, modules) for m, p in modules.items()}
-    own = {m: hashlib.sha256(p.read_bytes()).hexdigest() for m, p in modules.items()}
+    files = (graph or _graph(modules, {}))["files"]
+    direct = {m: files[m][1] for m in modules}
+    own = {m: files[m][0] for m in modules}
     out = {}
     for m in modules:
         seen, todo = {m}, [m]
@@ -114,20 +137,24 @@ def refresh() -> list[str]:
     """Drop the cache files of every module whose sources changed since the stamp was
     written; return those modules' names (empty if nothing was dropped)."""
     try:
-        now = digests()
         try:
-            before = json.loads(_STAMP.read_text())
+            stamp = json.loads(_STAMP.read_text())
         except (OSError, ValueError):
-            before = {}
-        if before == now:
-            return []
+            stamp = {}
+        stamp = stamp if isinstance(stamp, dict) else {}
+        known = stamp.get(_GRAPH_KEY, {})
+        before = {m: d for m, d in stamp.items() if m != _GRAPH_KEY}
         modules = _sources()
+        graph = _graph(modules, known)
+        now = digests(graph)
+        if before == now and known == graph:
+            return []
         stale = sorted(m for m in now if before.get(m) != now[m])
         for m in stale:
             for f in _cache_files(modules[m]):
                 f.unlink(missing_ok=True)
         _STAMP.parent.mkdir(exist_ok=True)
-        _STAMP.write_text(json.dumps(now, indent=0, sort_keys=True))
+        _STAMP.write_text(json.dumps({**now, _GRAPH_KEY: graph}, indent=0, sort_keys=True))
         return stale
     except OSError:  # read-only install: numba keeps its cache elsewhere
         return []

@@ -104,6 +104,28 @@ def test_a_changed_file_drops_only_its_own_and_its_dependents_caches(tmp_path, m
     assert not _has_cache(files["integrators.py"]) and _has_cache(files["linear.py"])
 
 
+def test_only_a_changed_file_is_parsed_again_and_its_new_imports_count(tmp_path, monkeypatch):
+    """The stamp keeps the import graph: an import parses no file whose content it knows
+    (parsing all of them was a third of ``import saddle_env``), and a file whose imports
+    changed is parsed again, so the modules it now depends on make it stale."""
+    pkg, _ = _tree(tmp_path, monkeypatch)
+    _cache.refresh()
+    parsed = []
+    parse = _cache._imports
+    monkeypatch.setattr(_cache, "_imports", lambda m, p, mods: parsed.append(m) or parse(m, p, mods))
+    assert _cache.refresh() == [] and parsed == []
+    (pkg / "linear.py").write_text("import math\nfrom .integrators import x\n")
+    assert _modules(_cache.refresh()) == {"saddle_env.linear"}
+    assert parsed == ["saddle_env.linear"]
+    _cached(pkg / "linear.py")
+    (pkg / "_kernels.py").write_text("from .scene import P_A\nx = 2\n")
+    assert "saddle_env.linear" in _cache.refresh() and not _has_cache(pkg / "linear.py")
+    (pkg / "new.py").write_text("")  # a new module: every file parsed again
+    parsed.clear()
+    _cache.refresh()
+    assert len(parsed) == len(_cache._sources())
+
+
 def test_touching_a_file_keeps_the_stamp_valid(tmp_path, monkeypatch):
     """A new time stamp with the same content (a reinstall, a checkout) drops nothing here;
     numba itself recompiles that one file's functions, whose index holds the stamp."""
