@@ -219,8 +219,8 @@ _variants: dict[tuple[str, ...], _Variant] = {}
 
 
 def specialisable(module_name: str) -> None:
-    """Register a module (called at the end of its import) whose compiled functions that test
-    a ``*_ON`` flag, or call one that does, `specialise` copies."""
+    """Register a module (called at the end of its import) whose compiled functions
+    `specialise` copies."""
     import sys
     _SPECIALISABLE.append(sys.modules[module_name])
 
@@ -238,35 +238,40 @@ def _is_compiled(v) -> bool:
     return isinstance(v, nb.core.dispatcher.Dispatcher)
 
 
-def _flagged() -> set[int]:
-    """ids of the registered modules' compiled functions that test a flag or call (by a
-    module-level name) one that does."""
-    flagged: set[int] = set()
-    changed = True
-    while changed:
-        changed = False
-        for mod in _SPECIALISABLE:
-            space = vars(mod)
-            for v in list(space.values()):
-                if not _is_compiled(v) or id(v) in flagged or v.py_func.__globals__ is not space:
-                    continue
-                names = v.py_func.__code__.co_names
-                if any(n in _FLAGS or (_is_compiled(space.get(n)) and id(space[n]) in flagged)
-                       for n in names):
-                    flagged.add(id(v))
-                    changed = True
-    return flagged
+def python_entry(dispatcher):
+    """Mark a compiled function that Python calls through `specialise`'s namespace (an entry
+    point such as the environment's step): its copies keep numba's wrapper for Python
+    callers. Returns the function."""
+    dispatcher._python_entry = True
+    return dispatcher
+
+
+class _CompiledCallersOnly(nb.core.registry.CPUDispatcher):
+    """A copy built without numba's wrapper for Python callers (`_copy_of`): a call from
+    Python would jump through the missing wrapper and crash the interpreter, so it raises."""
+
+    def __call__(self, *args, **kwargs):
+        raise TypeError(f"{self.py_func.__qualname__} is a per-scene copy that only compiled "
+                        f"code calls (it has no wrapper for Python callers): call "
+                        f"{self.py_func.__name__} from its module, or a `python_entry` copy")
 
 
 def _copy_of(dispatcher, space: dict, tag: str):
     """A copy of a compiled function whose globals are ``space``, compiled as the original
-    (same options, same typing rule), cached on disk under its own name."""
+    (same options, same typing rule), cached on disk under its own name. Only compiled code
+    calls a copy unless it is a `python_entry`, so the others are built without numba's
+    wrappers for Python and C callers: those wrappers were a fixed cost of about a tenth of
+    each function's compile, 1.2 s of a rolling level's 11 s first step (docs/coldstart.md)."""
     f = dispatcher.py_func
     twin = types.FunctionType(f.__code__, space, f.__name__, f.__defaults__, f.__closure__)
     twin.__qualname__ = f"{f.__qualname__}__{tag}"
     twin.__doc__ = f.__doc__
     options = {k: v for k, v in dispatcher.targetoptions.items() if k != "nopython"}
+    if not getattr(dispatcher, "_python_entry", False):
+        options.update(no_cpython_wrapper=True, no_cfunc_wrapper=True)
     copy = nb.njit(cache=True, **options)(twin)
+    if options.get("no_cpython_wrapper"):
+        copy.__class__ = _CompiledCallersOnly
     if getattr(dispatcher, "_per_constant", False):
         copy._per_constant = True
         return copy
@@ -276,10 +281,10 @@ def _copy_of(dispatcher, space: dict, tag: str):
 def specialise(models, resist: bool, module: types.ModuleType):
     """``module`` as compiled for the contact models ``models`` (model codes) alone and, with
     ``resist``, rolling resistance: a namespace of the module's names in which every compiled
-    function that tests a flag, or calls one that does (`_flagged`), is a copy whose globals
-    are its module's with the other flags False and those functions replaced by their copies
-    (across the registered modules), so a whole chain below an entry point is specialised
-    together. Made once per flag set and process (a module registered later is added when
+    function of the registered modules is a copy whose globals are its module's with the
+    other flags False and the compiled functions replaced by their copies, so a whole chain
+    below an entry point is specialised together. (Functions that test no flag are copied
+    too, so that no copy needs numba's wrappers for Python callers: `_copy_of`.) Made once per flag set and process (a module registered later is added when
     first asked for); compiled (or loaded from the on-disk cache) on first call, as any
     kernel. With every flag on, or with `FULL_KERNELS_ENV` set to 1, the module itself."""
     flags = variant_flags(models, resist)
@@ -287,7 +292,6 @@ def specialise(models, resist: bool, module: types.ModuleType):
         return module
     variant = _variants.setdefault(flags, _Variant())
     if module.__name__ not in variant.spaces:
-        flagged = _flagged()
         tag = "_".join(f[:-3].lower() for f in flags) or "none"
         values = {f: f in flags for f in _FLAGS}
         for mod in _SPECIALISABLE:  # lower modules first: their copies exist
@@ -296,7 +300,7 @@ def specialise(models, resist: bool, module: types.ModuleType):
             space = dict(vars(mod))
             space.update(values)
             for v in vars(mod).values():
-                if (_is_compiled(v) and id(v) in flagged and id(v) not in variant.copies
+                if (_is_compiled(v) and id(v) not in variant.copies
                         and v.py_func.__globals__ is vars(mod)):
                     variant.copies[id(v)] = _copy_of(v, space, tag)
             for k, v in list(space.items()):  # this module's and lower modules' functions

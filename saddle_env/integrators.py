@@ -20,19 +20,21 @@ dependency), so no coefficient is transcribed by hand.
 
 from __future__ import annotations
 
+import importlib.util
 import math
+import types
 from collections import namedtuple
+from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
 import numba as nb
 import numpy as np
-from scipy.integrate._ivp import dop853_coefficients as _dop853_tableau
-from scipy.integrate._ivp import rk as _scipy_rk
 
 from ._kernels import (COULOMB_ON, ONSET, PHASE_SLOT, RESIST_ON, ROW_WIDTH, SLIP, STATE_WIDTH,
-                       STICK, coulomb_contact, integrated_size, ir_inline, jit, rhs, rolling_spin,
-                       rolling_velocity, serial_twin, specialisable, spin_held, stick_margin,
-                       stop_rolling, stop_slip, work_slot)
+                       STICK, coulomb_contact, integrated_size, ir_inline, jit, python_entry, rhs,
+                       rolling_spin, rolling_velocity, serial_twin, specialisable, spin_held,
+                       stick_margin, stop_rolling, stop_slip, work_slot)
 from .scene import COULOMB, P_A, P_B, P_G, P_R, P_RESIST, P_RIM, P_SPIN_BAND, ROLLING
 
 # Event flags (a bit mask) and the status codes `integrate` returns.
@@ -176,8 +178,22 @@ def _rk4() -> Method:
                   "classical 4th-order Runge–Kutta, fixed step only")
 
 
+def _scipy_ivp_module(name: str) -> types.ModuleType:
+    """scipy's ``scipy.integrate._ivp.<name>``. A module that imports nothing from scipy
+    (the DOP853 coefficients) is loaded from its file alone: importing it the usual way runs
+    ``scipy.integrate``'s ``__init__``, which took 0.33 s of the 0.70 s ``import saddle_env``
+    (measured with ``python -X importtime``)."""
+    import scipy
+    path = Path(scipy.__file__).parent / "integrate" / "_ivp" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"saddle_env._scipy_ivp_{name}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def _dopri5() -> Method:
-    s = _scipy_rk.RK45
+    from scipy.integrate._ivp import rk  # imports scipy.integrate: built on first use only
+    s = rk.RK45
     A = np.zeros((6, 6))
     A[:, :5] = s.A
     return Method("dopri5", 5, True, s.error_estimator_order, ERR_EMBEDDED, np.array(s.C, float),
@@ -186,13 +202,34 @@ def _dopri5() -> Method:
 
 
 def _dop853() -> Method:
-    n = _dop853_tableau.N_STAGES
-    return Method("dop853", 8, True, 7, ERR_DOP853, np.array(_dop853_tableau.C[:n]),
-                  np.array(_dop853_tableau.A[:n, :n]), np.array(_dop853_tableau.B), np.array(_dop853_tableau.E5),
-                  np.array(_dop853_tableau.E3), "Dormand–Prince 8(5,3), adaptive (or fixed step with dt)")
+    t = _scipy_ivp_module("dop853_coefficients")
+    n = t.N_STAGES
+    return Method("dop853", 8, True, 7, ERR_DOP853, np.array(t.C[:n]), np.array(t.A[:n, :n]),
+                  np.array(t.B), np.array(t.E5), np.array(t.E3),
+                  "Dormand–Prince 8(5,3), adaptive (or fixed step with dt)")
 
 
-METHODS: dict[str, Method] = {m.name: m for m in (_rk4(), _dopri5(), _dop853())}
+class _Methods(Mapping):
+    """The method registry, each method made on first lookup (dopri5's tableau is read from
+    scipy's RK45, whose import costs what `_scipy_ivp_module` avoids)."""
+
+    def __init__(self, makers):
+        self._makers = makers
+        self._made: dict[str, Method] = {}
+
+    def __getitem__(self, name: str) -> Method:
+        if name not in self._made:
+            self._made[name] = self._makers[name]()  # KeyError for an unknown name
+        return self._made[name]
+
+    def __iter__(self):
+        return iter(self._makers)
+
+    def __len__(self) -> int:
+        return len(self._makers)
+
+
+METHODS: Mapping[str, Method] = _Methods({"rk4": _rk4, "dopri5": _dopri5, "dop853": _dop853})
 
 
 @ir_inline
@@ -513,6 +550,7 @@ def integrate(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats):
     return res.status, res.t_final
 
 
+@python_entry
 @jit
 def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_start, work):
     """Advance ``y`` (in place) from ``t0`` through the output times ``t_out``.

@@ -58,6 +58,7 @@ def samples_in(duration, sample):
     return max(1, int(math.ceil(duration / sample - 1e-9)))
 
 
+@K.python_entry
 @nb.njit(cache=True, parallel=True)
 def integrate_segments(models, P, scales, Y, drives, durations, sample, tab, ctl, t_out, Y_out,
                        N_out, status):
@@ -99,7 +100,7 @@ def integrate_segments(models, P, scales, Y, drives, durations, sample, tab, ctl
 
 
 # The same kernel on one thread (a forked child cannot reuse its parent's OpenMP threads).
-integrate_segments_serial = K.serial_twin(integrate_segments)
+integrate_segments_serial = K.python_entry(K.serial_twin(integrate_segments))
 
 
 def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drives: np.ndarray,

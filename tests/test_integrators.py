@@ -51,6 +51,25 @@ def test_registry_declares_orders():
     assert not METHODS["rk4"].adaptive and METHODS["dop853"].adaptive
 
 
+def test_the_tableaus_are_scipys_to_the_bit():
+    """dop853's coefficients are read from scipy's file without importing scipy.integrate,
+    dopri5's from scipy's RK45 on first use: both exactly scipy's."""
+    from scipy.integrate._ivp import dop853_coefficients as d853
+    from scipy.integrate._ivp import rk
+
+    n, m = d853.N_STAGES, METHODS["dop853"]
+    for ours, theirs in ((m.C, d853.C[:n]), (m.A, d853.A[:n, :n]), (m.B, d853.B),
+                         (m.E, d853.E5), (m.E3, d853.E3)):
+        np.testing.assert_array_equal(ours, theirs)
+    m = METHODS["dopri5"]
+    np.testing.assert_array_equal(m.A[:, :5], rk.RK45.A)
+    for ours, theirs in ((m.C, rk.RK45.C), (m.B, rk.RK45.B), (m.E, rk.RK45.E)):
+        np.testing.assert_array_equal(ours, theirs)
+    assert METHODS["dopri5"] is m and len(METHODS) == 3 and "euler" not in METHODS
+    with pytest.raises(KeyError):
+        METHODS["euler"]
+
+
 def _detach_case():
     sc = Scene(R=0.033)
     return sc, initial_state(sc, 0.005, 0.005)
@@ -129,6 +148,12 @@ def test_a_copy_compiled_for_one_contact_model_steps_it_identically(monkeypatch)
     rolling = K.specialise((ROLLING,), False, I)
     assert rolling is not I and rolling.integrate_h is not I.integrate_h
     assert K.specialise((ROLLING,), False, I) is rolling  # made once
+    # only compiled code calls a copy that is not an entry point: no wrapper for Python
+    assert rolling.rhs.targetoptions.get("no_cpython_wrapper") is True
+    assert rolling._error_norm.targetoptions.get("no_cpython_wrapper") is True  # tests no flag
+    assert not rolling.integrate_h.targetoptions.get("no_cpython_wrapper", False)
+    with pytest.raises(TypeError, match="only compiled code calls"):  # not a crash
+        rolling.step_factor(1.0, 2.0)
     def padded(scene):  # a state row as the loop takes it (STATE_WIDTH slots)
         y = np.zeros(K.STATE_WIDTH)
         s = initial_state(scene, x=0.001, y=0.001, start="lab-rest", omega=30.0)

@@ -51,8 +51,8 @@ import numpy as np
 from .._kernels import (COULOMB_ON, DRIVE_AMP, DRIVE_FREQ, DRIVE_FX, DRIVE_FY, DRIVE_PHASE,
                         DRIVE_RATE, DRIVE_THETA0, DRIVE_W0, DRIVE_WIDTH, ROLLING_ON, ROW_WIDTH,
                         SLIPPING_ON, STATE_WIDTH, angle_at, contact_velocity, geometry, ir_inline,
-                        jit, jit_per_constant, lab_rest_velocity, rhs, specialisable,
-                        state_from_velocity)
+                        jit, jit_per_constant, lab_rest_velocity, python_entry, rhs,
+                        specialisable, state_from_velocity)
 from ..integrators import EVENT_DETACH, STATUS_DETACH, StepControl, Tableau, integrate_h, reaches
 from ..lockstep import (BLOCK_WIDTH, LANES, PARAM_WIDTH, accepted, block_size, carve_block,
                         next_step, rk_step_block, take)
@@ -431,6 +431,7 @@ _step_range_inlined = ir_inline(_step_range.py_func)
 # The entry points take the method and the step settings as the plain tuples of their
 # records' fields and rebuild the records inside: numba's dispatcher types a namedtuple
 # argument in Python, ~0.5 µs a call (measured), a tenth of a single ball's control step.
+@python_entry
 @jit
 def step_serial(models, P, scales, Y, balls, cfg, actions, active, tab_fields, ctl_fields,
                 noise, obs, out, buf, ibuf):
@@ -442,6 +443,7 @@ def step_serial(models, P, scales, Y, balls, cfg, actions, active, tab_fields, c
                                obs, out, buf, ibuf)
 
 
+@python_entry
 @jit
 def step_scalar(models, P, scales, Y, balls, cfg, actions, active, tab_fields, ctl_fields,
                 noise, obs, out, buf, ibuf):
@@ -452,6 +454,7 @@ def step_scalar(models, P, scales, Y, balls, cfg, actions, active, tab_fields, c
                               buf, ibuf)
 
 
+@python_entry
 @nb.njit(cache=True, parallel=True)
 def step_parallel(models, P, scales, Y, balls, cfg, actions, active, tab_fields, ctl_fields,
                   noise, obs, out, bufs, ibufs):
@@ -488,6 +491,7 @@ def observe_all(models, P, Y, balls, cfg, active, noise, obs):
             _observe_into(models[i], P[i], Y[i], balls[i], cfg, noise[i], obs[i], row)
 
 
+@python_entry
 @jit
 def place(idx, models, P, Y, balls, cfg, x, y, vx, vy, lab_rest, spin_normal, noise, obs, out):
     """Start balls ``idx[j]`` at contact point (x[j], y[j]) with rotating-frame velocity
