@@ -106,12 +106,12 @@ def _graph(modules: dict[str, Path], known: dict) -> dict:
 def digests(graph: dict | None = None) -> dict[str, str]:
     """Module name -> digest of its source and of every source it depends on (from
     ``graph``, a `_graph` record; by default made afresh)."""
-    modules = _sources()
-    files = (graph or _graph(modules, {}))["files"]
-    direct = {m: files[m][1] for m in modules}
-    own = {m: files[m][0] for m in modules}
+    # The graph's own module list: walking the source tree again would repeat `refresh`'s walk.
+    files = (graph or _graph(_sources(), {}))["files"]
+    direct = {m: files[m][1] for m in files}
+    own = {m: files[m][0] for m in files}
     out = {}
-    for m in modules:
+    for m in files:
         seen, todo = {m}, [m]
         while todo:
             for dep in direct[todo.pop()]:
