@@ -424,8 +424,10 @@ def _train(settings: TrainSettings, hyper: dict[str, Any], run_dir: Path,
     start = time.time()
     final = None
     try:
-        with sigterm_stops():
+        with sigterm_stops(deferred=True) as stop_requested:
             while steps < settings.total_timesteps:
+                if stop_requested.is_set():
+                    raise Stop()
                 result = algo.train()
                 steps = lifetime_steps(algo)
                 row = result_row(result, time.time() - start)

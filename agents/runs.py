@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import signal
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -181,14 +182,23 @@ class Stop(Exception):
 
 
 @contextmanager
-def sigterm_stops() -> Iterator[None]:
-    """Within the block, SIGTERM raises `Stop` (the previous handler comes back after)."""
+def sigterm_stops(deferred: bool = False) -> Iterator[threading.Event]:
+    """Within the block, SIGTERM raises `Stop` (the previous handler comes back after).
+
+    With ``deferred=True`` SIGTERM only sets the yielded event and the loop checks it
+    between iterations: an exception raised from a signal handler while the main thread
+    waits inside Ray's compiled ``CoreWorker.wait`` comes out as a ``SystemError``
+    ("returned a result with an exception set"), not as `Stop`."""
+    requested = threading.Event()
+
     def on_sigterm(signum, frame):
-        raise Stop()
+        requested.set()
+        if not deferred:
+            raise Stop()
 
     previous = signal.signal(signal.SIGTERM, on_sigterm)
     try:
-        yield
+        yield requested
     finally:
         signal.signal(signal.SIGTERM, previous)
 

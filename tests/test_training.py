@@ -96,6 +96,23 @@ def _small_sac(tmp_path):
     return path
 
 
+def test_sigterm_raises_stop_or_only_sets_the_flag_when_deferred():
+    import os
+
+    from agents.runs import Stop, sigterm_stops
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(Stop), sigterm_stops() as requested:
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(1)           # the handler runs at the next bytecode; never reached
+    assert requested.is_set()
+    # deferred (the RLlib loop: Ray's compiled wait turns a raised Stop into SystemError)
+    with sigterm_stops(deferred=True) as requested:
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.05)
+        assert requested.is_set()
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
 def test_checkpoints_are_valid_sb3_archives(tmp_path):
     proc = _train(tmp_path, "--algo", "td3", "--n-envs", "2", "--total-timesteps", "2200",
                   "--run-name", "td3")
