@@ -44,7 +44,19 @@ def run_summary(run: Path) -> dict[str, Any]:
             "total_timesteps": steps, "wall_time_s": round(elapsed + warm_s, 1),
             "warm_start_s": round(warm_s, 1),
             "steps_per_s": round(steps / elapsed) if elapsed > 0 else None,   # RL alone
-            "hyperparams": config.get("hyperparams_used", {})}
+            "hyperparams": config.get("hyperparams_used", {}),
+            "remake": remake_command(side["env_id"], int(config["seed"]), config)}
+
+
+def remake_command(env_id: str, seed: int, config: dict[str, Any]) -> str:
+    """The ``train.py`` line that trains the run again: the level and seed, and the recipe
+    when it was not the level's own entry of the default file."""
+    words = ["python", "train.py", "--env", env_id, "--seed", str(seed)]
+    if config.get("hyperparams"):
+        words += ["--hyperparams", str(config["hyperparams"])]
+    if config.get("recipe_of"):
+        words += ["--recipe-of", str(config["recipe_of"])]
+    return " ".join(words)
 
 
 def ship(runs: Sequence[Path], name: str, models_dir: Path = MODELS_DIR) -> Path:
@@ -80,7 +92,7 @@ def ship(runs: Sequence[Path], name: str, models_dir: Path = MODELS_DIR) -> Path
                  "total_timesteps": shipped["total_timesteps"],
                  "wall_time_s": shipped["wall_time_s"], "warm_start_s": shipped["warm_start_s"],
                  "steps_per_s": shipped["steps_per_s"],
-                 "remake": f"python train.py --env {shipped['env_id']} --seed {shipped['seed']}",
+                 "remake": shipped["remake"],
                  "recipe_runs": [{k: s[k] for k in ("seed", "validation_mean_return",
                                                    "selected_at_steps", "total_timesteps",
                                                    "wall_time_s", "warm_start_s",
