@@ -28,7 +28,8 @@ from .cli_args import parse_address, resolve_env, saved_settings
 # The main job (`python train.py`): a level where learning shows within minutes and a
 # learned agent can beat mpc. Gusty, not Capture: on Capture mpc is within 0.02 s of the
 # clairvoyant reference (docs/benchmark.md), and the fast recipe's agents stay 0.1-0.5 s
-# below it; on Gusty they pass mpc with every seed in under 5 min (docs/training_profile.md).
+# below it; on Gusty they pass mpc with every seed in 3x10^6 steps (4.5 min of training on
+# the faster of the machines it was timed on, 9.6 min on the slower; docs/agents.md).
 MAIN_JOB_ENV_ID = "SaddleTrap-Gusty-v0"
 # The algorithms each back end trains (the first back end's are the command line's choices).
 BACKEND_ALGOS = {"sb3": ("ppo", "sac", "td3", "a2c"), "rllib": ("ppo", "sac")}

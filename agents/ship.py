@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import shlex
 import shutil
 from collections.abc import Sequence
 from pathlib import Path
@@ -56,7 +57,7 @@ def remake_command(env_id: str, seed: int, config: dict[str, Any]) -> str:
         words += ["--hyperparams", str(config["hyperparams"])]
     if config.get("recipe_of"):
         words += ["--recipe-of", str(config["recipe_of"])]
-    return " ".join(words)
+    return shlex.join(words)   # a path with spaces stays one argument
 
 
 def ship(runs: Sequence[Path], name: str, models_dir: Path = MODELS_DIR) -> Path:
