@@ -1,6 +1,6 @@
 """A training run's settings, its folder and its interruption: what every training back end
-(`agents.sb3_backend`, `agents.rllib_backend`) takes in, behind the one seam
-`agents.training.train`.
+(`agents.sb3_backend`, `agents.sbx_backend`, `agents.rllib_backend`) takes in, behind the
+one seam `agents.training.train`.
 
 `TrainSettings` is the one declaration of a run's settings, for every back end: the command
 line (``train.py``) fills it field by field from its flags, a run saves it as
@@ -32,11 +32,11 @@ from .cli_args import parse_address, resolve_env, saved_settings
 # the faster of the machines it was timed on, 9.6 min on the slower; docs/agents.md).
 MAIN_JOB_ENV_ID = "SaddleTrap-Gusty-v0"
 # The algorithms each back end trains (the first back end's are the command line's choices).
-BACKEND_ALGOS = {"sb3": ("ppo", "sac", "td3", "a2c"), "rllib": ("ppo", "sac")}
+BACKEND_ALGOS = {"sb3": ("ppo", "sac", "td3", "a2c"), "sbx": ("ppo",), "rllib": ("ppo", "sac")}
 BACKENDS = tuple(BACKEND_ALGOS)
 ALGO_NAMES = BACKEND_ALGOS["sb3"]
 # Balls stepped together when the recipe has no n_envs: SB3's batch env, or per RLlib runner.
-DEFAULT_N_ENVS = {"sb3": 8, "rllib": 16}
+DEFAULT_N_ENVS = {"sb3": 8, "sbx": 8, "rllib": 16}
 DEFAULT_ENV_RUNNERS = 2
 # Settings only the RLlib back end uses (flag names in errors).
 RLLIB_ONLY = ("num_env_runners", "address", "num_cpus")
@@ -70,7 +70,8 @@ class TrainSettings:
     # 200 with 2, on a loaded machine).
     torch_threads: int = 1
     compare_episodes: int = 200      # the closing comparison (0: none)
-    backend: str = "sb3"             # "sb3": Stable-Baselines3 in this process; "rllib": Ray
+    backend: str = "sb3"             # "sb3": Stable-Baselines3 in this process; "sbx": SBX's
+    #                                  PPO (JAX) in this process; "rllib": Ray
     # RLlib: env runner actors (None: DEFAULT_ENV_RUNNERS; 0: sampling in the driver process,
     # where a profiler's timers can see it)
     num_env_runners: int | None = None

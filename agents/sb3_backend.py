@@ -123,28 +123,50 @@ def _action_noise(hyper: dict[str, Any]):
 # ---------------------------------------------------------------------------------------
 # models, checkpoints and callbacks
 # ---------------------------------------------------------------------------------------
+class Sb3Learner:
+    """How this back end makes, warm-starts, saves, checkpoints and resumes a model. A back
+    end on SB3's API (`agents.sbx_backend`) replaces these five and shares the rest of the
+    run (`train_with`): environments, callbacks, model selection and interruption."""
+
+    resume_needs_trust = RESUME_NEEDS_TRUST
+
+    def new_model(self, hyper: dict[str, Any], env, settings: TrainSettings):
+        return _new_model(algo_class(settings.algo), hyper, env, settings)
+
+    def warm_start(self, model, config, hyper: dict[str, Any], steps: int, seed: int
+                   ) -> dict[str, Any]:
+        from .warm_start import warm_start
+
+        return warm_start(model, config, hyper["warm_start"], steps, seed, hyper.get("imitation"))
+
+    def save(self, model, path: Path, settings: TrainSettings,
+             extra: dict[str, Any] | None = None) -> Path:
+        return save_model(model, path, settings, extra)
+
+    def checkpoint(self, model, folder: Path, tag: str, settings: TrainSettings) -> Path:
+        return _save_checkpoint(model, folder, tag, settings)
+
+    def resume(self, checkpoint: Path, env, hyper: dict[str, Any], norm_kw, frame_stack: int,
+               settings: TrainSettings, trust: bool):
+        return _resume(algo_class(settings.algo), checkpoint, env, hyper, norm_kw, frame_stack,
+                       settings, trust)
+
+
 def save_model(model, path: Path, settings: TrainSettings, extra: dict[str, Any] | None = None
                ) -> Path:
     """Save ``model`` at ``path`` with its sidecar and, if observations are normalised, the
     statistics next to it as JSON (what evaluation needs to act as in training)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    model.save(path)
-    save_model_extras(model, path, settings, extra)
-    return path
-
-
-def save_model_extras(model, path: Path, settings: TrainSettings,
-                      extra: dict[str, Any] | None = None) -> None:
-    """The sidecar and normalisation statistics (JSON) of a model file, written when it is
-    saved (also for SB3's own best_model.zip)."""
     from .model_files import save_normalizer
     from .policies import vecnormalize_path
 
+    model.save(path)
     norm = model.get_vec_normalize_env()
     if norm is not None:
         save_normalizer(norm, vecnormalize_path(path))
     write_sidecar(path, settings, extra)
+    return path
 
 
 def checkpoint_statistics(checkpoint: str | Path) -> tuple[Path | None, Path | None]:
@@ -175,8 +197,9 @@ def _save_checkpoint(model, folder: Path, tag: str, settings: TrainSettings) -> 
     return path
 
 
-def _checkpoint_callback(folder: Path, settings: TrainSettings, n_envs: int):
-    """Every ``save_freq`` steps, a checkpoint as `_save_checkpoint` writes it (model,
+def _checkpoint_callback(folder: Path, settings: TrainSettings, n_envs: int,
+                         learner: Sb3Learner):
+    """Every ``save_freq`` steps, a checkpoint as ``learner`` writes it (here: model,
     sidecar, JSON statistics, npz replay buffer): SB3's CheckpointCallback pickles the
     statistics and the buffer, which a resume would then have to unpickle."""
     from stable_baselines3.common.callbacks import BaseCallback
@@ -186,7 +209,7 @@ def _checkpoint_callback(folder: Path, settings: TrainSettings, n_envs: int):
     class Checkpoints(BaseCallback):
         def _on_step(self) -> bool:
             if self.n_calls % every == 0:
-                _save_checkpoint(self.model, folder, "checkpoint", settings)
+                learner.checkpoint(self.model, folder, "checkpoint", settings)
             return True
 
     return Checkpoints()
@@ -211,26 +234,9 @@ def _resume(cls, checkpoint: Path, env, hyper: dict[str, Any], norm_kw: dict[str
     checkpoint's tensors (weights and optimiser state, ``weights_only``), its step counters
     (plain JSON), normaliser statistics (JSON) and replay buffer (npz) are put into it.
     ``trust``: SB3's own loader and the pickles older runs wrote."""
-    from .model_files import (
-        load_replay_buffer,
-        read_archive,
-        read_normalizer,
-        restore_normalizer,
-        untrusted,
-    )
+    from .model_files import load_replay_buffer, read_archive, untrusted
 
-    stats_json, stats_pickle = checkpoint_statistics(checkpoint)
-    if norm_kw is not None and stats_json is None and stats_pickle is not None:
-        if not trust:
-            raise untrusted(stats_pickle, "normaliser statistics stored as a pickle")
-        from stable_baselines3.common.vec_env import VecNormalize
-
-        env = wrap_env(VecNormalize.load(str(stats_pickle), env), None, frame_stack)
-    else:
-        env = wrap_env(env, norm_kw, frame_stack)
-        if norm_kw is not None and stats_json is not None:
-            norm = env.venv if frame_stack > 1 else env
-            restore_normalizer(norm, read_normalizer(stats_json, norm.observation_space.shape[0]))
+    env = resume_env(checkpoint, env, norm_kw, frame_stack, trust)
     buffer_npz = checkpoint.with_suffix(REPLAY_SUFFIX)
     buffer_pickle = checkpoint.with_suffix(".replay.pkl")
     if trust:
@@ -264,6 +270,26 @@ def _resume(cls, checkpoint: Path, env, hyper: dict[str, Any], norm_kw: dict[str
     return model
 
 
+def resume_env(checkpoint: Path, env, norm_kw: dict[str, Any] | None, frame_stack: int,
+               trust: bool):
+    """``env`` wrapped as the run wraps it, its normaliser holding the statistics saved with
+    ``checkpoint`` (JSON; an older run's pickle only with ``trust``)."""
+    from .model_files import read_normalizer, restore_normalizer, untrusted
+
+    stats_json, stats_pickle = checkpoint_statistics(checkpoint)
+    if norm_kw is not None and stats_json is None and stats_pickle is not None:
+        if not trust:
+            raise untrusted(stats_pickle, "normaliser statistics stored as a pickle")
+        from stable_baselines3.common.vec_env import VecNormalize
+
+        return wrap_env(VecNormalize.load(str(stats_pickle), env), None, frame_stack)
+    env = wrap_env(env, norm_kw, frame_stack)
+    if norm_kw is not None and stats_json is not None:
+        norm = env.venv if frame_stack > 1 else env
+        restore_normalizer(norm, read_normalizer(stats_json, norm.observation_space.shape[0]))
+    return env
+
+
 def write_sidecar(model_path: Path, settings: TrainSettings,
                   extra: dict[str, Any] | None = None) -> None:
     """Record what a saved model was trained on, for evaluation tools: the level
@@ -280,8 +306,9 @@ def write_sidecar(model_path: Path, settings: TrainSettings,
 
 
 def _selection_callback(eval_env, settings: TrainSettings, run_dir: Path, n_envs: int,
-                        began: float | None = None):
-    """SB3's EvalCallback (writes evaluations.npz and best_model.zip, the first best), which
+                        learner: Sb3Learner, began: float | None = None):
+    """SB3's EvalCallback (writes evaluations.npz; best_model.zip, the first best, is saved
+    by ``learner`` rather than by SB3's ``model.save``, which for SBX would pickle), which
     also keeps ``selected_model.zip``: the latest snapshot whose mean validation return is
     at least the best so far (ties go to the later snapshot; see the module docstring)."""
     from stable_baselines3.common.callbacks import EvalCallback
@@ -301,8 +328,8 @@ def _selection_callback(eval_env, settings: TrainSettings, run_dir: Path, n_envs
             best_before = self.best_mean_reward
             keep_going = super()._on_step()
             if due:
-                if self.best_mean_reward != best_before:   # SB3 just wrote best_model.zip
-                    save_model_extras(self.model, run_dir / "best_model.zip", settings)
+                if self.best_mean_reward != best_before:   # a new best: best_model.zip
+                    learner.save(self.model, run_dir / "best_model.zip", settings)
                 self._select()
             return keep_going
 
@@ -316,7 +343,7 @@ def _selection_callback(eval_env, settings: TrainSettings, run_dir: Path, n_envs
             if self.last_mean_reward >= self.selected_mean:
                 self.selected_mean = float(self.last_mean_reward)
                 self.selected_steps = int(self.num_timesteps)
-                save_model(self.model, run_dir / "selected_model.zip", settings,
+                learner.save(self.model, run_dir / "selected_model.zip", settings,
                            {"selected_at_steps": self.selected_steps,
                             "validation_mean_return": self.selected_mean,
                             "validation_episodes": self.n_eval_episodes,
@@ -334,7 +361,7 @@ def _selection_callback(eval_env, settings: TrainSettings, run_dir: Path, n_envs
 
     per_env = max(1, settings.eval_freq // n_envs)    # callbacks count vector steps
     return SelectingEvalCallback(eval_env, n_eval_episodes=settings.eval_episodes,
-                                 eval_freq=per_env, best_model_save_path=str(run_dir),
+                                 eval_freq=per_env, best_model_save_path=None,
                                  log_path=str(run_dir), deterministic=True, verbose=0)
 
 
@@ -380,13 +407,19 @@ def run(settings: TrainSettings, hyper: dict[str, Any], run_dir: Path,
     filled by `agents.training.train`); return the model to compare (the selected one), or
     None if the run was interrupted (a checkpoint was saved). ``trust``: a resumed
     checkpoint may be unpickled (see `_resume`)."""
+    return train_with(Sb3Learner(), settings, hyper, run_dir, resume, trust, began)
+
+
+def train_with(learner: Sb3Learner, settings: TrainSettings, hyper: dict[str, Any],
+               run_dir: Path, resume: str | Path | None = None, trust: bool = False,
+               began: float | None = None) -> Path | None:
+    """`run` with the model made, warm-started, saved and resumed by ``learner``."""
     import torch
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.logger import configure
 
     began = time.time() if began is None else began
     torch.set_num_threads(settings.torch_threads)
-    cls = algo_class(settings.algo)
     norm_kw, frame_stack = wrapper_settings(hyper)
     n_envs, steps = int(settings.n_envs), int(settings.max_episode_steps)
     _, config = settings.environment()
@@ -400,22 +433,20 @@ def run(settings: TrainSettings, hyper: dict[str, Any], run_dir: Path,
         env = shape(env, hyper["reward_shaping"], config)
         eval_env = shape(eval_env, hyper["reward_shaping"], config, training=False)
     if resume is not None:
-        model = _resume(cls, Path(resume), env, hyper, norm_kw, frame_stack, settings, trust)
+        model = learner.resume(Path(resume), env, hyper, norm_kw, frame_stack, settings, trust)
     else:
         env = wrap_env(env, norm_kw, frame_stack)
-        model = _new_model(cls, hyper, env, settings)
+        model = learner.new_model(hyper, env, settings)
         if hyper.get("warm_start"):
-            from .warm_start import warm_start
-
             began = time.time()
-            done = warm_start(model, config, hyper["warm_start"], steps, settings.seed,
-                              hyper.get("imitation"))
+            done = learner.warm_start(model, config, hyper, steps, settings.seed)
             done["seconds"] = round(time.time() - began, 1)   # wall time beside RL's
             (run_dir / "warm_start.json").write_text(json.dumps(done, indent=2))
     eval_env = wrap_env(eval_env, norm_kw, frame_stack, training=False)
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
-    selector = _selection_callback(eval_env, settings, run_dir, n_envs, began)
-    callbacks = [_checkpoint_callback(run_dir / "checkpoints", settings, n_envs), selector]
+    selector = _selection_callback(eval_env, settings, run_dir, n_envs, learner, began)
+    callbacks = [_checkpoint_callback(run_dir / "checkpoints", settings, n_envs, learner),
+                 selector]
     if settings.progress_bar:
         callbacks.append(progress_callback())
     remaining = settings.total_timesteps - model.num_timesteps
@@ -431,7 +462,7 @@ def run(settings: TrainSettings, hyper: dict[str, Any], run_dir: Path,
                 model.learn(remaining, callback=CallbackList(callbacks),
                             reset_num_timesteps=resume is None)
     except (KeyboardInterrupt, Stop):
-        path = _save_checkpoint(model, run_dir / "checkpoints", "interrupted", settings)
+        path = learner.checkpoint(model, run_dir / "checkpoints", "interrupted", settings)
         print(f"\ninterrupted at {model.num_timesteps} steps; checkpoint saved to {path}\n"
               f"continue with: python train.py --resume {path}")
         env.close()
@@ -441,13 +472,11 @@ def run(settings: TrainSettings, hyper: dict[str, Any], run_dir: Path,
         selector.evaluate_now()      # the final model is a candidate too
     env.close()
     eval_env.close()
-    save_model(model, run_dir / "final_model.zip", settings)
-    if (run_dir / "best_model.zip").is_file():
-        write_sidecar(run_dir / "best_model.zip", settings)
+    learner.save(model, run_dir / "final_model.zip", settings)
     selected = run_dir / "selected_model.zip"
     return selected if selected.is_file() else run_dir / "final_model.zip"
 
 
-__all__ = ["REPLAY_SUFFIX", "RESUME_NEEDS_TRUST", "algo_class", "check_dependencies",
-           "checkpoint_statistics", "make_vec_env", "progress_callback", "run", "save_model",
-           "wrap_env", "write_sidecar"]
+__all__ = ["REPLAY_SUFFIX", "RESUME_NEEDS_TRUST", "Sb3Learner", "TRAIN_MODULES", "algo_class",
+           "check_dependencies", "checkpoint_statistics", "make_vec_env", "progress_callback",
+           "resume_env", "run", "save_model", "train_with", "wrap_env", "write_sidecar"]

@@ -2,7 +2,8 @@
 constant speed and to reach ``mpc``, ``python -m agents.time_to_target --env ID``.
 
 For each training seed (default 0, 1, 2) it trains the recipe (`agents.training.train`,
-hyperparameters from ``--hyperparams`` or ``agents/hyperparams/ppo.yml``) and reads the
+hyperparameters from ``--hyperparams`` or the back end's file: ``agents/hyperparams/ppo.yml``,
+``ppo_sbx.yml`` with ``--backend sbx``) and reads the
 run's validation curve against wall-clock time (``evaluations_wall.csv``: seconds since
 ``train()`` began, so the best-constant search or cache read, the imitation rounds with
 their ``mpc`` queries, every evaluation and model selection count in the time). The
@@ -89,7 +90,7 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
         eval_freq: int | None = None, eval_episodes: int = 64, final_episodes: int = 200,
         max_episode_steps: int | None = None, figure: Path | None = None,
         log: Any = print, reuse: bool = False, recipe_of: str | None = None,
-        algo: str = "ppo") -> dict[str, Any]:
+        algo: str = "ppo", backend: str = "sb3") -> dict[str, Any]:
     """Train ``seeds`` with the recipe, measure the targets, write the files; return the
     summary (what the JSON holds). ``reuse``: a seed whose run folder
     (``<out>/runs/<label>_seed<s>``) holds a finished run is read, not trained again (its
@@ -105,7 +106,8 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
     log(f"best-const {ref['best-const']['mean']:.2f} [.., {bc_high:.2f}], mpc {mpc_mean:.2f}")
     per_seed, rows, run_dirs = [], [], []
     for s in seeds:
-        settings = TrainSettings(algo=algo, env_id=env_id, seed=s, hyperparams=hyperparams,
+        settings = TrainSettings(algo=algo, backend=backend, env_id=env_id, seed=s,
+                                 hyperparams=hyperparams,
                                  recipe_of=recipe_of, total_timesteps=total_timesteps, eval_freq=eval_freq,
                                  eval_episodes=eval_episodes, log_dir=str(out / "runs"),
                                  run_name=f"{label}_seed{s}", compare_episodes=0,
@@ -137,7 +139,8 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
     fresh = None
     if final_episodes > 0:
         fresh = final_table(env_id, run_dirs, final_episodes, max_episode_steps)
-    summary = {"env_id": env_id, "label": label, "algo": algo, "hyperparams": hyperparams,
+    summary = {"env_id": env_id, "label": label, "algo": algo, "backend": backend,
+               "hyperparams": hyperparams,
                "recipe_of": recipe_of,
                "command": "python -m agents.time_to_target " + " ".join(sys.argv[1:]),
                "targets": ref, "seeds": per_seed,
@@ -215,6 +218,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--algo", choices=BACKEND_ALGOS["sb3"], default="ppo",
                     help="the Stable-Baselines3 algorithm (its file in agents/hyperparams "
                          "unless --hyperparams)")
+    ap.add_argument("--backend", choices=("sb3", "sbx"), default="sb3",
+                    help="the learner (train.py --backend); sbx reads "
+                         "agents/hyperparams/ppo_sbx.yml unless --hyperparams")
     ap.add_argument("--label", default="recipe")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--total-timesteps", type=int, default=None)
@@ -233,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
                   args.total_timesteps, args.eval_freq, args.eval_episodes,
                   args.final_episodes, args.max_episode_steps,
                   Path(args.figure) if args.figure else None, reuse=args.reuse,
-                  recipe_of=args.recipe_of, algo=args.algo)
+                  recipe_of=args.recipe_of, algo=args.algo, backend=args.backend)
     print(json.dumps({k: summary[k] for k in ("median_to_best_const_high",
                                               "median_to_mpc_mean")}, indent=1))
     return 0

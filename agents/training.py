@@ -13,12 +13,15 @@ the closing comparison. `train` does what every back end shares:
 
    * ``sb3``: `agents.sb3_backend` (Stable-Baselines3 in this process; validation and
      model selection during training);
+   * ``sbx``: `agents.sbx_backend` (SBX's PPO, SB3's API on JAX: the SB3 back end's run
+     with a faster learner; its model files are SB3's);
    * ``rllib``: `agents.rllib_backend` (Ray RLlib, local or on a cluster);
 
    A back end is a module with ``check_dependencies(progress_bar)``, a flag
    ``RESUME_NEEDS_TRUST`` and ``run(settings, hyper, run_dir, resume, trust, began)``,
    which trains and returns the model to compare, or None when interrupted (it saved a
-   checkpoint that ``--resume`` continues from);
+   checkpoint that ``--resume`` continues from); optionally ``RECIPES``, its recipe file
+   when ``--hyperparams`` names none (else ``agents/hyperparams/<algo>.yml``);
 5. when the run finished: draws the learning curve and compares the model with
    best-const and mpc on ``compare_episodes`` fresh episodes (seeds from `COMPARE_SEED`),
    printed and saved as ``comparison.md``/``comparison.json`` (`agents.run_report`).
@@ -33,7 +36,7 @@ import time
 from pathlib import Path
 from types import ModuleType
 
-from . import rllib_backend, sb3_backend
+from . import rllib_backend, sb3_backend, sbx_backend
 from .cli_args import parse_env_kwargs
 from .model_files import untrusted
 from .recipes import load_hyperparams, parse_policy_kwargs, wrapper_settings
@@ -47,7 +50,8 @@ from .runs import (
 )
 from .seeds import COMPARE_SEED, VALIDATION_SEED
 
-BACKENDS: dict[str, ModuleType] = {"sb3": sb3_backend, "rllib": rllib_backend}
+BACKENDS: dict[str, ModuleType] = {"sb3": sb3_backend, "sbx": sbx_backend,
+                                    "rllib": rllib_backend}
 assert set(BACKENDS) == set(BACKEND_ALGOS), "agents.runs.BACKEND_ALGOS names the back ends"
 
 
@@ -78,7 +82,7 @@ def train(settings: TrainSettings, resume: str | Path | None = None, trust: bool
         raise untrusted(resume, f"resuming restores {settings.backend}'s own checkpoint, "
                                 f"which is pickled (evaluating it does not need this)")
     hyper = load_hyperparams(settings.algo, settings.recipe_of or settings.env_id,
-                             settings.hyperparams, note=True)
+                             settings.hyperparams or getattr(back, "RECIPES", None), note=True)
     settings.take_recipe(hyper)
     run_dir = settings.open_run_folder(resume)
     model = back.run(settings, hyper, run_dir, resume, trust, began)
