@@ -1,8 +1,9 @@
 #!/usr/bin/env python
 """Train an agent on a task level — a thin command line over ``agents.training``.
 
-    python train.py                                  # the main job: PPO on SaddleTrap-Capture-v0
-    python train.py --env SaddleTrap-Gusty-v0        # a registered level (saddle_env.LEVELS)
+    python train.py                                  # PPO (SB3) on SaddleTrap-Gusty-v0
+    python train.py --backend sbx                    # the same with SBX's PPO: about 2x faster
+    python train.py --env SaddleTrap-Storm-v0        # a registered level (saddle_env.LEVELS)
     python train.py --algo sac --env-kwargs air_force=0.1 ball_radii=[0.0223,0.0265,0.033]
     python train.py --resume runs/<run>/checkpoints/interrupted_123456_steps.zip
     python train.py --backend rllib --env SaddleTrap-v0 --num-env-runners 2   # Ray RLlib
@@ -69,8 +70,10 @@ def build_parser() -> argparse.ArgumentParser:
                          "(docs/security.md). Default: checkpoints are read as data")
     rl = ap.add_argument_group("Ray RLlib (--backend rllib; docs/scaling.md)")
     rl.add_argument("--backend", choices=BACKENDS, default=d.backend,
-                    help="sb3: Stable-Baselines3 in this process; rllib: Ray RLlib, on a local "
-                         "Ray or a cluster (--address); needs the [rllib] extra")
+                    help="sb3: Stable-Baselines3 in this process; sbx: SBX's PPO (SB3's API "
+                         "on JAX, about twice the steps per second; the [sbx] extra; model "
+                         "files are SB3's); rllib: Ray RLlib, on a local Ray or a cluster "
+                         "(--address); needs the [rllib] extra")
     rl.add_argument("--num-env-runners", type=int, default=d.num_env_runners, metavar="N",
                     help="RLlib env runners (N >= 0; default 2), each stepping --n-envs balls "
                          "through the native vector env; 0 samples in the driver process")
