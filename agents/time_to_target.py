@@ -20,7 +20,9 @@ report gives the median over seeds (not reached by a seed counts as never, so th
 A validation curve's maximum is a selected, noisy statistic. So each seed's selected model
 is then evaluated on ``--final-episodes`` fresh episodes (seeds from `COMPARE_SEED`), with
 best-const and ``mpc`` on the same episodes: the issue's target is an agent at ``mpc``'s
-mean on 200 fresh episodes.
+mean on 200 fresh episodes. ``--budgets B ...`` adds, on the same episodes, the network each
+run would have shipped with a shorter budget B (`shorter_budgets`: what the selection rule
+kept among the evaluations up to B, read from the run's checkpoints).
 
 Writes ``<out>/time_to_target.csv`` (every evaluation of every seed), ``.json`` (targets,
 per-seed times, the fresh-episode table, the command) and the figure (``--figure``,
@@ -90,11 +92,12 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
         eval_freq: int | None = None, eval_episodes: int = 64, final_episodes: int = 200,
         max_episode_steps: int | None = None, figure: Path | None = None,
         log: Any = print, reuse: bool = False, recipe_of: str | None = None,
-        algo: str = "ppo", backend: str = "sb3") -> dict[str, Any]:
+        algo: str = "ppo", backend: str = "sb3", budgets: list[float] = ()) -> dict[str, Any]:
     """Train ``seeds`` with the recipe, measure the targets, write the files; return the
     summary (what the JSON holds). ``reuse``: a seed whose run folder
     (``<out>/runs/<label>_seed<s>``) holds a finished run is read, not trained again (its
-    wall time is that of its last evaluation)."""
+    wall time is that of its last evaluation). ``budgets``: also what each shorter budget
+    would have shipped (`shorter_budgets`)."""
     from .run_report import WALL_CSV, read_wall_rows
     from .training import TrainSettings, train
 
@@ -136,9 +139,13 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
             f"{per_seed[-1]['best_validation']:.2f} s; past best-const's bound at "
             f"{per_seed[-1]['to_best_const_high']} s, at mpc's mean at "
             f"{per_seed[-1]['to_mpc_mean']} s")
-    fresh = None
+    fresh, shorter = None, shorter_budgets(run_dirs, budgets, label, seeds)
     if final_episodes > 0:
-        fresh = final_table(env_id, run_dirs, final_episodes, max_episode_steps)
+        models = [(str(d / "selected_model.zip"), d / "selected_model.zip") for d in run_dirs]
+        models += [(name, pick["model"]) for name, pick in shorter.items()]
+        fresh = final_table(env_id, models, final_episodes, max_episode_steps)
+    for pick in shorter.values():
+        pick["model"] = str(pick["model"])
     summary = {"env_id": env_id, "label": label, "algo": algo, "backend": backend,
                "hyperparams": hyperparams,
                "recipe_of": recipe_of,
@@ -147,7 +154,7 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
                "median_to_best_const_high": median_time([p["to_best_const_high"]
                                                          for p in per_seed]),
                "median_to_mpc_mean": median_time([p["to_mpc_mean"] for p in per_seed]),
-               "fresh_episodes": fresh}
+               "shorter_budgets": shorter, "fresh_episodes": fresh}
     with open(out / "time_to_target.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=["label", "seed", "timesteps", "wall_seconds",
                                           "mean_return", "mean_trapping_time"])
@@ -158,20 +165,51 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
     return summary
 
 
-def final_table(env_id: str, run_dirs: list[Path], episodes: int,
+def shorter_budgets(run_dirs: list[Path], budgets: list[float], label: str,
+                    seeds: list[int]) -> dict[str, dict[str, Any]]:
+    """For each run and each budget B: the network the selection rule (the latest best
+    mean validation return) keeps among the run's evaluations at or before B steps, by
+    ``<label>_seed<s>@<B>``, with its steps and the wall time of the last evaluation up to
+    B. A shorter run with the same seed and a constant step size is a prefix of this one,
+    so these are its networks, but for the one evaluation it would add at its very end.
+    The network is the run's checkpoint at that evaluation: the checkpoint period must
+    divide the evaluation period (ValueError otherwise)."""
+    from .run_report import read_wall_rows
+
+    picks = {}
+    for seed, run_dir in zip(seeds, run_dirs):
+        rows = read_wall_rows(run_dir)
+        for budget in budgets:
+            if not budget > 0:
+                raise ValueError(f"--budgets must be positive step counts, got {budget:g}")
+            upto = [r for r in rows if r["timesteps"] <= budget]
+            if not upto:
+                raise ValueError(f"--budgets: {run_dir} has no evaluation within {budget:g} "
+                                 f"steps")
+            best = max(r["mean_return"] for r in upto)
+            pick = [r for r in upto if r["mean_return"] == best][-1]
+            steps = int(pick["timesteps"])
+            model = run_dir / "checkpoints" / f"checkpoint_{steps}_steps.zip"
+            if not model.is_file():
+                raise ValueError(f"--budgets: no checkpoint at the evaluation of {steps} steps "
+                                 f"in {run_dir} (--save-freq must divide --eval-freq)")
+            picks[f"{label}_seed{seed}@{budget:g}"] = {
+                "seed": seed, "budget": budget, "selected_at_steps": steps, "model": model,
+                "wall_seconds": max(r["wall_seconds"] for r in upto)}
+    return picks
+
+
+def final_table(env_id: str, models: list[tuple[str, Path]], episodes: int,
                 max_episode_steps: int | None = None) -> dict[str, Any]:
-    """Each run's selected model beside best-const and mpc on ``episodes`` fresh episodes
-    (seeds from `COMPARE_SEED`): trapping time mean [low, high] per policy."""
+    """The (name, model file) ``models`` beside best-const and mpc on ``episodes`` fresh
+    episodes (seeds from `COMPARE_SEED`): trapping time mean [low, high] per policy."""
     from .cli_args import resolve_env
     from .evaluation import evaluate
     from .policies import load_policy
 
     level, config = resolve_env(env_id, {})
     steps = int(max_episode_steps or level.max_episode_steps)
-    specs: list[Any] = []
-    for d in run_dirs:
-        model = d / "selected_model.zip"
-        specs.append((str(model), load_policy(model, config)))
+    specs: list[Any] = [(name, load_policy(model, config)) for name, model in models]
     table, _ = evaluate(specs + ["best-const", "mpc"], config, episodes, COMPARE_SEED,
                         max_episode_steps=steps, examples=0, env_id=env_id)
     return {"episodes": episodes, "seed": COMPARE_SEED,
@@ -231,6 +269,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-episode-steps", type=int, default=None)
     ap.add_argument("--out", default="time-to-target")
     ap.add_argument("--figure", default=None, metavar="PNG")
+    ap.add_argument("--budgets", type=float, nargs="+", default=[], metavar="STEPS",
+                    help="also score, on the same fresh episodes, the network each run would "
+                         "have selected with this shorter budget (from its checkpoints)")
     ap.add_argument("--reuse", action="store_true",
                     help="read, rather than retrain, a seed whose run folder in OUT/runs "
                          "already holds a finished run")
@@ -239,7 +280,8 @@ def main(argv: list[str] | None = None) -> int:
                   args.total_timesteps, args.eval_freq, args.eval_episodes,
                   args.final_episodes, args.max_episode_steps,
                   Path(args.figure) if args.figure else None, reuse=args.reuse,
-                  recipe_of=args.recipe_of, algo=args.algo, backend=args.backend)
+                  recipe_of=args.recipe_of, algo=args.algo, backend=args.backend,
+                  budgets=args.budgets)
     print(json.dumps({k: summary[k] for k in ("median_to_best_const_high",
                                               "median_to_mpc_mean")}, indent=1))
     return 0

@@ -134,3 +134,26 @@ def test_reuse_reads_a_finished_run_instead_of_training_it_again(tmp_path, monke
     assert again["seeds"][0]["timesteps"] == first["seeds"][0]["timesteps"]
     with pytest.raises(AssertionError, match="trained again"):   # without reuse: trains
         ttt.run("SaddleTrap-v0", [0], str(hyper), out, label="tiny", log=lambda *_: None, **kw)
+
+
+def test_shorter_budgets_pick_what_the_selection_rule_kept_by_then(tmp_path):
+    run = tmp_path / "r_seed4"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "evaluations_wall.csv").write_text(
+        "timesteps,wall_seconds,mean_return,mean_trapping_time\n"
+        "100,1.0,5.0,1.0\n200,2.0,7.0,2.0\n300,3.0,7.0,2.5\n400,4.0,6.0,1.5\n500,5.0,9.0,3.0\n")
+    for steps in (100, 200, 300, 400, 500):
+        (run / "checkpoints" / f"checkpoint_{steps}_steps.zip").write_bytes(b"")
+    picks = ttt.shorter_budgets([run], [250, 450, 500], "r", [4])
+    # ties go to the later evaluation; the wall time is the last evaluation's within B
+    assert [(p["selected_at_steps"], p["wall_seconds"]) for p in picks.values()] == \
+           [(200, 2.0), (300, 4.0), (500, 5.0)]
+    assert list(picks) == ["r_seed4@250", "r_seed4@450", "r_seed4@500"]
+    assert picks["r_seed4@450"]["model"].name == "checkpoint_300_steps.zip"
+    (run / "checkpoints" / "checkpoint_300_steps.zip").unlink()
+    with pytest.raises(ValueError, match="--save-freq must divide --eval-freq"):
+        ttt.shorter_budgets([run], [450], "r", [4])
+    with pytest.raises(ValueError, match="no evaluation within 50"):
+        ttt.shorter_budgets([run], [50], "r", [4])
+    with pytest.raises(ValueError, match="--budgets must be positive"):
+        ttt.shorter_budgets([run], [0], "r", [4])
