@@ -121,3 +121,21 @@ def coulomb_case(seed: int, *, t_end: float, time_varying: bool, static_ratio: f
             return sc, profile, q0, v0, spin, tr
     raise AssertionError("no trapped run with enough transitions found")
 
+
+
+def sigterm_after_first_checkpoint(cmd: list[str], run, timeout: float = 240):
+    """Start ``cmd`` (a train.py run writing to the folder ``run``), send SIGTERM once it
+    has written a regular checkpoint, and return its (stdout, stderr) after it exits 0."""
+    import signal
+    import subprocess
+    import time
+
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + timeout
+    while time.time() < deadline and not list((run / "checkpoints").glob("checkpoint_*.zip")):
+        time.sleep(0.5)
+        assert proc.poll() is None, proc.communicate()[1][-2000:]
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err[-2000:]
+    return out, err

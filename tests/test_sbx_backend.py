@@ -3,10 +3,8 @@ learner state round-trips as data, and train.py --backend sbx trains, checkpoint
 SIGTERM, resumes and writes model files that load as SB3's."""
 
 import json
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +15,7 @@ pytest.importorskip("sbx")
 
 from agents import sbx_backend  # noqa: E402
 from agents.runs import TrainSettings  # noqa: E402
+from helpers import sigterm_after_first_checkpoint  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = {"n_envs": 4, "n_steps": 32, "batch_size": 64, "n_epochs": 2, "gamma": 0.99,
@@ -143,15 +142,9 @@ def test_train_py_backend_sbx_checkpoints_on_sigterm_and_resumes_as_data(tmp_pat
            "--total-timesteps", "400000", "--eval-freq", "1000", "--eval-episodes", "2",
            "--save-freq", "1000", "--max-episode-steps", "100", "--compare-episodes", "0",
            "--no-progress-bar", "--run-name", "sbx", "--env-kwargs", "action_mode=target"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     run = tmp_path / "sbx"
-    deadline = time.time() + 240
-    while time.time() < deadline and not list((run / "checkpoints").glob("checkpoint_*.zip")):
-        time.sleep(0.5)
-        assert proc.poll() is None, proc.communicate()[1][-2000:]
-    proc.send_signal(signal.SIGTERM)
-    out, err = proc.communicate(timeout=120)
-    assert proc.returncode == 0, err[-2000:]
+    # stopped once training has produced a regular checkpoint
+    out, err = sigterm_after_first_checkpoint(cmd, run)
     ckpt, = (run / "checkpoints").glob("interrupted_*_steps.zip")
     assert ckpt.with_suffix(".sbx.npz").is_file() and "--resume" in out
     assert ckpt.with_suffix(".vecnormalize.json").is_file()

@@ -14,6 +14,7 @@ import pytest
 pytest.importorskip("stable_baselines3")
 
 from agents.training import parse_env_kwargs, parse_policy_kwargs  # noqa: E402
+from helpers import sigterm_after_first_checkpoint  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 # The calm level and no closing comparison: the tests check the machinery, not learning
@@ -61,16 +62,9 @@ def test_sigterm_saves_a_checkpoint_and_resume_continues(tmp_path):
     cmd = [sys.executable, str(ROOT / "train.py"), "--log-dir", str(tmp_path), *FAST,
            "--algo", "sac", "--n-envs", "2", "--total-timesteps", "200000", "--run-name", "sac",
            "--hyperparams", str(_small_sac(tmp_path))]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     run = tmp_path / "sac"
-    deadline = time.time() + 240
-    # wait until training has produced a regular checkpoint, then stop it
-    while time.time() < deadline and not list((run / "checkpoints").glob("checkpoint_*.zip")):
-        time.sleep(0.5)
-        assert proc.poll() is None, proc.communicate()[1][-2000:]
-    proc.send_signal(signal.SIGTERM)
-    out, err = proc.communicate(timeout=120)
-    assert proc.returncode == 0, err[-2000:]
+    # stopped once training has produced a regular checkpoint
+    out, err = sigterm_after_first_checkpoint(cmd, run)
     ckpts = list((run / "checkpoints").glob("interrupted_*_steps.zip"))
     assert len(ckpts) == 1 and "--resume" in out
     ckpt = ckpts[0]
