@@ -312,7 +312,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                      "episode_length_s": round(level.max_episode_steps
                                                * level.config().control_period, 9),
                      "policies": []}
-            episodes = dict(results["episode_results"].get(lid, {}))
+            # Only the rows this run lists: a retrained agent's old file (another key) and
+            # a policy no longer ranked leave with their episodes.
+            episodes: dict[str, Any] = {}
             results["episode_results"][lid] = episodes
             results["levels"][lid] = table
             for spec in policy_specs(lid, Path(args.models)):

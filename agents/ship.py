@@ -49,14 +49,38 @@ def run_summary(run: Path) -> dict[str, Any]:
             "remake": remake_command(side["env_id"], int(config["seed"]), config)}
 
 
+# Settings that change what a run learns, in the order a remake line gives them. Each is
+# written only where the run's value differs from what ``train.py`` would take from the recipe
+# (config.json keeps the values a run resolved, not the flags it was given).
+_REMADE_SETTINGS = ("n_envs", "total_timesteps", "eval_freq", "eval_episodes",
+                    "max_episode_steps", "torch_threads")
+
+
 def remake_command(env_id: str, seed: int, config: dict[str, Any]) -> str:
-    """The ``train.py`` line that trains the run again: the level and seed, and the recipe
-    when it was not the level's own entry of the default file."""
+    """The ``train.py`` line that trains the run again: the level and seed, the back end and
+    algorithm when not the defaults, the recipe when it was not the level's own entry of the
+    default file, and every setting in which the run departed from its recipe (a budget or
+    an evaluation period given on the command line, as `agents.time_to_target` does)."""
+    from .runs import TrainSettings
+
+    default = TrainSettings()
     words = ["python", "train.py", "--env", env_id, "--seed", str(seed)]
+    for name in ("backend", "algo"):
+        if config.get(name, getattr(default, name)) != getattr(default, name):
+            words += [f"--{name}", str(config[name])]
     if config.get("hyperparams"):
         words += ["--hyperparams", str(config["hyperparams"])]
     if config.get("recipe_of"):
         words += ["--recipe-of", str(config["recipe_of"])]
+    if config.get("env_kwargs"):
+        words += ["--env-kwargs", json.dumps(config["env_kwargs"], sort_keys=True)]
+    plain = TrainSettings(algo=config.get("algo", default.algo),
+                          backend=config.get("backend", default.backend),
+                          env_id=env_id, seed=seed).validate()
+    plain.take_recipe(config.get("hyperparams_used") or {})
+    for name in _REMADE_SETTINGS:
+        if config.get(name) is not None and config[name] != getattr(plain, name):
+            words += [f"--{name.replace('_', '-')}", str(config[name])]
     return shlex.join(words)   # a path with spaces stays one argument
 
 

@@ -123,8 +123,14 @@ def test_updating_one_level_keeps_the_others_on_the_board(tmp_path, monkeypatch)
     monkeypatch.setattr(lb, "shipped_agents", lambda env_id, models_dir=None: [])
     common = ["--episodes", "2", "--out", str(tmp_path), "--no-progress"]
     assert lb.main(common + ["--levels", second, first]) == 0
+    data = json.loads((tmp_path / "leaderboard.json").read_text())
+    data["episode_results"][second]["old_agent.zip@0123"] = {"time": [1.0], "kept": [False]}
+    (tmp_path / "leaderboard.json").write_text(json.dumps(data))
     assert lb.main(common + ["--levels", second, "--resume"]) == 0
     data = json.loads((tmp_path / "leaderboard.json").read_text())
+    # episodes of a policy no longer on the board (a retrained agent's old file) leave
+    assert set(data["episode_results"][second]) == {
+        r["key"] for r in data["levels"][second]["policies"]}
     assert data["order"] == [first, second]                  # the registry's order
     assert set(data["levels"]) == {first, second}
     page = (tmp_path / "leaderboard.md").read_text()

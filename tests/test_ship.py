@@ -46,6 +46,45 @@ def test_the_remake_names_a_recipe_that_is_not_the_default_entry(tmp_path):
                               "SaddleTrap-Capture-v0")
 
 
+def _remade(remake: str, hyper: dict):
+    """The settings train.py reads from a remake line, the recipe ``hyper`` filled in."""
+    import shlex
+
+    from train import build_parser, settings_from_args
+    settings = settings_from_args(build_parser().parse_args(shlex.split(remake)[2:]))
+    settings.take_recipe(hyper)
+    return settings
+
+
+def test_the_remake_gives_the_back_end_and_every_setting_the_recipe_would_not(tmp_path):
+    """A time-to-target run trains the SBX back end with its own budget and evaluation
+    period: a remake line without them trains another network."""
+    run = _run(tmp_path / "r0", 1, 480.0)
+    hyper = {"n_envs": 64, "n_timesteps": 2.4e6, "learning_rate": 3e-4}
+    config = {"seed": 1, "algo": "ppo", "backend": "sbx", "env_kwargs": {"air_force": 0.2},
+              "hyperparams_used": hyper, "n_envs": 64, "total_timesteps": 3_000_000,
+              "eval_freq": 150_000, "eval_episodes": 64, "max_episode_steps": 500,
+              "torch_threads": 1}
+    (run / "config.json").write_text(json.dumps(config))
+    remake = json.loads(ship([run], "m", tmp_path / "models").with_suffix(".json")
+                        .read_text())["remake"]
+    assert remake == ("python train.py --env SaddleTrap-Gusty-v0 --seed 1 --backend sbx "
+                      "--env-kwargs '{\"air_force\": 0.2}' --total-timesteps 3000000 "
+                      "--eval-freq 150000")
+    settings = _remade(remake, hyper)
+    assert settings.backend == "sbx" and settings.env_kwargs == {"air_force": 0.2}
+    for name in ("n_envs", "total_timesteps", "eval_freq", "eval_episodes",
+                 "max_episode_steps", "torch_threads"):
+        assert getattr(settings, name) == config[name], name
+    # A run that took everything from its recipe remakes with the plain line.
+    config.update(total_timesteps=2_400_000, eval_freq=120_000, env_kwargs={})
+    (run / "config.json").write_text(json.dumps(config))
+    remake = json.loads(ship([run], "m", tmp_path / "models").with_suffix(".json")
+                        .read_text())["remake"]
+    assert remake == "python train.py --env SaddleTrap-Gusty-v0 --seed 1 --backend sbx"
+    assert _remade(remake, hyper).total_timesteps == 2_400_000
+
+
 def test_ties_go_to_the_later_seed_and_recipes_must_match(tmp_path):
     runs = [_run(tmp_path / "a", 0, 400.0), _run(tmp_path / "b", 1, 400.0)]
     assert ship(runs, "m", tmp_path / "models").read_bytes() == b"model 1"
@@ -67,25 +106,28 @@ def test_the_warm_start_counts_in_the_wall_time_not_in_the_steps_per_second(tmp_
 def test_each_shipped_agent_names_the_recipe_it_was_trained_with():
     """A shipped sidecar's remake line reads the very entry whose hyperparameters it
     records: moving a level's entry (as the main job's move to Gusty did) must leave the
-    shipped agent's recipe in a file its remake names."""
-    import argparse
+    shipped agent's recipe in a file its remake names. Read with train.py's own parser."""
     import shlex
     from pathlib import Path
 
     from agents.recipes import load_hyperparams
+    from agents.training import backend
+    from train import build_parser, settings_from_args
     root = Path(__file__).resolve().parents[1]
-    p = argparse.ArgumentParser()
-    for flag in ("--env", "--seed", "--hyperparams", "--recipe-of"):
-        p.add_argument(flag)
     checked = 0
     for path in sorted((root / "agents" / "models").glob("*.json")):
         side = json.loads(path.read_text())
         if "remake" not in side:
             continue
-        ns = p.parse_args(shlex.split(side["remake"])[2:])
-        assert ns.env == side["env_id"] and int(ns.seed) == side["seed"], path.name
-        file = root / ns.hyperparams if ns.hyperparams else None
-        entry = load_hyperparams(side["algo"], ns.recipe_of or ns.env, file)
+        settings = settings_from_args(build_parser().parse_args(shlex.split(side["remake"])[2:]))
+        assert settings.env_id == side["env_id"] and settings.seed == side["seed"], path.name
+        file = root / settings.hyperparams if settings.hyperparams else None
+        entry = load_hyperparams(side["algo"], settings.recipe_of or settings.env_id,
+                                 file or getattr(backend(settings), "RECIPES", None))
         assert entry == side["hyperparams"], path.name
+        settings.take_recipe(entry)
+        # the budget it names, rounded up to whole rollouts (PPO stops after a rollout)
+        rollout = settings.n_envs * entry.get("n_steps", 2048)
+        assert 0 <= side["total_timesteps"] - settings.total_timesteps < rollout, path.name
         checked += 1
     assert checked >= 4
