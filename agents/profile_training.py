@@ -2,7 +2,7 @@
 
 Runs a short training (the main job's recipe unless told otherwise, through
 `agents.training.train`, so with its callbacks, evaluation and model selection) on SB3
-(PPO, SAC, TD3, A2C) or RLlib (PPO, SAC; its env runner in this process,
+(PPO, SAC, TD3, A2C), SBX (PPO on JAX, `--backend sbx`) or RLlib (PPO, SAC; its env runner in this process,
 ``num_env_runners=0``, so that every piece is in reach of the timers) and, with
 ``--imitation``, a few DAgger rounds of the imitation warm start, with timers around the
 pieces of one iteration:
@@ -24,6 +24,7 @@ env steps are evaluation). The closing comparison (``compare_episodes``) is left
 
     python -m agents.profile_training                         # main job's recipe, 6e5 steps
     python -m agents.profile_training --algo sac --total-timesteps 60000 --eval-freq 15000
+    python -m agents.profile_training --backend sbx           # needs the [sbx] extra
     python -m agents.profile_training --backend rllib         # needs the [rllib] extra
     python -m agents.profile_training --imitation --rounds 2 --episodes 64
     python -m agents.profile_training --hyperparams my.yml --total-timesteps 300000
@@ -129,6 +130,34 @@ def _sb3_timers(algo: str) -> Timers:
     return t
 
 
+def _sbx_timers() -> Timers:
+    """Timers around SBX's PPO (JAX) in the SB3 back end's loop (`agents.sbx_backend`): its
+    rollout's ``predict_all``, SB3's rollout buffer, its ``train``; saves include copying the
+    flax network into the SB3 twin that is written, and checkpoints the learner state."""
+    from sbx import PPO
+    from sbx.ppo.policies import PPOPolicy
+    from stable_baselines3.common import base_class, callbacks
+    from stable_baselines3.common.buffers import RolloutBuffer
+
+    from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
+
+    from . import sb3_backend, sbx_backend, warm_start
+
+    t = Timers()
+    t.wrap(SaddleTrapSB3VecEnv, "step_wait", "env stepping")
+    t.wrap(PPOPolicy, "predict_all", "policy forward")
+    t.wrap(RolloutBuffer, "compute_returns_and_advantage", "advantages (GAE)")
+    t.wrap(PPO, "train", "gradient updates")
+    t.wrap(callbacks, "evaluate_policy", "evaluation + selection")
+    t.wrap(sbx_backend.SbxLearner, "save", "evaluation + selection")
+    t.wrap(sbx_backend.SbxLearner, "checkpoint", "evaluation + selection")
+    t.wrap(base_class.BaseAlgorithm, "save", "evaluation + selection")
+    t.wrap(warm_start, "warm_start", "warm start")
+    t.wrap(sb3_backend, "make_vec_env", "start-up")
+    t.wrap(sbx_backend.SbxLearner, "new_model", "start-up")
+    return t
+
+
 def _rllib_timers() -> Timers:
     """Timers around RLlib's pieces in the driver process: with no remote env runners
     (``num_env_runners=0``) the sampling runs there too, so every part is timed."""
@@ -187,7 +216,8 @@ def profile_training(env_id: str, total_timesteps: int, eval_freq: int | None,
                                  backend=backend, num_cpus=2 if backend == "rllib" else None,
                                  num_env_runners=0 if backend == "rllib" else None,
                                  progress_bar=False, compare_episodes=0).validate()
-        timers = _rllib_timers() if backend == "rllib" else _sb3_timers(algo)
+        timers = (_rllib_timers() if backend == "rllib" else _sbx_timers()
+                  if backend == "sbx" else _sb3_timers(algo))
         wall, steps = _timed_train(settings, timers)
         used = dict(settings.hyperparams_used)
     return {"path": f"{backend}-{algo}", "env_id": env_id, "total_timesteps": steps,
@@ -245,8 +275,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--eval-freq", type=int, default=150_000,
                     help="steps between evaluations (the main job's: a twentieth of 3e6)")
     ap.add_argument("--algo", default="ppo", choices=("ppo", "sac", "td3", "a2c"))
-    ap.add_argument("--backend", default="sb3", choices=("sb3", "rllib"),
-                    help="rllib: RLlib's PPO or SAC with its env runner in this process")
+    ap.add_argument("--backend", default="sb3", choices=("sb3", "sbx", "rllib"),
+                    help="sbx: SBX's PPO (JAX, the [sbx] extra); rllib: RLlib's PPO or SAC "
+                         "with its env runner in this process")
     ap.add_argument("--hyperparams", default=None, metavar="FILE.yml")
     ap.add_argument("--n-envs", type=int, default=None)
     ap.add_argument("--imitation", action="store_true",
@@ -264,7 +295,8 @@ def main(argv: list[str] | None = None) -> int:
         result = profile_training(args.env, args.total_timesteps, args.eval_freq,
                                   args.hyperparams, n_envs=args.n_envs, algo=args.algo,
                                   backend=args.backend)
-        title = (f"{'SB3' if args.backend == 'sb3' else 'RLlib'} {args.algo.upper()} on "
+        name = {"sb3": "SB3", "sbx": "SBX", "rllib": "RLlib"}[args.backend]
+        title = (f"{name} {args.algo.upper()} on "
                  f"{args.env}: {result['total_timesteps']:,} steps, evaluation every "
                  f"{result['eval_freq']:,}; {result['steps_per_s']:,.0f} steps/s overall")
     result["command"] = "python -m agents.profile_training " + " ".join(argv or sys.argv[1:])
