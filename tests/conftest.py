@@ -20,3 +20,29 @@ if "SADDLE_ENV_BEST_CONST_CACHE" not in os.environ:
 # each set cost its cold run about 70 CPU s (docs/coldstart.md): it runs the full kernels,
 # compiled once. The tests of the copies themselves turn this off (monkeypatch.delenv).
 os.environ.setdefault("SADDLE_ENV_FULL_KERNELS", "1")
+
+
+# A cold run (CI's fresh clone) spends minutes compiling on one core while the other idles:
+# a large session starts tests/warm_cache.py beside it, which compiles into the on-disk cache
+# what the tests reach later. SADDLE_ENV_TEST_WARM=0 turns it off.
+WARM_AFTER_TESTS = 500   # smaller sessions (one file, a -k selection) do without it
+_warmer = []
+
+
+def pytest_collection_finish(session):
+    import subprocess
+    import sys
+
+    if (len(session.items) < WARM_AFTER_TESTS or os.environ.get("SADDLE_ENV_TEST_WARM") == "0"
+            or session.config.getoption("collectonly")):
+        return
+    _warmer.append(subprocess.Popen(
+        [sys.executable, str(Path(__file__).with_name("warm_cache.py"))],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+
+
+def pytest_sessionfinish(session, exitstatus):
+    for proc in _warmer:
+        if proc.poll() is None:    # a short or failed session: what it finished stays cached
+            proc.terminate()
+            proc.wait(timeout=30)

@@ -83,10 +83,7 @@ class TrapEngine:
         # The compiled step for the contact models the configuration draws from, and rolling
         # resistance if it has any (`_kernels.specialise`: a rolling scene does not compile the
         # coulomb machinery); a reset that brings something else widens it.
-        self._uses: tuple[frozenset[int], bool] = (
-            frozenset(config.scene(contact=m).model_code
-                      for m in (config.contact_models or (config.contact,))),
-            config.rolling_resistance != 0.0)
+        self._uses = contact_uses(config)
         self._S = K.specialise(*self._uses, S)
         self._scene_cache: dict[tuple, tuple[Scene, np.ndarray, np.ndarray]] = {}
         self._noise_scale = self._build_noise_scale(config)
@@ -343,6 +340,14 @@ class TrapEngine:
     # -- views ---------------------------------------------------------------------------
     def cause(self, i: int) -> str | None:
         return EVENT_KINDS.get(int(self.out[i, S.O_STATUS]))
+
+
+def contact_uses(config: EnvConfig) -> tuple[frozenset[int], bool]:
+    """The contact model codes ``config`` draws its balls from, and whether any rolling
+    resistance: what its compiled step is specialised for (`_kernels.specialise`)."""
+    return (frozenset(config.scene(contact=m).model_code
+                      for m in (config.contact_models or (config.contact,))),
+            config.rolling_resistance != 0.0)
 
 
 def _check_options(options: Mapping[str, object] | None) -> dict[str, object]:

@@ -1,0 +1,203 @@
+"""Compile ahead: fill numba's on-disk cache before a first call has to wait for it.
+
+    python -m saddle_env.precompile [TARGET ...] [--jobs N]
+
+The first call of a compiled function after an install or an upgrade compiles it (seconds
+per level: docs/coldstart.md); the code is then cached on disk, and later processes load it
+in milliseconds. This command does that compiling up front, on several cores at once, where
+waiting is expected: after ``pip install``, in a container's build step, before a notebook
+session or a cluster's job.
+
+A target is what one kind of first call compiles:
+
+* a level id (``SaddleTrap-Storm-v0``): ``gym.make(ID)``, ``reset()`` and one ``step()``;
+* ``vector:ID``: the level's vector env (``gym.make_vec(ID, num_envs=n)``) at the batch
+  sizes that pick its two compiled steps (SIMD blocks in one thread, and threads);
+* ``simulate``: `saddle_env.simulate` of a rolling ball (the README's example);
+* ``batch``: `saddle_env.simulate_batch` (the batch integrator over threads).
+
+By default every level and ``simulate``. Targets run in ``--jobs`` worker processes (default:
+the cores this process may use), each worker taking the next target when it is free; the
+order given is the order started, so put targets that share little first (levels with
+different contact models compile different code; the rolling levels share theirs). A target
+already in the cache loads in well under a second. Exits 1 if any target failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from collections.abc import Callable, Sequence
+
+VECTOR = "vector:"
+
+
+def _first_step(env) -> None:
+    env.reset(seed=0)
+    env.step(env.action_space.sample() * 0)
+    env.close()
+
+
+def _vector(env_id: str) -> None:
+    import gymnasium as gym
+
+    from .envs._step import MIN_BLOCK
+    from .lockstep import LANES
+
+    # The engine steps fewer than 2 LANES balls in one thread with SIMD blocks (step_serial)
+    # and more over threads (step_parallel): see `envs.engine.TrapEngine`.
+    for n in (MIN_BLOCK, 2 * LANES):
+        _first_step(gym.make_vec(env_id, num_envs=n))
+
+
+def _simulate() -> None:
+    from .compile_profile import run_scenario
+
+    run_scenario("simulate")
+
+
+def _batch() -> None:
+    import numpy as np
+
+    import saddle_env as se
+
+    scene = se.Scene(a=0.159, R=0.02, contact="rolling")
+    state = se.initial_state(scene, x=0.001, y=0.001, start="lab-rest", omega=30.0)
+    se.simulate_batch(scene, np.repeat(state[None], 2, 0), 0.1, omega=30.0, dt_out=0.01)
+
+
+def target_runner(target: str) -> Callable[[], None]:
+    """The function that compiles ``target`` (ValueError naming the allowed targets)."""
+    import gymnasium as gym
+
+    from .envs import LEVELS
+
+    ids = [level.id for level in LEVELS]
+    if target == "simulate":
+        return _simulate
+    if target == "batch":
+        return _batch
+    if target in ids:
+        return lambda: _first_step(gym.make(target))
+    if target.startswith(VECTOR) and target[len(VECTOR):] in ids:
+        return lambda: _vector(target[len(VECTOR):])
+    raise ValueError(f"unknown target {target!r}: one of simulate, batch, a level id "
+                     f"({', '.join(ids)}) or vector:ID")
+
+
+def default_targets() -> list[str]:
+    """Every level and ``simulate``, levels with different contact models first."""
+    from .envs import LEVELS
+    from .envs.engine import contact_uses
+
+    first, later, seen = [], [], set()
+    for level in LEVELS:
+        uses = contact_uses(level.config())
+        (later if uses in seen else first).append(level.id)
+        seen.add(uses)
+    return first + ["simulate"] + later
+
+
+def run_target(target: str) -> float:
+    """Compile ``target`` in this process; the seconds it took. The compile notices
+    (`saddle_env._notice`) are held back meanwhile: the progress lines say it."""
+    import logging
+
+    logger = logging.getLogger("saddle_env")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    start = time.perf_counter()
+    try:
+        target_runner(target)()
+    finally:
+        logger.setLevel(level)
+    return time.perf_counter() - start
+
+
+def usable_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:   # not on Linux
+        return os.cpu_count() or 1
+
+
+def precompile(targets: Sequence[str], jobs: int = 1,
+               log: Callable[[str], None] = lambda s: print(s, file=sys.stderr, flush=True)
+               ) -> dict[str, float | str]:
+    """Compile ``targets`` into the on-disk cache in ``jobs`` worker processes (1: in this
+    one). Returns each target's seconds, or its error message."""
+    for t in targets:
+        target_runner(t)            # unknown targets fail before any work starts
+    results: dict[str, float | str] = {}
+
+    def report(t: str, outcome: float | str) -> None:
+        results[t] = outcome
+        what = f"{outcome:.1f} s" if isinstance(outcome, float) else f"FAILED: {outcome}"
+        log(f"[{len(results)}/{len(targets)}] {t}: {what}")
+
+    if jobs <= 1:
+        for t in targets:
+            try:
+                report(t, run_target(t))
+            except Exception as exc:  # noqa: BLE001 - reported, the others still compile
+                report(t, f"{type(exc).__name__}: {exc}")
+        return results
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    # spawn: numba's threading layer does not survive a fork after threads started
+    with ProcessPoolExecutor(max_workers=jobs,
+                             mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {pool.submit(run_target, t): t for t in targets}
+        try:
+            for fut in as_completed(futures):
+                exc = fut.exception()
+                report(futures[fut], fut.result() if exc is None
+                       else f"{type(exc).__name__}: {exc}")
+        except KeyboardInterrupt:
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+    return results
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m saddle_env.precompile",
+                                description=__doc__.split("\n")[0])
+    p.add_argument("targets", nargs="*", metavar="TARGET",
+                   help="simulate, batch, a level id or vector:ID (default: every level "
+                        "and simulate)")
+    p.add_argument("--jobs", type=int, default=None,
+                   help="worker processes (default: the usable cores, at most one per target)")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    targets = args.targets or default_targets()
+    if args.jobs is not None and args.jobs < 1:
+        parser.error(f"--jobs must be >= 1, got {args.jobs}")
+    try:
+        for t in targets:
+            target_runner(t)
+    except ValueError as exc:
+        parser.error(str(exc))
+    jobs = min(args.jobs or usable_cores(), len(targets))
+    print(f"compiling {len(targets)} target(s) in {jobs} process(es) into numba's cache",
+          file=sys.stderr, flush=True)
+    start = time.perf_counter()
+    try:
+        results = precompile(targets, jobs)
+    except KeyboardInterrupt:
+        print("interrupted: what finished is cached; run again for the rest", file=sys.stderr)
+        return 130
+    failed = [t for t, r in results.items() if not isinstance(r, float)]
+    print(f"done in {time.perf_counter() - start:.1f} s"
+          + (f"; failed: {', '.join(failed)}" if failed else ""), file=sys.stderr)
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
