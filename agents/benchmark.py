@@ -49,7 +49,7 @@ class Algo:
     budget in env steps."""
 
     name: str
-    library: str                 # "stable_baselines3" or "sb3_contrib"
+    library: str                 # "stable_baselines3", "sb3_contrib" or "sbx" (recipe rows)
     cls: str
     budget: int
     n_envs: int
@@ -60,6 +60,9 @@ class Algo:
     # agents/hyperparams/ppo.yml the row runs on every level, through `agents.training.train`
     # (warm start, wrappers, model selection on validation episodes, as `train.py` does).
     recipe_of: str | None = None
+    # The `train.py --backend` a recipe row trains with ("sbx": SBX's PPO, its recipes file
+    # agents/hyperparams/ppo_sbx.yml, whose entries are ppo.yml's fast recipe but the budget).
+    backend: str = "sb3"
 
 
 # Generic hyperparameters: each library's defaults, as a first try would use them. The only
@@ -84,6 +87,10 @@ ALGOS: dict[str, Algo] = {a.name: a for a in (
               "150-step training episodes, orbit-size reward shaping, normalised "
               "observations, warm start at the level's best constant speed), the model "
               "selected on validation episodes; no imitation"),
+    Algo("ppo-fast-sbx", "sbx", "PPO", budget=3_000_000, n_envs=64,
+         recipe_of="SaddleTrap-Capture-v0", backend="sbx",
+         note="ppo-fast's recipe, steps and selection with SBX's PPO (JAX) as the learner "
+              "(`train.py --backend sbx`): what the learner alone changes"),
 )}
 
 
@@ -145,8 +152,8 @@ def _versions() -> dict[str, str]:
     import importlib.metadata as md
 
     out = {"python": platform.python_version()}
-    for pkg in ("saddle-env", "stable-baselines3", "sb3-contrib", "torch", "numpy", "numba",
-                "gymnasium"):
+    for pkg in ("saddle-env", "stable-baselines3", "sb3-contrib", "sbx-rl", "jax", "torch",
+                "numpy", "numba", "gymnasium"):
         try:
             out[pkg] = md.version(pkg)
         except md.PackageNotFoundError:
@@ -226,7 +233,8 @@ def _train_recipe(level: Any, algo: Algo, seed: int, steps: int, work: Path,
     from .training import TrainSettings, train
 
     settings = TrainSettings(algo="ppo", env_id=level.id, seed=seed, total_timesteps=steps,
-                             recipe_of=algo.recipe_of, log_dir=str(work / "runs"),
+                             recipe_of=algo.recipe_of, backend=algo.backend,
+                             log_dir=str(work / "runs"),
                              run_name=f"{algo.name}_seed{seed}",
                              compare_episodes=0, progress_bar=False,
                              torch_threads=torch_threads).validate()

@@ -236,7 +236,7 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
              f"test set ({test_episodes} episodes from seed 2,000,000, docs/leaderboard.md). "
              "The `ppo-fast` row is the exception: the project's fast recipe, one recipe for "
              "every level, trained as `train.py` trains (its model selected on validation "
-             "episodes).",
+             "episodes); `ppo-fast-sbx` is the same recipe with SBX's PPO as the learner.",
              "", "## Scores", "",
              "**Normalised score**: a run's mean trapping time T mapped so that uniform random "
              "actions score 0 and the level's upper reference 1, (T - T_random) / (T_upper - "
@@ -315,7 +315,8 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
               "**Adding a row.** Add an `Algo` to `ALGOS` in `agents/benchmark.py` (library, "
               "class, policy, budget, the keywords it runs with), run its cells, commit the "
               "files and regenerate this page. A recipe of `agents/hyperparams/ppo.yml` is a "
-              "row with `recipe_of` (the level whose entry it runs everywhere). A method "
+              "row with `recipe_of` (the level whose entry it runs everywhere; `backend` "
+              "picks the `train.py` back end). A method "
               "outside SB3 needs `run_cell` to train "
               "it and hand `agents.evaluation.evaluate` an object with SB3's `predict`.", "",
               "**Seeds.** Training run s steps episodes seeded from s (training episodes); the "

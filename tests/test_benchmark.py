@@ -67,6 +67,28 @@ def test_the_fast_recipe_row_trains_through_train_and_evaluates_the_selected_net
     assert summary["seeds"][0]["timesteps"] == rollout
 
 
+def test_the_sbx_row_is_the_fast_recipe_row_with_another_learner():
+    fast, sbx = B.ALGOS["ppo-fast"], B.ALGOS["ppo-fast-sbx"]
+    assert (sbx.recipe_of, sbx.budget, sbx.n_envs) == (fast.recipe_of, fast.budget, fast.n_envs)
+    assert (fast.backend, sbx.backend) == ("sb3", "sbx")
+
+
+@pytest.mark.slow
+def test_the_sbx_row_trains_through_the_sbx_back_end(tmp_path, monkeypatch):
+    """ppo-fast-sbx runs the same recipe as ppo-fast (the same keys, rollout, selection)
+    through `train.py --backend sbx`; the test set sees the selected network."""
+    pytest.importorskip("sbx")
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    result = B.run_cell(GUSTY, "ppo-fast-sbx", 1, budget=100, episodes=3)
+    assert result["steps_done"] == 64 * 256 and result["library"] == "sbx.PPO"
+    fast = B.run_cell(GUSTY, "ppo-fast", 1, budget=100, episodes=3)
+    assert result["hyperparameters"] == {**fast["hyperparameters"],
+                                         "n_timesteps": result["hyperparameters"]["n_timesteps"]}
+    assert len(result["episode_times"]) == 3 and "sbx-rl" in result["versions"]
+
+
 def _fake_cell(level, algo, seed, budget=None, episodes=B.TEST_EPISODES, **_):
     rng = np.random.default_rng(hash((level, algo, seed)) % 2 ** 32)
     mean = {"ppo": 8.0, "sac": 5.0}[algo] + rng.normal(0, 0.3)
