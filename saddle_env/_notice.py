@@ -27,7 +27,8 @@ _installed = False
 def _announce(name: str, fired: threading.Event) -> None:
     fired.set()
     logger.warning("saddle_env: compiling %s with numba, once: the compiled code is cached "
-                   "on disk, so later runs (and this run's next calls) start at once",
+                   "on disk, so later runs (and this run's next calls) start at once "
+                   "(python -m saddle_env.precompile compiles every level ahead)",
                    name)
 
 
