@@ -110,18 +110,29 @@ def _read_cache(path: Path) -> dict[str, Any]:
         return {}
 
 
+def cached_best_constant(config: EnvConfig, episodes: int = SEARCH_EPISODES,
+                         seed: int = SEARCH_SEED, max_episode_steps: int = DEFAULT_EPISODE_STEPS
+                         ) -> dict[str, Any] | None:
+    """`best_constant`'s cached result, or None where it would have to search."""
+    key = _search_key(config, episodes, seed, max_episode_steps)
+    override = os.environ.get(CACHE_ENV_VAR)
+    for path in (CACHE_FILE, USER_CACHE_FILE, *((Path(override),) if override else ())):
+        hit = _read_cache(path).get(key)
+        if hit is not None:
+            return hit
+    return None
+
+
 def best_constant(config: EnvConfig, episodes: int = SEARCH_EPISODES, seed: int = SEARCH_SEED,
                   max_episode_steps: int = DEFAULT_EPISODE_STEPS, recompute: bool = False) -> dict[str, Any]:
     """`search_best_constant`, cached by config in ``agents/best_const.json`` (or, if that
     is not writable, in ``~/.cache/saddle-env/best_const.json``; new searches go only to the
     file named by ``$SADDLE_ENV_BEST_CONST_CACHE`` when it is set)."""
-    key = _search_key(config, episodes, seed, max_episode_steps)
     if not recompute:
-        override = os.environ.get(CACHE_ENV_VAR)
-        for path in (CACHE_FILE, USER_CACHE_FILE, *((Path(override),) if override else ())):
-            hit = _read_cache(path).get(key)
-            if hit is not None:
-                return hit
+        hit = cached_best_constant(config, episodes, seed, max_episode_steps)
+        if hit is not None:
+            return hit
+    key = _search_key(config, episodes, seed, max_episode_steps)
     result = search_best_constant(config, episodes, seed, max_episode_steps)
     entry = {k: v for k, v in result.items() if k != "grid"}
     default = EnvConfig()
@@ -154,4 +165,4 @@ def best_const(config: EnvConfig,
 
 
 __all__ = ["CACHE_ENV_VAR", "CACHE_FILE", "SEARCH_EPISODES", "SEARCH_SEED", "USER_CACHE_FILE", "best_const",
-           "best_constant", "search_best_constant"]
+           "best_constant", "cached_best_constant", "search_best_constant"]

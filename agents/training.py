@@ -36,7 +36,7 @@ import time
 from pathlib import Path
 from types import ModuleType
 
-from . import rllib_backend, sb3_backend, sbx_backend
+from . import compile_ahead, rllib_backend, sb3_backend, sbx_backend
 from .cli_args import parse_env_kwargs
 from .model_files import untrusted
 from .recipes import load_hyperparams, parse_policy_kwargs, wrapper_settings
@@ -85,11 +85,19 @@ def train(settings: TrainSettings, resume: str | Path | None = None, trust: bool
                              settings.hyperparams or getattr(back, "RECIPES", None), note=True)
     settings.take_recipe(hyper)
     run_dir = settings.open_run_folder(resume)
-    model = back.run(settings, hyper, run_dir, resume, trust, began)
-    if model is not None:
-        plot_learning_curve(run_dir)
-        if settings.compare_episodes > 0:
-            compare(run_dir, settings, model)
+    ahead = compile_ahead.start(settings)   # the comparison's kernels, on the other core
+    try:
+        model = back.run(settings, hyper, run_dir, resume, trust, began)
+    except BaseException:
+        compile_ahead.finish(ahead, wait_s=0)
+        raise
+    if model is None:
+        compile_ahead.finish(ahead, wait_s=0)
+        return run_dir
+    plot_learning_curve(run_dir)
+    if settings.compare_episodes > 0:
+        compile_ahead.finish(ahead)
+        compare(run_dir, settings, model)
     return run_dir
 
 

@@ -21,6 +21,10 @@ if "SADDLE_ENV_BEST_CONST_CACHE" not in os.environ:
 # compiled once. The tests of the copies themselves turn this off (monkeypatch.delenv).
 os.environ.setdefault("SADDLE_ENV_FULL_KERNELS", "1")
 
+# The few training runs with a closing comparison are seconds long: a compile-ahead process
+# beside each (agents/compile_ahead.py) would only add its start-up. Its own tests turn it on.
+os.environ.setdefault("SADDLE_ENV_COMPILE_AHEAD", "0")
+
 
 # A cold run (CI's fresh clone) spends minutes compiling on one core while the other idles:
 # a large session starts tests/warm_cache.py beside it, which compiles into the on-disk cache

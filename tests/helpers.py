@@ -139,3 +139,28 @@ def sigterm_after_first_checkpoint(cmd: list[str], run, timeout: float = 240):
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 0, err[-2000:]
     return out, err
+
+
+def compiled_in_fresh_process(code: str, env: dict, timeout: float = 600) -> list[str]:
+    """The functions numba compiles while a fresh interpreter runs ``code`` (with ``env``),
+    by name, in order. The probe compiles one lambda of its own last, so a listener that saw
+    nothing shows up as a list without it rather than as an empty list."""
+    import json
+    import subprocess
+    import sys
+
+    probe = ("import json\n"
+             "from numba.core import event\n"
+             "seen = []\n"
+             "class L(event.Listener):\n"
+             "    def on_start(self, ev): seen.append(ev.data['dispatcher'].py_func.__qualname__)\n"
+             "    def on_end(self, ev): pass\n"
+             "event.register('numba:compile', L())\n"
+             + code + "\n"
+             "import numba\n"
+             "numba.njit(lambda x: x + 1)(1)\n"
+             "print(json.dumps(seen))\n")
+    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True,
+                         timeout=timeout)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])

@@ -1,12 +1,13 @@
 """saddle_env.precompile: targets checked before any work, progress and failures reported,
 and (slow) a fresh process's first step after it compiles nothing."""
 
-import json
 import os
 import subprocess
 import sys
 
 import pytest
+
+from helpers import compiled_in_fresh_process
 
 from saddle_env import precompile as pc
 from saddle_env.envs import LEVELS
@@ -65,20 +66,6 @@ def test_after_precompiling_a_fresh_process_compiles_nothing(tmp_path):
                           capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr
     assert "[2/2]" in done.stderr and "done in" in done.stderr
-    probe = (
-        "import json\n"
-        "from numba.core import event\n"
-        "seen = []\n"
-        "class L(event.Listener):\n"
-        "    def on_start(self, ev): seen.append(ev.data['dispatcher'].py_func.__qualname__)\n"
-        "    def on_end(self, ev): pass\n"
-        "event.register('numba:compile', L())\n"
-        "from saddle_env.compile_profile import run_scenario\n"
-        "run_scenario('SaddleTrap-Storm-v0'); run_scenario('simulate')\n"
-        "import numba\n"
-        "numba.njit(lambda x: x + 1)(1)      # a compile the listener must see\n"
-        "print(json.dumps(seen))\n")
-    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True,
-                         text=True, timeout=300)
-    assert out.returncode == 0, out.stderr
-    assert json.loads(out.stdout.strip().splitlines()[-1]) == ["<lambda>"]
+    code = ("from saddle_env.compile_profile import run_scenario\n"
+            "run_scenario('SaddleTrap-Storm-v0'); run_scenario('simulate')")
+    assert compiled_in_fresh_process(code, env, timeout=300) == ["<lambda>"]
