@@ -78,8 +78,26 @@ def compile_comparison(env_id: str, episodes: int, max_episode_steps: int) -> No
         run_episodes(config, act, seeds, max_episode_steps=STEPS, row_independent=independent)
 
 
+def _exit_with_parent() -> None:
+    """Exit when the process that started this one is gone: a run killed before its own
+    SIGTERM handler is in place cannot stop this process, which would otherwise compile on
+    for up to a minute with nobody to use it."""
+    import threading
+    import time
+
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(0)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     env_id, episodes, steps = (argv if argv is not None else sys.argv[1:])
+    _exit_with_parent()
     compile_comparison(env_id, int(episodes), int(steps))
     return 0
 

@@ -60,3 +60,36 @@ def test_a_comparison_after_it_compiles_nothing(tmp_path):
             "compile_ahead.STEPS = 20\n"
             f"compile_ahead.compile_comparison({level!r}, 200, 500)")
     assert compiled_in_fresh_process(code, env) == ["<lambda>"]
+
+
+def test_it_exits_when_the_run_that_started_it_is_killed(tmp_path):
+    """A run killed before its SIGTERM handler is in place cannot stop it: it notices that
+    its parent is gone and exits."""
+    import time
+
+    pid_file = tmp_path / "child.pid"
+    child = ("import os, time, sys\n"
+             "from agents.compile_ahead import _exit_with_parent\n"
+             "_exit_with_parent()\n"
+             f"open({str(pid_file)!r}, 'w').write(str(os.getpid()))\n"
+             "time.sleep(60)\n")
+    parent = subprocess.Popen([sys.executable, "-c",
+                               "import subprocess, sys, time\n"
+                               f"subprocess.Popen([sys.executable, '-c', {child!r}])\n"
+                               "time.sleep(60)\n"])
+    for _ in range(200):
+        if pid_file.is_file() and pid_file.read_text():
+            break
+        time.sleep(0.05)
+    pid = int(pid_file.read_text())
+    parent.kill()
+    parent.wait()
+    for _ in range(100):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.05)
+    else:
+        os.kill(pid, 9)
+        pytest.fail("the compile-ahead process outlived its parent by 5 s")
