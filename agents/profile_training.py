@@ -104,56 +104,57 @@ def markdown(rows: list[dict[str, Any]], wall: float, title: str) -> str:
     return "\n".join(out)
 
 
-def _sb3_timers(algo: str) -> Timers:
+def _sb3_loop_timers() -> Timers:
+    """Timers around what the SB3 back end's loop does with either learner (SB3's own or
+    SBX's): the batch env, the rollout buffer's GAE, evaluations and saves, the warm start,
+    building the environments."""
     from stable_baselines3.common import base_class, callbacks
     from stable_baselines3.common.buffers import RolloutBuffer
-    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
-    from stable_baselines3.common.policies import ActorCriticPolicy
 
     from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
 
     from . import sb3_backend, warm_start
-    from .sb3_backend import algo_class
 
     t = Timers()
     t.wrap(SaddleTrapSB3VecEnv, "step_wait", "env stepping")
-    t.wrap(ActorCriticPolicy, "forward", "policy forward")            # PPO, A2C rollouts
-    t.wrap(ActorCriticPolicy, "predict_values", "policy forward")
-    t.wrap(OffPolicyAlgorithm, "_sample_action", "policy forward")    # SAC, TD3 collection
     t.wrap(RolloutBuffer, "compute_returns_and_advantage", "advantages (GAE)")
-    t.wrap(algo_class(algo), "train", "gradient updates")
     t.wrap(callbacks, "evaluate_policy", "evaluation + selection")
     t.wrap(base_class.BaseAlgorithm, "save", "evaluation + selection")
     t.wrap(warm_start, "warm_start", "warm start")
     t.wrap(sb3_backend, "make_vec_env", "start-up")
+    return t
+
+
+def _sb3_timers(algo: str) -> Timers:
+    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+    from stable_baselines3.common.policies import ActorCriticPolicy
+
+    from . import sb3_backend
+    from .sb3_backend import algo_class
+
+    t = _sb3_loop_timers()
+    t.wrap(ActorCriticPolicy, "forward", "policy forward")            # PPO, A2C rollouts
+    t.wrap(ActorCriticPolicy, "predict_values", "policy forward")
+    t.wrap(OffPolicyAlgorithm, "_sample_action", "policy forward")    # SAC, TD3 collection
+    t.wrap(algo_class(algo), "train", "gradient updates")
     t.wrap(sb3_backend, "_new_model", "start-up")
     return t
 
 
 def _sbx_timers() -> Timers:
     """Timers around SBX's PPO (JAX) in the SB3 back end's loop (`agents.sbx_backend`): its
-    rollout's ``predict_all``, SB3's rollout buffer, its ``train``; saves include copying the
-    flax network into the SB3 twin that is written, and checkpoints the learner state."""
+    rollout's ``predict_all``, its ``train``; saves include copying the flax network into
+    the SB3 twin that is written, and checkpoints the learner state."""
     from sbx import PPO
     from sbx.ppo.policies import PPOPolicy
-    from stable_baselines3.common import base_class, callbacks
-    from stable_baselines3.common.buffers import RolloutBuffer
 
-    from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
+    from . import sbx_backend
 
-    from . import sb3_backend, sbx_backend, warm_start
-
-    t = Timers()
-    t.wrap(SaddleTrapSB3VecEnv, "step_wait", "env stepping")
+    t = _sb3_loop_timers()
     t.wrap(PPOPolicy, "predict_all", "policy forward")
-    t.wrap(RolloutBuffer, "compute_returns_and_advantage", "advantages (GAE)")
     t.wrap(PPO, "train", "gradient updates")
-    t.wrap(callbacks, "evaluate_policy", "evaluation + selection")
     t.wrap(sbx_backend.SbxLearner, "save", "evaluation + selection")
     t.wrap(sbx_backend.SbxLearner, "checkpoint", "evaluation + selection")
-    t.wrap(base_class.BaseAlgorithm, "save", "evaluation + selection")
-    t.wrap(warm_start, "warm_start", "warm start")
-    t.wrap(sb3_backend, "make_vec_env", "start-up")
     t.wrap(sbx_backend.SbxLearner, "new_model", "start-up")
     return t
 

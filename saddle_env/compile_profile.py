@@ -187,6 +187,21 @@ class CompilePhases:
         return "\n".join(lines)
 
 
+def readme_ball():
+    """The README's rolling ball: (scene, state at rest in the lab frame at Ω = 30 rad/s)."""
+    import saddle_env as se
+
+    scene = se.Scene(a=0.159, R=0.02, contact="rolling")
+    return scene, se.initial_state(scene, x=0.001, y=0.001, start="lab-rest", omega=30.0)
+
+
+def first_step(env) -> None:
+    """An env's (or a vector env's) first ``reset(seed=0)`` and ``step``, then close it."""
+    env.reset(seed=0)
+    env.step(env.action_space.sample() * 0)
+    env.close()
+
+
 def run_scenario(name: str) -> None:
     """Run one scenario: ``simulate`` or a level id's first reset and step."""
     import gymnasium as gym
@@ -194,14 +209,10 @@ def run_scenario(name: str) -> None:
     import saddle_env as se
 
     if name == "simulate":
-        scene = se.Scene(a=0.159, R=0.02, contact="rolling")
-        state = se.initial_state(scene, x=0.001, y=0.001, start="lab-rest", omega=30.0)
+        scene, state = readme_ball()
         se.simulate(scene, state, t_end=10.0, omega=30.0, dt_out=0.01)
         return
-    env = gym.make(name)
-    env.reset(seed=0)
-    env.step(env.action_space.sample() * 0)
-    env.close()
+    first_step(gym.make(name))
 
 
 def _scenarios(names: list[str]) -> list[str]:

@@ -34,28 +34,17 @@ from collections.abc import Callable, Sequence
 VECTOR = "vector:"
 
 
-def _first_step(env) -> None:
-    env.reset(seed=0)
-    env.step(env.action_space.sample() * 0)
-    env.close()
-
-
 def _vector(env_id: str) -> None:
     import gymnasium as gym
 
+    from .compile_profile import first_step
     from .envs._step import MIN_BLOCK
     from .lockstep import LANES
 
     # The engine steps fewer than 2 LANES balls in one thread with SIMD blocks (step_serial)
     # and more over threads (step_parallel): see `envs.engine.TrapEngine`.
     for n in (MIN_BLOCK, 2 * LANES):
-        _first_step(gym.make_vec(env_id, num_envs=n))
-
-
-def _simulate() -> None:
-    from .compile_profile import run_scenario
-
-    run_scenario("simulate")
+        first_step(gym.make_vec(env_id, num_envs=n))
 
 
 def _batch() -> None:
@@ -63,24 +52,22 @@ def _batch() -> None:
 
     import saddle_env as se
 
-    scene = se.Scene(a=0.159, R=0.02, contact="rolling")
-    state = se.initial_state(scene, x=0.001, y=0.001, start="lab-rest", omega=30.0)
+    from .compile_profile import readme_ball
+
+    scene, state = readme_ball()
     se.simulate_batch(scene, np.repeat(state[None], 2, 0), 0.1, omega=30.0, dt_out=0.01)
 
 
 def target_runner(target: str) -> Callable[[], None]:
     """The function that compiles ``target`` (ValueError naming the allowed targets)."""
-    import gymnasium as gym
-
+    from .compile_profile import run_scenario
     from .envs import LEVELS
 
     ids = [level.id for level in LEVELS]
-    if target == "simulate":
-        return _simulate
+    if target == "simulate" or target in ids:
+        return lambda: run_scenario(target)
     if target == "batch":
         return _batch
-    if target in ids:
-        return lambda: _first_step(gym.make(target))
     if target.startswith(VECTOR) and target[len(VECTOR):] in ids:
         return lambda: _vector(target[len(VECTOR):])
     raise ValueError(f"unknown target {target!r}: one of simulate, batch, a level id "
@@ -130,6 +117,7 @@ def precompile(targets: Sequence[str], jobs: int = 1,
     one). Returns each target's seconds, or its error message."""
     for t in targets:
         target_runner(t)            # unknown targets fail before any work starts
+    log(f"compiling {len(targets)} target(s) in {jobs} process(es) into numba's cache")
     results: dict[str, float | str] = {}
 
     def report(t: str, outcome: float | str) -> None:
@@ -179,17 +167,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     targets = args.targets or default_targets()
     if args.jobs is not None and args.jobs < 1:
         parser.error(f"--jobs must be >= 1, got {args.jobs}")
-    try:
-        for t in targets:
-            target_runner(t)
-    except ValueError as exc:
-        parser.error(str(exc))
     jobs = min(args.jobs or usable_cores(), len(targets))
-    print(f"compiling {len(targets)} target(s) in {jobs} process(es) into numba's cache",
-          file=sys.stderr, flush=True)
     start = time.perf_counter()
     try:
         results = precompile(targets, jobs)
+    except ValueError as exc:
+        parser.error(str(exc))
     except KeyboardInterrupt:
         print("interrupted: what finished is cached; run again for the rest", file=sys.stderr)
         return 130

@@ -40,8 +40,9 @@ def test_a_failed_target_is_reported_and_the_others_still_compile(monkeypatch):
     lines = []
     results = pc.precompile(["batch", "simulate"], jobs=1, log=lines.append)
     assert results["batch"] == "RuntimeError: no luck" and isinstance(results["simulate"], float)
-    assert lines[0] == "[1/2] batch: FAILED: RuntimeError: no luck"
-    assert lines[1].startswith("[2/2] simulate: ")
+    assert lines[0] == "compiling 2 target(s) in 1 process(es) into numba's cache"
+    assert lines[1] == "[1/2] batch: FAILED: RuntimeError: no luck"
+    assert lines[2].startswith("[2/2] simulate: ")
     assert pc.main(["batch", "simulate", "--jobs", "1"]) == 1
 
 
