@@ -216,7 +216,11 @@ def provenance(results: list[dict[str, Any]]) -> dict[str, Any]:
         for k, v in r.get("versions", {}).items():
             versions.setdefault(k, set()).add(v)
     loads = [r["load_average_at_end"][0] for r in results if r.get("load_average_at_end")]
+    training_s: dict[str, float] = {}
+    for r in results:
+        training_s[r["algo"]] = training_s.get(r["algo"], 0.0) + r["train_wall_s"]
     return {"versions": {k: sorted(v) for k, v in sorted(versions.items())},
+            "training_s": {k: round(v, 1) for k, v in sorted(training_s.items())},
             "machines": sorted({r.get("machine", "?") for r in results}),
             "dates": sorted({str(r.get("date", "?"))[:10] for r in results}),
             "load_average": [round(min(loads), 1), round(max(loads), 1)] if loads else None}
@@ -325,6 +329,15 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
               "recipe row selects on the validation episodes (seeds from 1,000,000), which "
               "neither training nor the test set uses.", ""]
     prov = data.get("provenance")
+    if prov and prov.get("training_s"):
+        hours = {a: s / 3600 for a, s in prov["training_s"].items()}
+        lines += [f"**Why {len(seeds)} seeds.** The committed runs took "
+                  f"{sum(hours.values()):.1f} hours of training ("
+                  + ", ".join(f"{a} {h:.1f} h" for a, h in hours.items())
+                  + f") on {', '.join(prov['machines'])}, so each further seed would cost "
+                  f"about {sum(hours.values()) / len(seeds):.0f} hours more. The intervals above "
+                  "are over these runs; more seeds narrow them: "
+                  "`python -m agents.benchmark --seeds 3 4` adds two without redoing any.", ""]
     if prov:
         vers = ", ".join(f"{k} {'/'.join(v)}" for k, v in prov["versions"].items())
         load = prov["load_average"]

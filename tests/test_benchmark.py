@@ -134,6 +134,7 @@ def test_the_report_is_generated_from_the_result_files(tmp_path, monkeypatch, ca
     assert B.main(["--report", "--out", str(results), "--docs", str(docs)]) == 0
     md = (docs / "benchmark.md").read_text()
     assert f"### {GUSTY}" in md and "| ppo | 3 (0, 1, 2)" in md and "IQM" in md
+    assert "**Why 3 seeds.**" in md
     for fig in ("benchmark_aggregates.png", "benchmark_profiles.png"):
         assert (docs / "figures" / fig).read_bytes()[:4] == b"\x89PNG"
     capsys.readouterr()
@@ -153,6 +154,8 @@ def test_the_report_is_generated_from_the_result_files(tmp_path, monkeypatch, ca
         assert data["levels"][lv]["sac"]["p_improve_mpc"] == 0.0
     assert data["levels"][STORM]["ppo"]["p_improve_best-const"] == 1.0
     assert data["across_levels"]["ppo"]["seeds"] == 3
+    # the compute the seeds cost: each fake run trained 1 s, 2 levels x 3 seeds per row
+    assert data["provenance"]["training_s"] == {"ppo": 6.0, "sac": 6.0}
 
 
 def test_bad_cells_are_one_line_errors(capsys):
