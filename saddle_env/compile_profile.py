@@ -142,8 +142,13 @@ class CompilePhases:
                  "numba: wrapper for C callers"),
                 ("numba.core.caching", "Cache", "save_overload", "numba: writing the cache"))
 
+    OTHER = "numba: other passes"
+    PASSES_LISTED = 8   # the largest of the other passes, named under the table
+
     def __init__(self):
         self.seconds: dict[str, float] = defaultdict(float)
+        # The "other passes" by pass name: what a pipeline without some of them could save.
+        self.other_passes: dict[str, float] = defaultdict(float)
         self._stack: list[float] = []   # per open phase: seconds of phases nested in it
         self._saved: list[tuple[type, str, object]] = []
 
@@ -151,14 +156,17 @@ class CompilePhases:
         recorder = self
 
         def timed(*args, **kwargs):
-            label = phase or recorder.PHASES.get(args[2].name(), "numba: other passes")
+            label = phase or recorder.PHASES.get(args[2].name(), recorder.OTHER)
             start = time.process_time()
             recorder._stack.append(0.0)
             try:
                 return fn(*args, **kwargs)
             finally:
                 took = time.process_time() - start
-                recorder.seconds[label] += took - recorder._stack.pop()
+                own = took - recorder._stack.pop()
+                recorder.seconds[label] += own
+                if label == recorder.OTHER:
+                    recorder.other_passes[args[2].name()] += own
                 if recorder._stack:
                     recorder._stack[-1] += took
 
@@ -184,6 +192,14 @@ class CompilePhases:
         lines = [f"{'phase (own CPU seconds)':<48} {'s':>6} {'share':>6}"]
         for label, sec in sorted(self.seconds.items(), key=lambda kv: -kv[1]):
             lines.append(f"{label:<48} {sec:>6.2f} {sec / total:>6.0%}")
+        passes = sorted(self.other_passes.items(), key=lambda kv: -kv[1])
+        if passes:
+            lines.append(f"{self.OTHER}, the largest:")
+            for name, sec in passes[:self.PASSES_LISTED]:
+                lines.append(f"  {name:<46} {sec:>6.2f} {sec / total:>6.0%}")
+            rest = sum(sec for _, sec in passes[self.PASSES_LISTED:])
+            lines.append(f"  {f'{len(passes) - self.PASSES_LISTED} more':<46} {rest:>6.2f} "
+                         f"{rest / total:>6.0%}")
         return "\n".join(lines)
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import time
 
+import pytest
+
 
 def test_compile_phases_account_for_a_compile_and_restore_numba():
     """`compile_profile --phases`: each phase's own CPU seconds add up to no more than the
@@ -28,5 +30,9 @@ def test_compile_phases_account_for_a_compile_and_restore_numba():
     assert seconds["numba: type inference"] > 0 and seconds["LLVM: machine code"] > 0
     assert 0 < sum(seconds.values()) <= took + 1e-3
     assert "numba: type inference" in phases.table()
+    # the other passes are named too, and they are the group's time, split
+    assert "translate_bytecode" in phases.other_passes
+    assert sum(phases.other_passes.values()) == \
+        pytest.approx(seconds["numba: other passes"])
     assert (compiler_machinery.PassManager.__dict__["_runPass"],
             codegen.CPUCodeLibrary.__dict__["_finalize_final_module"]) == before
