@@ -106,6 +106,11 @@ def _improvement(scores: np.ndarray, baseline: np.ndarray) -> tuple[float, list[
     return float(point["x"]), [float(v) for v in np.ravel(interval["x"])]
 
 
+def _median_load(runs: list[dict[str, Any]]) -> float | None:
+    loads = [r["load_average_at_end"][0] for r in runs if r.get("load_average_at_end")]
+    return round(float(np.median(loads)), 1) if loads else None
+
+
 def report_data(results: list[dict[str, Any]], refs: dict[str, dict[str, Any]]
                 ) -> dict[str, Any]:
     """The report's numbers: per level and algorithm, and across levels."""
@@ -134,6 +139,9 @@ def report_data(results: list[dict[str, Any]], refs: dict[str, dict[str, Any]]
                    "kept_mean": float(np.mean([r["kept"]["mean"] for r in rs])),
                    "budget_steps": rs[0]["budget_steps"],
                    "train_wall_s_median": float(np.median([r["train_wall_s"] for r in rs])),
+                   # the machine's 1-minute load when the runs ended: wall times compare only
+                   # between rows trained under similar load
+                   "load_at_end_median": _median_load(rs),
                    "test_episodes": rs[0]["test"]["episodes"]}
             for base in ("best-const", "mpc"):
                 p, ci = _improvement(scores[a], np.array([[normalise(ref[base], ref)]]))
@@ -281,7 +289,7 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
     for lid, table in data["levels"].items():
         lines += ["", f"### {lid}", "",
                   "| algorithm | seeds | trapping time (mean of runs) [s] | kept | IQM | mean "
-                  "| P(>best-const) | P(>mpc) | budget | training (median) |",
+                  "| P(>best-const) | P(>mpc) | budget | training (median; load at its end) |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
         for a, row in table.items():
             runs = ", ".join(f"{t:.2f}" for t in row["trapping_time_runs"])
@@ -291,7 +299,9 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
                 f"{_ci(row['iqm'], row['iqm_ci'])} | {_ci(row['mean'], row['mean_ci'])} | "
                 f"{_ci(row['p_improve_best-const'], row['p_improve_best-const_ci'])} | "
                 f"{_ci(row['p_improve_mpc'], row['p_improve_mpc_ci'])} | "
-                f"{row['budget_steps']:,} steps | {row['train_wall_s_median'] / 60:.1f} min |")
+                f"{row['budget_steps']:,} steps | {row['train_wall_s_median'] / 60:.1f} min"
+                + (f" ({row['load_at_end_median']:.1f})" if row["load_at_end_median"] is not None
+                   else "") + " |")
     lines += ["", "## The rows", "", "| row | library | budget | hyperparameters |",
               "|---|---|---|---|"]
     for a in rows.values():

@@ -95,7 +95,8 @@ def _fake_cell(level, algo, seed, budget=None, episodes=B.TEST_EPISODES, **_):
     return {"level": level, "algo": algo, "seed": seed, "budget_steps": 10,
             "train_wall_s": 1.0, "test": {"seed": 0, "episodes": episodes},
             "trapping_time": {"mean": mean, "low": mean - 0.1, "high": mean + 0.1},
-            "kept": {"mean": mean / 10}, "return": {"mean": 50 * mean}}
+            "kept": {"mean": mean / 10}, "return": {"mean": 50 * mean},
+            "load_average_at_end": [1.0 + seed, 0.0, 0.0]}
 
 
 def test_a_killed_suite_resumes_where_it_stopped(tmp_path, monkeypatch):
@@ -135,6 +136,7 @@ def test_the_report_is_generated_from_the_result_files(tmp_path, monkeypatch, ca
     md = (docs / "benchmark.md").read_text()
     assert f"### {GUSTY}" in md and "| ppo | 3 (0, 1, 2)" in md and "IQM" in md
     assert "**Why 3 seeds.**" in md
+    assert "| 10 steps | 0.0 min (2.0) |" in md   # the median run's load beside its wall time
     for fig in ("benchmark_aggregates.png", "benchmark_profiles.png"):
         assert (docs / "figures" / fig).read_bytes()[:4] == b"\x89PNG"
     capsys.readouterr()
@@ -156,6 +158,7 @@ def test_the_report_is_generated_from_the_result_files(tmp_path, monkeypatch, ca
     assert data["across_levels"]["ppo"]["seeds"] == 3
     # the compute the seeds cost: each fake run trained 1 s, 2 levels x 3 seeds per row
     assert data["provenance"]["training_s"] == {"ppo": 6.0, "sac": 6.0}
+    assert data["levels"][GUSTY]["ppo"]["load_at_end_median"] == 2.0   # loads 1, 2, 3
 
 
 def test_bad_cells_are_one_line_errors(capsys):
