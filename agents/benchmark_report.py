@@ -106,9 +106,16 @@ def _improvement(scores: np.ndarray, baseline: np.ndarray) -> tuple[float, list[
     return float(point["x"]), [float(v) for v in np.ravel(interval["x"])]
 
 
-def _median_load(runs: list[dict[str, Any]]) -> float | None:
-    loads = [r["load_average_at_end"][0] for r in runs if r.get("load_average_at_end")]
-    return round(float(np.median(loads)), 1) if loads else None
+def _load_at_end(run: dict[str, Any]) -> float | None:
+    """The machine's 1-minute load average when the run ended (None: not recorded)."""
+    load = run.get("load_average_at_end")
+    return float(load[0]) if load else None
+
+
+def _median_run(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The run of median training time (the lower of the two middle ones for an even count),
+    so that its wall time is shown with the load it was measured under."""
+    return sorted(runs, key=lambda r: r["train_wall_s"])[(len(runs) - 1) // 2]
 
 
 def report_data(results: list[dict[str, Any]], refs: dict[str, dict[str, Any]]
@@ -138,10 +145,9 @@ def report_data(results: list[dict[str, Any]], refs: dict[str, dict[str, Any]]
                    "trapping_time_runs": [round(t, 4) for t in times],
                    "kept_mean": float(np.mean([r["kept"]["mean"] for r in rs])),
                    "budget_steps": rs[0]["budget_steps"],
-                   "train_wall_s_median": float(np.median([r["train_wall_s"] for r in rs])),
-                   # the machine's 1-minute load when the runs ended: wall times compare only
-                   # between rows trained under similar load
-                   "load_at_end_median": _median_load(rs),
+                   # wall times compare only between runs trained under similar load
+                   "train_wall_s_median_run": float(_median_run(rs)["train_wall_s"]),
+                   "load_at_end_median_run": _load_at_end(_median_run(rs)),
                    "test_episodes": rs[0]["test"]["episodes"]}
             for base in ("best-const", "mpc"):
                 p, ci = _improvement(scores[a], np.array([[normalise(ref[base], ref)]]))
@@ -223,12 +229,13 @@ def provenance(results: list[dict[str, Any]]) -> dict[str, Any]:
     for r in results:
         for k, v in r.get("versions", {}).items():
             versions.setdefault(k, set()).add(v)
-    loads = [r["load_average_at_end"][0] for r in results if r.get("load_average_at_end")]
+    loads = [x for x in map(_load_at_end, results) if x is not None]
     training_s: dict[str, float] = {}
     for r in results:
         training_s[r["algo"]] = training_s.get(r["algo"], 0.0) + r["train_wall_s"]
     return {"versions": {k: sorted(v) for k, v in sorted(versions.items())},
             "training_s": {k: round(v, 1) for k, v in sorted(training_s.items())},
+            "seeds": sorted({r["seed"] for r in results}),
             "machines": sorted({r.get("machine", "?") for r in results}),
             "dates": sorted({str(r.get("date", "?"))[:10] for r in results}),
             "load_average": [round(min(loads), 1), round(max(loads), 1)] if loads else None}
@@ -289,7 +296,7 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
     for lid, table in data["levels"].items():
         lines += ["", f"### {lid}", "",
                   "| algorithm | seeds | trapping time (mean of runs) [s] | kept | IQM | mean "
-                  "| P(>best-const) | P(>mpc) | budget | training (median; load at its end) |",
+                  "| P(>best-const) | P(>mpc) | budget | training (median run; load at its end) |",
                   "|---|---|---|---|---|---|---|---|---|---|"]
         for a, row in table.items():
             runs = ", ".join(f"{t:.2f}" for t in row["trapping_time_runs"])
@@ -299,9 +306,9 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
                 f"{_ci(row['iqm'], row['iqm_ci'])} | {_ci(row['mean'], row['mean_ci'])} | "
                 f"{_ci(row['p_improve_best-const'], row['p_improve_best-const_ci'])} | "
                 f"{_ci(row['p_improve_mpc'], row['p_improve_mpc_ci'])} | "
-                f"{row['budget_steps']:,} steps | {row['train_wall_s_median'] / 60:.1f} min"
-                + (f" ({row['load_at_end_median']:.1f})" if row["load_at_end_median"] is not None
-                   else "") + " |")
+                f"{row['budget_steps']:,} steps | {row['train_wall_s_median_run'] / 60:.1f} min"
+                + (f" ({row['load_at_end_median_run']:.1f})"
+                   if row["load_at_end_median_run"] is not None else "") + " |")
     lines += ["", "## The rows", "", "| row | library | budget | hyperparameters |",
               "|---|---|---|---|"]
     for a in rows.values():
@@ -339,15 +346,18 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
               "recipe row selects on the validation episodes (seeds from 1,000,000), which "
               "neither training nor the test set uses.", ""]
     prov = data.get("provenance")
-    if prov and prov.get("training_s"):
+    if prov and prov.get("seeds"):
         hours = {a: s / 3600 for a, s in prov["training_s"].items()}
-        lines += [f"**Why {len(seeds)} seeds.** The committed runs took "
-                  f"{sum(hours.values()):.1f} hours of training ("
+        n_seeds = len(prov["seeds"])
+        lines += [f"**Why {n_seeds} seeds.** The committed runs took "
+                  f"{sum(hours.values()):.1f} hours of training wall time ("
                   + ", ".join(f"{a} {h:.1f} h" for a, h in hours.items())
-                  + f") on {', '.join(prov['machines'])}, so each further seed would cost "
-                  f"about {sum(hours.values()) / len(seeds):.0f} hours more. The intervals above "
-                  "are over these runs; more seeds narrow them: "
-                  "`python -m agents.benchmark --seeds 3 4` adds two without redoing any.", ""]
+                  + f") on {', '.join(prov['machines'])}, an upper bound of their cost since "
+                  "many ran beside other jobs, so each further seed would cost up to "
+                  f"{sum(hours.values()) / n_seeds:.0f} hours more. The intervals above are over "
+                  "these runs; more seeds narrow them: `python -m agents.benchmark --seeds "
+                  f"{max(prov['seeds']) + 1} {max(prov['seeds']) + 2}` adds two without redoing "
+                  "any.", ""]
     if prov:
         vers = ", ".join(f"{k} {'/'.join(v)}" for k, v in prov["versions"].items())
         load = prov["load_average"]

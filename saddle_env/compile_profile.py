@@ -156,7 +156,8 @@ class CompilePhases:
         recorder = self
 
         def timed(*args, **kwargs):
-            label = phase or recorder.PHASES.get(args[2].name(), recorder.OTHER)
+            pass_name = None if phase else args[2].name()
+            label = phase or recorder.PHASES.get(pass_name, recorder.OTHER)
             start = time.process_time()
             recorder._stack.append(0.0)
             try:
@@ -166,7 +167,7 @@ class CompilePhases:
                 own = took - recorder._stack.pop()
                 recorder.seconds[label] += own
                 if label == recorder.OTHER:
-                    recorder.other_passes[args[2].name()] += own
+                    recorder.other_passes[pass_name] += own
                 if recorder._stack:
                     recorder._stack[-1] += took
 
@@ -197,9 +198,10 @@ class CompilePhases:
             lines.append(f"{self.OTHER}, the largest:")
             for name, sec in passes[:self.PASSES_LISTED]:
                 lines.append(f"  {name:<46} {sec:>6.2f} {sec / total:>6.0%}")
-            rest = sum(sec for _, sec in passes[self.PASSES_LISTED:])
-            lines.append(f"  {f'{len(passes) - self.PASSES_LISTED} more':<46} {rest:>6.2f} "
-                         f"{rest / total:>6.0%}")
+            if len(passes) > self.PASSES_LISTED:
+                rest = sum(sec for _, sec in passes[self.PASSES_LISTED:])
+                lines.append(f"  {f'{len(passes) - self.PASSES_LISTED} more':<46} "
+                             f"{rest:>6.2f} {rest / total:>6.0%}")
         return "\n".join(lines)
 
 
