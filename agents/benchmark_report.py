@@ -140,14 +140,15 @@ def report_data(results: list[dict[str, Any]], refs: dict[str, dict[str, Any]]
         table = {}
         for a, rs in runs.items():
             times = [r["trapping_time"]["mean"] for r in rs]
+            median_run = _median_run(rs)
             row = {"seeds": len(rs), "seed_list": [r["seed"] for r in rs], **agg[a],
                    "trapping_time_mean": float(np.mean(times)),
                    "trapping_time_runs": [round(t, 4) for t in times],
                    "kept_mean": float(np.mean([r["kept"]["mean"] for r in rs])),
                    "budget_steps": rs[0]["budget_steps"],
                    # wall times compare only between runs trained under similar load
-                   "train_wall_s_median_run": float(_median_run(rs)["train_wall_s"]),
-                   "load_at_end_median_run": _load_at_end(_median_run(rs)),
+                   "train_wall_s_median_run": float(median_run["train_wall_s"]),
+                   "load_at_end_median_run": _load_at_end(median_run),
                    "test_episodes": rs[0]["test"]["episodes"]}
             for base in ("best-const", "mpc"):
                 p, ci = _improvement(scores[a], np.array([[normalise(ref[base], ref)]]))

@@ -88,16 +88,13 @@ def train(settings: TrainSettings, resume: str | Path | None = None, trust: bool
     ahead = compile_ahead.start(settings)   # the comparison's kernels, on the other core
     try:
         model = back.run(settings, hyper, run_dir, resume, trust, began)
-    except BaseException:
-        compile_ahead.finish(ahead, wait_s=0)
-        raise
-    if model is None:
-        compile_ahead.finish(ahead, wait_s=0)
-        return run_dir
-    plot_learning_curve(run_dir)
-    if settings.compare_episodes > 0:
-        compile_ahead.finish(ahead)
-        compare(run_dir, settings, model)
+        if model is not None:
+            plot_learning_curve(run_dir)
+            if settings.compare_episodes > 0:
+                compile_ahead.finish(ahead)     # waits for it: the comparison needs its work
+                compare(run_dir, settings, model)
+    finally:
+        compile_ahead.finish(ahead, wait_s=0)   # stopped however the run ends
     return run_dir
 
 
