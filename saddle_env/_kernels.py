@@ -39,6 +39,8 @@ from collections import namedtuple
 import numba as nb
 import numpy as np
 
+from . import _aot
+
 # Threads for numba's parallel loops (the batch simulator, the vector environment). Measured
 # on a shared 2-core machine, 1024-ball vector env, one run per row:
 #   layer                          idle           beside one CPU-bound process
@@ -213,6 +215,9 @@ class _Variant:
     def __init__(self):
         self.copies: dict[int, object] = {}
         self.spaces: dict[str, types.SimpleNamespace] = {}
+        # per module name: its namespace with the ahead-of-time entry points (`_aot`) in
+        # place of their JIT copies, for Python callers (the copies' own globals keep the JIT)
+        self.public: dict[str, types.SimpleNamespace] = {}
 
 
 _variants: dict[tuple[str, ...], _Variant] = {}
@@ -286,7 +291,10 @@ def specialise(models, resist: bool, module: types.ModuleType):
     below an entry point is specialised together. (Functions that test no flag are copied
     too, so that no copy needs numba's wrappers for Python callers: `_copy_of`.) Made once per flag set and process (a module registered later is added when
     first asked for); compiled (or loaded from the on-disk cache) on first call, as any
-    kernel. With every flag on, or with `FULL_KERNELS_ENV` set to 1, the module itself."""
+    kernel. Where an ahead-of-time build of the same sources has this flag set's entry points
+    (`_aot`: a first env step's and a first simulate's), the namespace has those in place of
+    the JIT copies: nothing compiles. With every flag on, or with `FULL_KERNELS_ENV` set to
+    1, the module itself."""
     flags = variant_flags(models, resist)
     if flags == _FLAGS or os.environ.get(FULL_KERNELS_ENV, "0") not in ("", "0"):
         return module
@@ -307,7 +315,27 @@ def specialise(models, resist: bool, module: types.ModuleType):
                 if _is_compiled(v) and id(v) in variant.copies:
                     space[k] = variant.copies[id(v)]
             variant.spaces[mod.__name__] = types.SimpleNamespace(**space)
-    return variant.spaces[module.__name__]
+    if module.__name__ not in variant.public:
+        ahead = _aot.compiled(flags, module.__name__)
+        space = variant.spaces[module.__name__]
+        for name, fn in ahead.items():
+            _jit_of[id(fn)] = getattr(space, name)
+        variant.public[module.__name__] = \
+            types.SimpleNamespace(**{**vars(space), **ahead}) if ahead else space
+    return variant.public[module.__name__]
+
+
+_jit_of: dict[int, object] = {}  # id of an ahead-of-time entry point → its JIT copy
+
+
+def checked(space: types.SimpleNamespace, name: str, args: tuple):
+    """``space``'s entry point ``name`` (from `specialise`) for a call with ``args``: the
+    ahead-of-time one if it was compiled for exactly these argument types, else its JIT copy
+    (which compiles for them). A caller whose argument types are fixed keeps the answer."""
+    fn = getattr(space, name)
+    if id(fn) in _jit_of and not _aot.matches(fn, args):
+        return _jit_of[id(fn)]
+    return fn
 
 
 @jit

@@ -16,6 +16,12 @@ A target is what one kind of first call compiles:
 * ``simulate``: `saddle_env.simulate` of a rolling ball (the README's example);
 * ``batch``: `saddle_env.simulate_batch` (the batch integrator over threads).
 
+With ``--aot`` it builds instead what the package's install builds (`saddle_env.aot_build`):
+the entry points of a first ``env.step`` and a first ``simulate``, compiled ahead of time into
+C extension modules that a fresh process loads without compiling (needs a C compiler). Run
+it after editing the package's sources in a source checkout: a build made from other sources
+is not used.
+
 By default every level and ``simulate``. Targets run in ``--jobs`` worker processes (default:
 the cores this process may use), each worker taking the next target when it is free; the
 order given is the order started, so put targets that share little first (levels with
@@ -150,6 +156,24 @@ def precompile(targets: Sequence[str], jobs: int = 1,
     return results
 
 
+def _build_aot(jobs: int) -> int:
+    from . import _aot, aot_build
+
+    start = time.perf_counter()
+    try:
+        manifest = aot_build.build(jobs, log=lambda m: print(m, file=sys.stderr))
+    except KeyboardInterrupt:
+        print("interrupted: no ahead-of-time build in place (the JIT is used)", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - the package still works, with the JIT
+        print(f"ahead-of-time build failed ({type(exc).__name__}: {exc}); the kernels "
+              "compile with numba's JIT on first use instead", file=sys.stderr)
+        return 1
+    print(f"built {len(manifest['modules'])} ahead-of-time modules into "
+          f"{_aot.AOT_DIR} in {time.perf_counter() - start:.1f} s", file=sys.stderr)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m saddle_env.precompile",
                                 description=__doc__.split("\n")[0])
@@ -158,15 +182,22 @@ def build_parser() -> argparse.ArgumentParser:
                         "and simulate)")
     p.add_argument("--jobs", type=int, default=None,
                    help="worker processes (default: the usable cores, at most one per target)")
+    p.add_argument("--aot", action="store_true",
+                   help="build the ahead-of-time compiled kernels (what the install builds) "
+                        "instead of filling numba's cache; no targets")
     return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    targets = args.targets or default_targets()
     if args.jobs is not None and args.jobs < 1:
         parser.error(f"--jobs must be >= 1, got {args.jobs}")
+    if args.aot:
+        if args.targets:
+            parser.error("--aot builds a fixed set of entry points: give no targets")
+        return _build_aot(args.jobs or usable_cores())
+    targets = args.targets or default_targets()
     jobs = min(args.jobs or usable_cores(), len(targets))
     start = time.perf_counter()
     try:

@@ -135,6 +135,20 @@ def drive_row(profile: OmegaProfile, force: tuple[float, float] = (0.0, 0.0),
     return row
 
 
+_loops: dict[tuple[int, bool], object] = {}
+
+
+def _loop(model: int, resist: bool, args: tuple):
+    """The integrator's loop compiled for this contact model alone (`_kernels.specialise`),
+    checked once per model against the arguments' types (`_kernels.checked`): `integrate`
+    builds every argument itself, as float64 and int64 arrays and records of floats and
+    ints, so their types do not change from call to call."""
+    key = (model, bool(resist))
+    if key not in _loops:
+        _loops[key] = K.checked(K.specialise((model,), resist, integrators), "integrate_h", args)
+    return _loops[key]
+
+
 def _check_state(scene: Scene, state: object, name: str = "state") -> np.ndarray:
     try:
         arr = np.asarray(state, dtype=float)
@@ -456,11 +470,10 @@ def run(scene: Scene, state: np.ndarray, t_end: float, *,
     coulomb = scene.contact == "coulomb"
     work = workspace(tab, TRANSITION_LOG_ROWS if coulomb else 0)
     # compiled for this scene's contact model alone (`_kernels.specialise`)
-    loop = K.specialise((scene.model_code,), p[P_RESIST] != 0.0, integrators).integrate_h
-    status, t_final = loop(
-        scene.model_code, p, drive_row(profile, force), y, 0.0, t_out, tab,
-        settings.control(settings.max_step_for(profile, float(t_out[-1]))),
-        state_scale(p, scene.model_code), Y_out, stats, 0.0, work)[:2]
+    args = (scene.model_code, p, drive_row(profile, force), y, 0.0, t_out, tab,
+            settings.control(settings.max_step_for(profile, float(t_out[-1]))),
+            state_scale(p, scene.model_code), Y_out, stats, 0.0, work)
+    status, t_final = _loop(scene.model_code, p[P_RESIST] != 0.0, args)(*args)[:2]
     _raise_on_failure(status, t_final, math.hypot(y[0], y[1]), scene)
     total, rows = transition_log(tab, work) if coulomb else (0, work[:0])
     n = int(stats[3])

@@ -20,6 +20,10 @@ if "SADDLE_ENV_BEST_CONST_CACHE" not in os.environ:
 # each set cost its cold run about 70 CPU s (docs/coldstart.md): it runs the full kernels,
 # compiled once. The tests of the copies themselves turn this off (monkeypatch.delenv).
 os.environ.setdefault("SADDLE_ENV_FULL_KERNELS", "1")
+# The ahead-of-time build (saddle_env._aot) holds per-scene copies only, so the full kernels
+# never meet it; it stays off for the tests of the copies too, which test numba's JIT copies.
+# Its own tests (tests/test_aot.py) turn it on where they test it.
+os.environ.setdefault("SADDLE_ENV_AOT", "0")
 
 # The few training runs with a closing comparison are seconds long: a compile-ahead process
 # beside each (agents/compile_ahead.py) would only add its start-up. Its own tests turn it on.

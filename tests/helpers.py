@@ -141,8 +141,10 @@ def sigterm_after_first_checkpoint(cmd: list[str], run, timeout: float = 240):
     return out, err
 
 
-def compiled_in_fresh_process(code: str, env: dict, timeout: float = 600) -> list[str]:
-    """The functions numba compiles while a fresh interpreter runs ``code`` (with ``env``),
+def compiled_in_fresh_process(code: str, env: dict, timeout: float = 600,
+                              cwd: str | None = None) -> list[str]:
+    """The functions numba compiles while a fresh interpreter runs ``code`` (with ``env``, in
+    ``cwd``, whose packages it imports first),
     by name, in order. The probe compiles one lambda of its own last, so a listener that saw
     nothing shows up as a list without it rather than as an empty list."""
     import json
@@ -161,6 +163,6 @@ def compiled_in_fresh_process(code: str, env: dict, timeout: float = 600) -> lis
              "numba.njit(lambda x: x + 1)(1)\n"
              "print(json.dumps(seen))\n")
     out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True,
-                         timeout=timeout)
+                         timeout=timeout, cwd=cwd)
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout.strip().splitlines()[-1])

@@ -85,6 +85,7 @@ class TrapEngine:
         # coulomb machinery); a reset that brings something else widens it.
         self._uses = contact_uses(config)
         self._S = K.specialise(*self._uses, S)
+        self._entries: dict[str, object] = {}  # `_entry`
         self._scene_cache: dict[tuple, tuple[Scene, np.ndarray, np.ndarray]] = {}
         self._noise_scale = self._build_noise_scale(config)
         self._air_decay = math.exp(-config.control_period / config.air_force_tau)
@@ -95,12 +96,23 @@ class TrapEngine:
 
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
-        del state["_S"]  # compiled code: found again from ``_uses`` on unpickling
+        del state["_S"], state["_entries"]  # compiled code: found again from ``_uses``
         return state
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         self._S = K.specialise(*self._uses, S)
+        self._entries = {}
+
+    def _entry(self, name: str, args: tuple):
+        """``self._S``'s entry point ``name`` for ``args``, checked once
+        (`_kernels.checked`: an ahead-of-time one only for exactly its argument types). The
+        engine's arguments keep their types from call to call: its own arrays, and the
+        caller's indices, actions and flags made int64, float64 and bool."""
+        fn = self._entries.get(name)
+        if fn is None:
+            fn = self._entries[name] = K.checked(self._S, name, args)
+        return fn
 
     @property
     def lockstep(self) -> bool:
@@ -170,7 +182,7 @@ class TrapEngine:
         c = self.config
         check_reset_omega(opts, c.omega_max)
         check_reset_start(opts, c)
-        idx = np.atleast_1d(idx)
+        idx = np.ascontiguousarray(np.atleast_1d(idx), dtype=np.int64)
         k = idx.size
         # Draws per ball, from its own generator and in a fixed order; the states follow
         # in one compiled call (`_step.place`).
@@ -222,8 +234,10 @@ class TrapEngine:
         if not drawn <= models or resisted != resist:   # widen only by what was drawn
             self._uses = (models | drawn, resisted)
             self._S = K.specialise(*self._uses, S)
-        self._S.place(idx, self.models, self.P, self.Y, self.balls, self.cfg, x, y, vx, vy, lab_rest,
+            self._entries = {}
+        args = (idx, self.models, self.P, self.Y, self.balls, self.cfg, x, y, vx, vy, lab_rest,
                 spin, self.noise, self.frame, self.out)
+        self._entry("place", args)(*args)
         if self.obs is not self.frame:  # a new episode's history: its first frame, k times
             self.obs[idx] = np.tile(self.frame[idx], self.layout.frames)
         bad = ~np.isfinite(self.Y[idx]).all(axis=1)
@@ -294,6 +308,8 @@ class TrapEngine:
         generator, so a ball's run does not depend on how many others share the batch.
         """
         c = self.config
+        actions = np.ascontiguousarray(actions, dtype=np.float64)
+        active = np.ascontiguousarray(active, dtype=np.bool_)
         if c.air_force > 0:
             kick_std = c.air_force * math.sqrt(1 - self._air_decay ** 2)
             for i in np.flatnonzero(active):
@@ -311,9 +327,9 @@ class TrapEngine:
         else:
             # Where no SIMD block can form, the entry compiled without them (less to
             # compile on a first step; the same results).
-            step = self._S.step_serial if self._lockstep and self.n >= S.MIN_BLOCK else \
-                self._S.step_scalar
-            failed = step(*args, self._scratch, self._iscratch)
+            name = "step_serial" if self._lockstep and self.n >= S.MIN_BLOCK else "step_scalar"
+            args = (*args, self._scratch, self._iscratch)
+            failed = self._entry(name, args)(*args)
         if failed:
             bad = int(np.flatnonzero(active & (self.out[:, S.O_STATUS] < 0))[0])
             code = int(self.out[bad, S.O_STATUS])

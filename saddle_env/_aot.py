@@ -1,0 +1,139 @@
+"""The ahead-of-time compiled kernels, when there are any that match the sources in place.
+
+The package's install builds them (`saddle_env.aot_build`): a C extension module per set of
+contact models holding the compiled code of a first `env.step` and a first `simulate`,
+the same numba compile the JIT would make, built once. Here they are found and checked:
+the manifest they were built with names the digest of the package's sources, and a module
+is used only while the sources still have that digest (an edited or pulled source falls
+back to the JIT and its on-disk cache, as without them). ``SADDLE_ENV_AOT=0`` turns them
+off. Only the standard library here: `_kernels` asks this module on its first
+specialisation.
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import json
+import logging
+import os
+import sys
+import sysconfig
+from collections.abc import Callable
+from pathlib import Path
+
+DISABLE_ENV = "SADDLE_ENV_AOT"
+PACKAGE_DIR = Path(__file__).resolve().parent
+AOT_DIR = PACKAGE_DIR / "_aot"
+MANIFEST = "manifest.json"
+# The sources a build depends on: the package's own modules and the environment's (the
+# kernels, the constants they fold in, and the code that picks their arguments). Any change
+# to one of them, even one no kernel reads, retires the build: safe rather than clever.
+SOURCE_SUBDIRS = ("", "envs")
+
+logger = logging.getLogger("saddle_env")
+_loaded: dict[str, dict[str, dict[str, Callable]]] | None = None  # flags tag → module → name → fn
+_why_not: str | None = None
+# id of an entry point → the argument types (numba's names) it was compiled for. An entry
+# point unboxes its arguments as those types without checking them: called with others it
+# reads memory wrongly, hence `matches`.
+_argtypes: dict[int, tuple[str, ...]] = {}
+
+
+def source_digest(package_dir: Path = PACKAGE_DIR) -> str:
+    """SHA-256 over the names and contents of the sources a build depends on."""
+    h = hashlib.sha256()
+    for sub in SOURCE_SUBDIRS:
+        for path in sorted((package_dir / sub).glob("*.py")):
+            h.update(f"{path.relative_to(package_dir).as_posix()}\0".encode())
+            h.update(path.read_bytes())
+            h.update(b"\0")
+    return h.hexdigest()
+
+
+def platform_tag() -> str:
+    """What an extension module is built for: the interpreter and the platform."""
+    return f"{sys.implementation.cache_tag}-{sysconfig.get_platform()}"
+
+
+def flags_key(flags: tuple[str, ...]) -> str:
+    return ",".join(flags)
+
+
+def read_manifest() -> dict | None:
+    try:
+        return json.loads((AOT_DIR / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _load() -> dict[str, dict[str, dict[str, Callable]]]:
+    """Import every module of a current build once; {} (and the reason in `_why_not`) when
+    there is none, it is off, or it was built from other sources or for another platform."""
+    global _why_not
+    if os.environ.get(DISABLE_ENV, "1") in ("0", ""):
+        _why_not = f"turned off ({DISABLE_ENV}=0)"
+        return {}
+    manifest = read_manifest()
+    if manifest is None:
+        _why_not = f"none built (no {AOT_DIR / MANIFEST})"
+        return {}
+    if manifest.get("platform") != platform_tag():
+        _why_not = f"built for {manifest.get('platform')}, not {platform_tag()}"
+        return {}
+    if manifest.get("digest") != source_digest():
+        _why_not = ("built from other sources (the package changed since; rebuild with "
+                    "python -m saddle_env.precompile --aot)")
+        logger.info("saddle_env: ahead-of-time kernels not used: %s", _why_not)
+        return {}
+    found: dict[str, dict[str, dict[str, Callable]]] = {}
+    for entry in manifest.get("modules", []):
+        path = AOT_DIR / entry["file"]
+        try:
+            spec = importlib.util.spec_from_file_location(
+                f"saddle_env._aot.{entry['name']}", path)
+            module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+            spec.loader.exec_module(module)  # type: ignore[union-attr]
+        except (ImportError, OSError) as exc:
+            logger.info("saddle_env: ahead-of-time module %s not loaded (%s); using the JIT",
+                        path, exc)
+            continue
+        entries: dict[str, dict[str, Callable]] = {}
+        for mod, names in entry["exports"].items():
+            entries[mod] = {name: getattr(module, name) for name in names}
+            for name in names:
+                _argtypes[id(entries[mod][name])] = tuple(entry["argtypes"][f"{mod}.{name}"])
+        found[flags_key(tuple(entry["flags"]))] = entries
+    _why_not = None if found else "no module of the build could be loaded"
+    return found
+
+
+def compiled(flags: tuple[str, ...], module_name: str) -> dict[str, Callable]:
+    """The ahead-of-time entry points of ``module_name`` compiled for ``flags``
+    (`_kernels.variant_flags`), by name; {} when there are none."""
+    global _loaded
+    if _loaded is None:
+        _loaded = _load()
+    return _loaded.get(flags_key(flags), {}).get(module_name, {})
+
+
+def matches(fn: Callable, args: tuple) -> bool:
+    """Whether ``args`` have exactly the types the ahead-of-time entry point ``fn`` was
+    compiled for (numba's `typeof`, some microseconds per argument: once per configuration,
+    not per call, on hot paths)."""
+    import numba
+
+    return tuple(str(numba.typeof(a)) for a in args) == _argtypes[id(fn)]
+
+
+def is_compiled_ahead(fn: Callable) -> bool:
+    return id(fn) in _argtypes
+
+
+def status() -> str:
+    """One line on whether ahead-of-time kernels are in use, and why not."""
+    global _loaded
+    if _loaded is None:
+        _loaded = _load()
+    if _loaded:
+        return f"ahead-of-time kernels in use ({len(_loaded)} modules, {AOT_DIR})"
+    return f"no ahead-of-time kernels: {_why_not}"

@@ -1,0 +1,174 @@
+"""Build the ahead-of-time compiled kernels: the compiled code a first `env.step` and a first
+`simulate` call, as a C extension module per set of contact models, so that a fresh
+process starts without numba's minute of compiling (docs/coldstart.md).
+
+What is built is numba's own compile of the kernels, not a second implementation: for each
+set of contact models a registered level or a one-model `simulate` uses, this process runs
+that call once with the JIT (`_kernels.specialise`'s copies), then links the compiled code
+below each entry point into an extension module with `numba.pycc`, whose entry points take
+exactly the argument types the JIT was called with. `saddle_env._aot` loads the modules when
+they were built from the sources in place (a digest of them is in the manifest) and
+otherwise leaves every call to the JIT.
+
+Run by the package's install (setup.py, when a C compiler is found; an install never fails
+for it) and by ``python -m saddle_env.precompile --aot``.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tempfile
+import time
+import types
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+from datetime import datetime, timezone
+from multiprocessing import get_context
+from pathlib import Path
+
+from . import _aot
+
+
+# The exported entry points call the JIT copies through these thin functions rather than
+# being the kernels' own functions: pycc compiles what it exports with numba's default
+# error model (Python's: 1/0 raises), while the functions below them keep the kernels' own
+# options (numpy's: 1/0 = inf); the call itself costs nothing once LLVM inlines it.
+def _place(idx, models, P, Y, balls, cfg, x, y, vx, vy, lab_rest, spin_normal, noise, obs, out):
+    place(idx, models, P, Y, balls, cfg, x, y, vx, vy, lab_rest,  # noqa: F821 (set per build)
+          spin_normal, noise, obs, out)
+
+
+def _step_scalar(models, P, scales, Y, balls, cfg, actions, active, tab_fields, ctl_fields,
+                 noise, obs, out, buf, ibuf):
+    return step_scalar(models, P, scales, Y, balls, cfg, actions, active,  # noqa: F821
+                       tab_fields, ctl_fields, noise, obs, out, buf, ibuf)
+
+
+def _integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_start, work):
+    return integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale,  # noqa: F821
+                       Y_out, stats, h_start, work)
+
+
+# module whose JIT copy an export calls → {export name: its thin caller}
+_EXPORTS = {
+    "saddle_env.envs._step": {"place": _place, "step_scalar": _step_scalar},
+    "saddle_env.integrators": {"integrate_h": _integrate_h},
+}
+
+
+def planned_builds() -> dict[tuple[str, ...], dict[str, object]]:
+    """Each module to build, by its `_kernels.variant_flags`: the contact models, the
+    resistance flag, a registered level whose first step uses them (None if none) and a
+    contact model whose `simulate` does (None if none)."""
+    from . import _kernels as K
+    from .envs.engine import contact_uses
+    from .envs.levels import LEVELS
+    from .scene import CONTACT_MODELS
+
+    plan: dict[tuple[str, ...], dict[str, object]] = {}
+    for level in LEVELS:
+        models, resist = contact_uses(level.config())
+        entry = plan.setdefault(K.variant_flags(models, resist),
+                                {"models": sorted(models), "resist": resist, "level": None,
+                                 "contact": None})
+        entry["level"] = entry["level"] or level.id
+    for contact in CONTACT_MODELS:
+        code = _example_scene(contact).model_code
+        entry = plan.setdefault(K.variant_flags((code,), False),
+                                {"models": [code], "resist": False, "level": None,
+                                 "contact": None})
+        entry["contact"] = entry["contact"] or contact
+    return plan
+
+
+def _example_scene(contact: str):
+    """A scene with the contact model ``contact`` (coulomb's needs a friction coefficient)."""
+    from .scene import Scene
+    return Scene(contact=contact, mu=0.3) if contact == "coulomb" else Scene(contact=contact)
+
+
+def _module_name(flags: tuple[str, ...]) -> str:
+    return "k_" + ("_".join(f[:-3].lower() for f in flags) or "none")
+
+
+def _build_one(flags: tuple[str, ...], spec: dict[str, object], out_dir: str) -> dict:
+    """Compile one module in this (worker) process; return its manifest entry."""
+    os.environ[_aot.DISABLE_ENV] = "0"  # the JIT's copies are what gets built
+    # the compile notice is for a user waiting on a first call, not for this build
+    logging.getLogger("saddle_env").setLevel(logging.ERROR)
+    from numba.pycc import CC
+
+    from . import _kernels as K
+    from . import integrators
+    from .envs import _step
+
+    t0 = time.perf_counter()
+    exports: dict[str, list[str]] = {}
+    argtypes: dict[str, list[str]] = {}
+    cc = CC(_module_name(flags))
+    cc.output_dir = out_dir
+    cc.verbose = False
+    modules = {"saddle_env.envs._step": _step, "saddle_env.integrators": integrators}
+    if spec["level"] is not None:
+        import gymnasium as gym
+        env = gym.make(str(spec["level"]))
+        env.reset(seed=0)
+        env.step(env.action_space.sample() * 0)
+        env.close()
+        exports["saddle_env.envs._step"] = ["place", "step_scalar"]
+    if spec["contact"] is not None:
+        from .runner import initial_state
+        from .simulate import simulate
+        scene = _example_scene(str(spec["contact"]))
+        simulate(scene, initial_state(scene, 0.001, 0.001, omega=30.0), 0.01, omega=30.0)
+        exports["saddle_env.integrators"] = ["integrate_h"]
+    for mod_name, names in exports.items():
+        space = K.specialise(frozenset(spec["models"]), bool(spec["resist"]), modules[mod_name])
+        for name in names:
+            dispatcher = getattr(space, name)
+            if len(dispatcher.signatures) != 1:
+                raise RuntimeError(f"{mod_name}.{name}: {len(dispatcher.signatures)} compiled "
+                                   "signatures, expected exactly the first call's one")
+            caller = _EXPORTS[mod_name][name]
+            thin = types.FunctionType(caller.__code__, {name: dispatcher}, caller.__name__)
+            signature = dispatcher.signatures[0]
+            cc.export(name, signature)(thin)
+            argtypes[f"{mod_name}.{name}"] = [str(t) for t in signature]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # numba.pycc's deprecation notice
+        cc.compile()
+    return {"name": cc.name, "file": cc.output_file, "flags": list(flags), "exports": exports,
+            "argtypes": argtypes,
+            "seconds": round(time.perf_counter() - t0, 1)}
+
+
+def build(jobs: int, log=print) -> dict:
+    """Build every planned module into this package's ``_aot`` folder in up to ``jobs``
+    worker processes, from the sources in place (a source tree, or an install's build
+    folder), and write its manifest last, so a build stopped half-way is never used.
+    Returns the manifest."""
+    out_dir = _aot.AOT_DIR
+    out_dir.mkdir(parents=True, exist_ok=True)
+    plan = planned_builds()
+    jobs = max(1, min(jobs, len(plan)))
+    t0 = time.perf_counter()
+    (out_dir / _aot.MANIFEST).unlink(missing_ok=True)  # retired until the new one is whole
+    with tempfile.TemporaryDirectory(dir=out_dir) as tmp, \
+            ProcessPoolExecutor(jobs, mp_context=get_context("spawn")) as pool:
+        futures = {flags: pool.submit(_build_one, flags, spec, tmp)
+                   for flags, spec in plan.items()}
+        modules = []
+        for fut in futures.values():
+            entry = fut.result()
+            os.replace(Path(tmp) / entry["file"], out_dir / entry["file"])
+            log(f"  {entry['name']}: {', '.join(n for names in entry['exports'].values() for n in names)}"
+                f" ({entry['seconds']:.1f} s)")
+            modules.append(entry)
+    import numba
+    manifest = {"digest": _aot.source_digest(), "platform": _aot.platform_tag(),
+                "numba": numba.__version__,
+                "built": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                "seconds": round(time.perf_counter() - t0, 1), "modules": modules}
+    (out_dir / _aot.MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n")
+    return manifest
