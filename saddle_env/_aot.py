@@ -6,8 +6,9 @@ the same numba compile the JIT would make, built once. Here they are found and c
 the manifest they were built with names the digest of the package's sources, and a module
 is used only while the sources still have that digest (an edited or pulled source falls
 back to the JIT and its on-disk cache, as without them). ``SADDLE_ENV_AOT=0`` turns them
-off. Only the standard library here: `_kernels` asks this module on its first
-specialisation.
+off. The modules are compiled for the building machine's CPU, as numba's JIT compiles for
+the running one, and are used only on a CPU of the same name. Only the standard library
+at import here: `_kernels` asks this module on its first specialisation.
 """
 from __future__ import annotations
 
@@ -55,6 +56,13 @@ def platform_tag() -> str:
     return f"{sys.implementation.cache_tag}-{sysconfig.get_platform()}"
 
 
+def host_cpu() -> str:
+    """This machine's CPU as LLVM names it (what numba's JIT compiles for)."""
+    import llvmlite.binding as llvm
+
+    return llvm.get_host_cpu_name()
+
+
 def flags_key(flags: tuple[str, ...]) -> str:
     return ",".join(flags)
 
@@ -79,6 +87,9 @@ def _load() -> dict[str, dict[str, dict[str, Callable]]]:
         return {}
     if manifest.get("platform") != platform_tag():
         _why_not = f"built for {manifest.get('platform')}, not {platform_tag()}"
+        return {}
+    if manifest.get("cpu") != host_cpu():  # its machine code may use instructions this lacks
+        _why_not = f"built for the CPU {manifest.get('cpu')}, this is {host_cpu()}"
         return {}
     if manifest.get("digest") != source_digest():
         _why_not = ("built from other sources (the package changed since; rebuild with "

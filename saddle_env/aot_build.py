@@ -1,17 +1,20 @@
-"""Build the ahead-of-time compiled kernels: the compiled code a first `env.step` and a first
-`simulate` call, as a C extension module per set of contact models, so that a fresh
-process starts without numba's minute of compiling (docs/coldstart.md).
+"""Build the ahead-of-time compiled kernels: the compiled code of a first `env.step` (the
+single env's and the vector env's below 2 x LANES balls, training's 64), its `reset` and a
+first `simulate`, as a C extension module per set of contact models, so that a fresh
+process starts without numba's 10-20 s of compiling (docs/coldstart.md).
 
 What is built is numba's own compile of the kernels, not a second implementation: for each
 set of contact models a registered level or a one-model `simulate` uses, this process runs
-that call once with the JIT (`_kernels.specialise`'s copies), then links the compiled code
-below each entry point into an extension module with `numba.pycc`, whose entry points take
-exactly the argument types the JIT was called with. `saddle_env._aot` loads the modules when
-they were built from the sources in place (a digest of them is in the manifest) and
-otherwise leaves every call to the JIT.
+those first calls once with the JIT (`_kernels.specialise`'s copies), then links the
+compiled code below each entry point into an extension module with `numba.pycc`, for this
+machine's CPU as the JIT would, whose entry points take exactly the argument types the JIT
+was called with. `saddle_env._aot` loads the modules when they were built from the sources
+in place (a digest of them is in the manifest), on the same platform and CPU, and otherwise
+leaves every call to the JIT. The vector env's threaded step is not built (pycc has no
+`prange`).
 
-Run by the package's install (setup.py, when a C compiler is found; an install never fails
-for it) and by ``python -m saddle_env.precompile --aot``.
+Run by the package's install (setup.py; an install never fails for it) and by
+``python -m saddle_env.precompile --aot``.
 """
 from __future__ import annotations
 
@@ -45,6 +48,12 @@ def _step_scalar(models, P, scales, Y, balls, cfg, actions, active, tab_fields, 
                        tab_fields, ctl_fields, noise, obs, out, buf, ibuf)
 
 
+def _step_serial(models, P, scales, Y, balls, cfg, actions, active, tab_fields, ctl_fields,
+                 noise, obs, out, buf, ibuf):
+    return step_serial(models, P, scales, Y, balls, cfg, actions, active,  # noqa: F821
+                       tab_fields, ctl_fields, noise, obs, out, buf, ibuf)
+
+
 def _integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_start, work):
     return integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale,  # noqa: F821
                        Y_out, stats, h_start, work)
@@ -52,7 +61,8 @@ def _integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_
 
 # module whose JIT copy an export calls → {export name: its thin caller}
 _EXPORTS = {
-    "saddle_env.envs._step": {"place": _place, "step_scalar": _step_scalar},
+    "saddle_env.envs._step": {"place": _place, "step_scalar": _step_scalar,
+                              "step_serial": _step_serial},
     "saddle_env.integrators": {"integrate_h": _integrate_h},
 }
 
@@ -109,6 +119,7 @@ def _build_one(flags: tuple[str, ...], spec: dict[str, object], out_dir: str) ->
     cc = CC(_module_name(flags))
     cc.output_dir = out_dir
     cc.verbose = False
+    cc.target_cpu = _aot.host_cpu()
     modules = {"saddle_env.envs._step": _step, "saddle_env.integrators": integrators}
     if spec["level"] is not None:
         import gymnasium as gym
@@ -116,7 +127,13 @@ def _build_one(flags: tuple[str, ...], spec: dict[str, object], out_dir: str) ->
         env.reset(seed=0)
         env.step(env.action_space.sample() * 0)
         env.close()
-        exports["saddle_env.envs._step"] = ["place", "step_scalar"]
+        # the vector env below 2 x LANES balls (training's 64): SIMD blocks in one thread
+        from .envs._step import MIN_BLOCK
+        vec = gym.make_vec(str(spec["level"]), num_envs=MIN_BLOCK)
+        vec.reset(seed=0)
+        vec.step(vec.action_space.sample() * 0)
+        vec.close()
+        exports["saddle_env.envs._step"] = ["place", "step_scalar", "step_serial"]
     if spec["contact"] is not None:
         from .runner import initial_state
         from .simulate import simulate
@@ -167,6 +184,7 @@ def build(jobs: int, log=print) -> dict:
             modules.append(entry)
     import numba
     manifest = {"digest": _aot.source_digest(), "platform": _aot.platform_tag(),
+                "cpu": _aot.host_cpu(),
                 "numba": numba.__version__,
                 "built": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                 "seconds": round(time.perf_counter() - t0, 1), "modules": modules}

@@ -34,6 +34,7 @@ def fake_build(tmp_path, monkeypatch):
 
     def write(**changes):
         manifest = {"digest": _aot.source_digest(), "platform": _aot.platform_tag(),
+                    "cpu": _aot.host_cpu(),
                     "modules": [{"name": "fake", "file": "fake.py", "flags": ["ROLLING_ON"],
                                  "exports": {"saddle_env.integrators": ["integrate_h"]},
                                  "argtypes": {"saddle_env.integrators.integrate_h":
@@ -45,7 +46,7 @@ def fake_build(tmp_path, monkeypatch):
     return write
 
 
-def test_a_build_is_used_only_from_the_sources_and_for_the_platform_it_was_built_for(
+def test_a_build_is_used_only_from_its_sources_and_on_its_platform_and_cpu(
         fake_build, monkeypatch):
     assert _aot.compiled(("ROLLING_ON",), "saddle_env.integrators") == {}
     assert "none built" in _aot.status()
@@ -61,6 +62,9 @@ def test_a_build_is_used_only_from_the_sources_and_for_the_platform_it_was_built
     fake_build(platform="cpython-27-win32")
     assert _aot.compiled(("ROLLING_ON",), "saddle_env.integrators") == {}
     assert "built for cpython-27-win32" in _aot.status()
+    fake_build(cpu="i386")
+    assert _aot.compiled(("ROLLING_ON",), "saddle_env.integrators") == {}
+    assert "built for the CPU i386" in _aot.status()
     fake_build()
     monkeypatch.setenv(_aot.DISABLE_ENV, "0")
     assert _aot.compiled(("ROLLING_ON",), "saddle_env.integrators") == {}
@@ -142,6 +146,13 @@ for lid in %r:
         if term or trunc:
             break
     out[lid] = rows
+    vec = gym.make_vec(lid, num_envs=8)  # below 2 x LANES balls: SIMD blocks, one thread
+    obs, _ = vec.reset(seed=5)
+    rows = [obs.ravel().tolist()]
+    for k in range(60):
+        obs, r, term, trunc, info = vec.step(np.full((8, 1), 0.3 * np.sin(0.1 * k)))
+        rows.append(obs.ravel().tolist() + r.tolist())
+    out["vector " + lid] = rows
 for contact in ("rolling", "slipping", "coulomb"):
     scene = se.Scene(contact=contact, mu=0.3) if contact == "coulomb" else se.Scene(contact=contact)
     state = se.initial_state(scene, x=0.001, y=0.001, start="lab-rest", omega=30.0)
@@ -174,7 +185,8 @@ def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(t
     # the empty cache of a fresh install: only the build's modules
     fresh = {**env, "NUMBA_CACHE_DIR": str(tmp_path / "empty")}
     compiled = compiled_in_fresh_process(code, fresh, cwd=str(tmp_path))
-    entry_points = ("place", "step_scalar", "step_serial", "integrate_h", "_step_range_scalar")
+    entry_points = ("place", "step_scalar", "step_serial", "integrate_h", "_step_range_scalar",
+                    "_step_range")
     assert compiled[-1] == "<lambda>" and not set(compiled) & set(entry_points), compiled
     assert len(set(compiled) - {"<lambda>"}) <= 15, compiled  # small helpers called from Python
 
