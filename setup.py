@@ -8,6 +8,8 @@ a C compiler, or if anything in it goes wrong, the package installs without it a
 JIT compiles on first use, as it always did. ``SADDLE_ENV_AOT=0`` at install time skips it.
 """
 import os
+import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -33,34 +35,56 @@ class build_aot(Command):
         self.set_undefined_options("build", ("build_lib", "build_lib"))
 
     def run(self):
-        if os.environ.get("SADDLE_ENV_AOT", "1") in ("0", ""):
-            print("saddle-env: ahead-of-time kernels skipped (SADDLE_ENV_AOT=0)")
-            return
         # An editable install imports the source tree; any other install, the build folder
         # that build_py has filled: build next to the sources that will be imported.
         root = Path(__file__).resolve().parent if self.editable_mode else Path(self.build_lib)
-        env = dict(os.environ)
-        if not self.editable_mode:  # keep numba's JIT cache of the build out of the wheel
-            env["NUMBA_CACHE_DIR"] = tempfile.mkdtemp(prefix="saddle-env-build-")
-        cmd = [sys.executable, "-m", "saddle_env.precompile", "--aot"]
-        print(f"saddle-env: {' '.join(cmd[1:])} (about a minute on 2 cores)", flush=True)
-        try:
-            done = subprocess.run(cmd, cwd=root, env=env, timeout=BUILD_TIMEOUT_S).returncode == 0
-        except (OSError, subprocess.SubprocessError) as exc:
-            print(f"saddle-env: ahead-of-time build not run ({exc})")
-            done = False
+        out = root / "saddle_env" / "_aot"
+        shutil.rmtree(out, ignore_errors=True)  # an earlier build's: never ship it instead
+        if os.environ.get("SADDLE_ENV_AOT", "1") in ("0", ""):
+            print("saddle-env: ahead-of-time kernels skipped (SADDLE_ENV_AOT=0)")
+            return
+        with tempfile.TemporaryDirectory(prefix="saddle-env-build-") as cache:
+            env = dict(os.environ)
+            if not self.editable_mode:  # nothing but the modules goes into the wheel
+                env.update(NUMBA_CACHE_DIR=cache, PYTHONDONTWRITEBYTECODE="1")
+            done = _run_build(root, env)
+        if not self.editable_mode:
+            for junk in list((root / "saddle_env").rglob("__pycache__")):
+                shutil.rmtree(junk, ignore_errors=True)
         if not done:
+            shutil.rmtree(out, ignore_errors=True)
             print("saddle-env: installing without ahead-of-time kernels: numba compiles them "
                   "on first use (python -m saddle_env.precompile --aot retries)")
             return
         if not self.editable_mode:
-            self._outputs = [str(p) for p in (root / "saddle_env" / "_aot").iterdir()]
+            self._outputs = [str(p) for p in out.iterdir()]
 
     def get_outputs(self):
         return self._outputs
 
     def get_output_mapping(self):
         return {}
+
+
+def _run_build(root: Path, env: dict) -> bool:
+    """``python -m saddle_env.precompile --aot`` in ``root``, in a session of its own so that a
+    time-out or Ctrl-C stops its worker processes too."""
+    cmd = [sys.executable, "-m", "saddle_env.precompile", "--aot"]
+    print(f"saddle-env: {' '.join(cmd[1:])} (about a minute on 2 cores)", flush=True)
+    try:
+        proc = subprocess.Popen(cmd, cwd=root, env=env, start_new_session=True)
+    except OSError as exc:
+        print(f"saddle-env: ahead-of-time build not started ({exc})")
+        return False
+    try:
+        return proc.wait(timeout=BUILD_TIMEOUT_S) == 0
+    except subprocess.TimeoutExpired:
+        print(f"saddle-env: ahead-of-time build stopped after {BUILD_TIMEOUT_S} s")
+        return False
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
 
 
 class build_with_aot(build):
@@ -74,5 +98,6 @@ class BinaryDistribution(Distribution):
         return True
 
 
-setup(cmdclass={"build": build_with_aot, "build_aot": build_aot},
-      distclass=BinaryDistribution)
+if __name__ == "__main__":  # as setuptools runs it (tests import the commands alone)
+    setup(cmdclass={"build": build_with_aot, "build_aot": build_aot},
+          distclass=BinaryDistribution)

@@ -6,8 +6,9 @@ the same numba compile the JIT would make, built once. Here they are found and c
 the manifest they were built with names the digest of the package's sources, and a module
 is used only while the sources still have that digest (an edited or pulled source falls
 back to the JIT and its on-disk cache, as without them). ``SADDLE_ENV_AOT=0`` turns them
-off. The modules are compiled for the building machine's CPU, as numba's JIT compiles for
-the running one, and are used only on a CPU of the same name. Only the standard library
+off. The modules are compiled for the building machine's CPU and its features, as numba's
+JIT compiles for the running one, and are used only on the same CPU and features and under
+the numba and llvmlite that built them. Only the standard library
 at import here: `_kernels` asks this module on its first specialisation.
 """
 from __future__ import annotations
@@ -22,7 +23,7 @@ import sysconfig
 from collections.abc import Callable
 from pathlib import Path
 
-DISABLE_ENV = "SADDLE_ENV_AOT"
+AOT_ENV = "SADDLE_ENV_AOT"  # 0 turns the build off (at install: not built; at run time: not used)
 PACKAGE_DIR = Path(__file__).resolve().parent
 AOT_DIR = PACKAGE_DIR / "_aot"
 MANIFEST = "manifest.json"
@@ -56,11 +57,17 @@ def platform_tag() -> str:
     return f"{sys.implementation.cache_tag}-{sysconfig.get_platform()}"
 
 
-def host_cpu() -> str:
-    """This machine's CPU as LLVM names it (what numba's JIT compiles for)."""
-    import llvmlite.binding as llvm
+def machine() -> dict[str, str]:
+    """What a build's machine code depends on beyond the sources: the CPU model and the
+    instruction-set features numba's JIT compiles for here (its own choice, so
+    ``NUMBA_CPU_NAME`` and ``NUMBA_CPU_FEATURES`` count), and the compiler's versions."""
+    import llvmlite
+    import numba
+    from numba.core.registry import cpu_target
 
-    return llvm.get_host_cpu_name()
+    codegen = cpu_target.target_context.codegen()
+    return {"cpu": codegen._get_host_cpu_name(), "features": codegen._get_host_cpu_features(),
+            "numba": numba.__version__, "llvmlite": llvmlite.__version__}
 
 
 def flags_key(flags: tuple[str, ...]) -> str:
@@ -69,17 +76,18 @@ def flags_key(flags: tuple[str, ...]) -> str:
 
 def read_manifest() -> dict | None:
     try:
-        return json.loads((AOT_DIR / MANIFEST).read_text())
+        manifest = json.loads((AOT_DIR / MANIFEST).read_text())
     except (OSError, ValueError):
         return None
+    return manifest if isinstance(manifest, dict) else None
 
 
 def _load() -> dict[str, dict[str, dict[str, Callable]]]:
     """Import every module of a current build once; {} (and the reason in `_why_not`) when
     there is none, it is off, or it was built from other sources or for another platform."""
     global _why_not
-    if os.environ.get(DISABLE_ENV, "1") in ("0", ""):
-        _why_not = f"turned off ({DISABLE_ENV}=0)"
+    if os.environ.get(AOT_ENV, "1") in ("0", ""):
+        _why_not = f"turned off ({AOT_ENV}=0)"
         return {}
     manifest = read_manifest()
     if manifest is None:
@@ -88,8 +96,15 @@ def _load() -> dict[str, dict[str, dict[str, Callable]]]:
     if manifest.get("platform") != platform_tag():
         _why_not = f"built for {manifest.get('platform')}, not {platform_tag()}"
         return {}
-    if manifest.get("cpu") != host_cpu():  # its machine code may use instructions this lacks
-        _why_not = f"built for the CPU {manifest.get('cpu')}, this is {host_cpu()}"
+    here = machine()
+    built = {k: manifest.get(k) for k in here}
+    if built != here:
+        # another CPU's instructions could be illegal here; another numba's code would no
+        # longer be bit for bit what the JIT compiles beside it
+        differ = ", ".join(f"{k} {built[k]!r} (here {here[k]!r})" for k in here
+                           if built[k] != here[k] and k != "features")
+        _why_not = f"built for another machine or compiler ({differ or 'CPU features'}); " \
+                   "rebuild with python -m saddle_env.precompile --aot"
         return {}
     if manifest.get("digest") != source_digest():
         _why_not = ("built from other sources (the package changed since; rebuild with "
@@ -98,22 +113,25 @@ def _load() -> dict[str, dict[str, dict[str, Callable]]]:
         return {}
     found: dict[str, dict[str, dict[str, Callable]]] = {}
     for entry in manifest.get("modules", []):
-        path = AOT_DIR / entry["file"]
         try:
+            path = AOT_DIR / entry["file"]
             spec = importlib.util.spec_from_file_location(
                 f"saddle_env._aot.{entry['name']}", path)
             module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
             spec.loader.exec_module(module)  # type: ignore[union-attr]
-        except (ImportError, OSError) as exc:
-            logger.info("saddle_env: ahead-of-time module %s not loaded (%s); using the JIT",
-                        path, exc)
+            entries: dict[str, dict[str, Callable]] = {}
+            types: dict[int, tuple[str, ...]] = {}
+            for mod, names in entry["exports"].items():
+                entries[mod] = {name: getattr(module, name) for name in names}
+                for name in names:
+                    types[id(entries[mod][name])] = tuple(entry["argtypes"][f"{mod}.{name}"])
+            key = flags_key(tuple(entry["flags"]))
+        except (ImportError, OSError, KeyError, TypeError, AttributeError) as exc:
+            logger.info("saddle_env: an ahead-of-time module of %s not loaded (%s: %s); "
+                        "the JIT compiles its kernels", AOT_DIR, type(exc).__name__, exc)
             continue
-        entries: dict[str, dict[str, Callable]] = {}
-        for mod, names in entry["exports"].items():
-            entries[mod] = {name: getattr(module, name) for name in names}
-            for name in names:
-                _argtypes[id(entries[mod][name])] = tuple(entry["argtypes"][f"{mod}.{name}"])
-        found[flags_key(tuple(entry["flags"]))] = entries
+        _argtypes.update(types)
+        found[key] = entries
     _why_not = None if found else "no module of the build could be loaded"
     return found
 
@@ -134,10 +152,6 @@ def matches(fn: Callable, args: tuple) -> bool:
     import numba
 
     return tuple(str(numba.typeof(a)) for a in args) == _argtypes[id(fn)]
-
-
-def is_compiled_ahead(fn: Callable) -> bool:
-    return id(fn) in _argtypes
 
 
 def status() -> str:

@@ -221,6 +221,7 @@ class _Variant:
 
 
 _variants: dict[tuple[str, ...], _Variant] = {}
+_jit_of: dict[int, object] = {}  # id of an ahead-of-time entry point (`_aot`) → its JIT copy
 
 
 def specialisable(module_name: str) -> None:
@@ -323,9 +324,6 @@ def specialise(models, resist: bool, module: types.ModuleType):
         variant.public[module.__name__] = \
             types.SimpleNamespace(**{**vars(space), **ahead}) if ahead else space
     return variant.public[module.__name__]
-
-
-_jit_of: dict[int, object] = {}  # id of an ahead-of-time entry point → its JIT copy
 
 
 def checked(space: types.SimpleNamespace, name: str, args: tuple):

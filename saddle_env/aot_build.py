@@ -104,7 +104,7 @@ def _module_name(flags: tuple[str, ...]) -> str:
 
 def _build_one(flags: tuple[str, ...], spec: dict[str, object], out_dir: str) -> dict:
     """Compile one module in this (worker) process; return its manifest entry."""
-    os.environ[_aot.DISABLE_ENV] = "0"  # the JIT's copies are what gets built
+    os.environ[_aot.AOT_ENV] = "0"  # the JIT's copies are what gets built
     # the compile notice is for a user waiting on a first call, not for this build
     logging.getLogger("saddle_env").setLevel(logging.ERROR)
     from numba.pycc import CC
@@ -119,7 +119,13 @@ def _build_one(flags: tuple[str, ...], spec: dict[str, object], out_dir: str) ->
     cc = CC(_module_name(flags))
     cc.output_dir = out_dir
     cc.verbose = False
-    cc.target_cpu = _aot.host_cpu()
+    # pycc compiles for a CPU model's nominal instruction set, the JIT for the features this
+    # host reports (a virtual machine may hide some of its model's): build with the JIT's
+    # choice of both, so the modules run wherever the JIT's code runs (`_aot.machine`)
+    from numba.core.codegen import AOTCPUCodegen
+    host = _aot.machine()
+    AOTCPUCodegen._customize_tm_features = lambda self: host["features"]
+    cc.target_cpu = host["cpu"]
     modules = {"saddle_env.envs._step": _step, "saddle_env.integrators": integrators}
     if spec["level"] is not None:
         import gymnasium as gym
@@ -182,10 +188,8 @@ def build(jobs: int, log=print) -> dict:
             log(f"  {entry['name']}: {', '.join(n for names in entry['exports'].values() for n in names)}"
                 f" ({entry['seconds']:.1f} s)")
             modules.append(entry)
-    import numba
     manifest = {"digest": _aot.source_digest(), "platform": _aot.platform_tag(),
-                "cpu": _aot.host_cpu(),
-                "numba": numba.__version__,
+                **_aot.machine(),
                 "built": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                 "seconds": round(time.perf_counter() - t0, 1), "modules": modules}
     (out_dir / _aot.MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n")

@@ -140,7 +140,7 @@ _loops: dict[tuple[int, bool], object] = {}
 
 def _loop(model: int, resist: bool, args: tuple):
     """The integrator's loop compiled for this contact model alone (`_kernels.specialise`),
-    checked once per model against the arguments' types (`_kernels.checked`): `integrate`
+    checked once per model against the arguments' types (`_kernels.checked`): `run`
     builds every argument itself, as float64 and int64 arrays and records of floats and
     ints, so their types do not change from call to call."""
     key = (model, bool(resist))

@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from helpers import compiled_in_fresh_process
 
 import saddle_env
@@ -30,11 +29,11 @@ def fake_build(tmp_path, monkeypatch):
     (tmp_path / "fake.py").write_text("def integrate_h(*args):\n    return 'ahead'\n")
     monkeypatch.setattr(_aot, "AOT_DIR", tmp_path)
     monkeypatch.setattr(_aot, "_loaded", None)
-    monkeypatch.setenv(_aot.DISABLE_ENV, "1")
+    monkeypatch.setenv(_aot.AOT_ENV, "1")
 
     def write(**changes):
         manifest = {"digest": _aot.source_digest(), "platform": _aot.platform_tag(),
-                    "cpu": _aot.host_cpu(),
+                    **_aot.machine(),
                     "modules": [{"name": "fake", "file": "fake.py", "flags": ["ROLLING_ON"],
                                  "exports": {"saddle_env.integrators": ["integrate_h"]},
                                  "argtypes": {"saddle_env.integrators.integrate_h":
@@ -64,11 +63,30 @@ def test_a_build_is_used_only_from_its_sources_and_on_its_platform_and_cpu(
     assert "built for cpython-27-win32" in _aot.status()
     fake_build(cpu="i386")
     assert _aot.compiled(("ROLLING_ON",), "saddle_env.integrators") == {}
-    assert "built for the CPU i386" in _aot.status()
+    assert "cpu 'i386'" in _aot.status()
+    fake_build(features="+sse2")              # the same model, fewer instructions (a VM)
+    assert _aot.compiled(("ROLLING_ON",), "saddle_env.integrators") == {}
+    assert "CPU features" in _aot.status()
+    fake_build(numba="0.1.0")                 # another compiler than the JIT beside it
+    assert _aot.compiled(("ROLLING_ON",), "saddle_env.integrators") == {}
+    assert "numba '0.1.0'" in _aot.status()
     fake_build()
-    monkeypatch.setenv(_aot.DISABLE_ENV, "0")
+    monkeypatch.setenv(_aot.AOT_ENV, "0")
     assert _aot.compiled(("ROLLING_ON",), "saddle_env.integrators") == {}
     assert "turned off" in _aot.status()
+
+
+def test_a_damaged_manifest_falls_back_to_the_jit(fake_build, tmp_path):
+    fake_build()
+    manifest = json.loads((tmp_path / _aot.MANIFEST).read_text())
+    del manifest["modules"][0]["argtypes"]
+    (tmp_path / _aot.MANIFEST).write_text(json.dumps(manifest))
+    assert _aot.compiled(("ROLLING_ON",), "saddle_env.integrators") == {}
+    assert "could be loaded" in _aot.status()
+    (tmp_path / _aot.MANIFEST).write_text("[1, 2]")
+    _aot._loaded = None
+    assert _aot.compiled(("ROLLING_ON",), "saddle_env.integrators") == {}
+    assert "none built" in _aot.status()
 
 
 def test_the_digest_covers_every_source_of_the_package_and_its_environment(tmp_path):
@@ -110,8 +128,11 @@ def test_aot_takes_no_targets(capsys):
 
 
 def test_the_engine_hands_the_compiled_step_the_types_it_was_checked_for():
-    """The engine checks an entry point once, so it makes the caller's arrays the same types
-    every call: float32 or list actions, int32 indices."""
+    """The engine checks an entry point once (`_entry`), so it makes the caller's arrays the
+    same types every call: float64 and bool vectors of one value per ball, whatever the
+    caller passes (float32, a list, an (n, 1) array); a wrong count is refused."""
+    import pickle
+
     import gymnasium as gym
 
     env = gym.make("SaddleTrap-v0")
@@ -122,14 +143,19 @@ def test_the_engine_hands_the_compiled_step_the_types_it_was_checked_for():
     step = engine._S.step_scalar
 
     def spy(*args):
-        seen.append((args[6].dtype, args[7].dtype))
+        seen.append((args[6].dtype, args[6].shape, args[7].dtype, args[7].shape))
         return step(*args)
 
     engine._entries["step_scalar"] = spy
-    engine.step(np.zeros(1, dtype=np.float32), np.ones(1, dtype=np.int8),
-                [np.random.default_rng(0)])
-    engine.step([0.0], [True], [np.random.default_rng(0)])
-    assert seen == [(np.float64, np.bool_)] * 2
+    rng = [np.random.default_rng(0)]
+    engine.step(np.zeros(1, dtype=np.float32), np.ones(1, dtype=np.int8), rng)
+    engine.step([0.0], [True], rng)
+    engine.step(np.zeros((1, 1)), np.ones((1, 1), dtype=bool), rng)
+    assert seen == [(np.float64, (1,), np.bool_, (1,))] * 3
+    with pytest.raises(ValueError, match=r"actions must hold one value per ball \(1\)"):
+        engine.step(np.zeros(2), [True], rng)
+    twin = pickle.loads(pickle.dumps(engine))           # compiled code is found again
+    assert twin._entries == {} and "_entries" not in engine.__getstate__()
 
 
 _FIRST_CALLS = """
@@ -148,7 +174,7 @@ for lid in %r:
     out[lid] = rows
     vec = gym.make_vec(lid, num_envs=8)  # below 2 x LANES balls: SIMD blocks, one thread
     obs, _ = vec.reset(seed=5)
-    rows = [obs.ravel().tolist()]
+    rows = [obs.ravel().tolist() + [0.0] * 8]
     for k in range(60):
         obs, r, term, trunc, info = vec.step(np.full((8, 1), 0.3 * np.sin(0.1 * k)))
         rows.append(obs.ravel().tolist() + r.tolist())
@@ -173,7 +199,7 @@ def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(t
                     ignore=shutil.ignore_patterns("__pycache__", "_aot"))
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(tmp_path)}
     env.pop("SADDLE_ENV_FULL_KERNELS", None)            # the per-scene copies, as users run
-    env.pop(_aot.DISABLE_ENV, None)
+    env.pop(_aot.AOT_ENV, None)
     done = subprocess.run([sys.executable, "-m", "saddle_env.precompile", "--aot"],
                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=1200)
     assert done.returncode == 0, done.stderr
@@ -185,14 +211,16 @@ def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(t
     # the empty cache of a fresh install: only the build's modules
     fresh = {**env, "NUMBA_CACHE_DIR": str(tmp_path / "empty")}
     compiled = compiled_in_fresh_process(code, fresh, cwd=str(tmp_path))
-    entry_points = ("place", "step_scalar", "step_serial", "integrate_h", "_step_range_scalar",
-                    "_step_range")
-    assert compiled[-1] == "<lambda>" and not set(compiled) & set(entry_points), compiled
-    assert len(set(compiled) - {"<lambda>"}) <= 15, compiled  # small helpers called from Python
+    entry_points = {"place", "step_scalar", "step_serial", "integrate_h", "_step_range_scalar",
+                    "_step_range"}
+    # a per-scene copy is named after its original: step_scalar__rolling
+    assert compiled[-1] == "<lambda>", compiled
+    assert not {name.split("__")[0] for name in compiled} & entry_points, compiled
+    assert len(set(compiled) - {"<lambda>"}) <= 20, compiled  # small helpers called from Python
 
     def run(aot: str) -> dict:
         out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path,
-                             env={**env, _aot.DISABLE_ENV: aot}, capture_output=True,
+                             env={**env, _aot.AOT_ENV: aot}, capture_output=True,
                              text=True, timeout=900)
         assert out.returncode == 0, out.stderr[-2000:]
         return json.loads(out.stdout.strip().splitlines()[-1])
@@ -210,3 +238,71 @@ def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(t
     assert "built from other sources" in stale["status"]
     for key in jit["runs"]:
         assert np.array_equal(np.array(stale["runs"][key]), np.array(jit["runs"][key])), key
+
+
+def _setup_commands():
+    """setup.py's build commands, without running setup()."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "saddle_env_setup", Path(saddle_env.__file__).parents[1] / "setup.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("outcome", ["built", "failed", "skipped"])
+def test_the_install_ships_a_new_build_or_none(tmp_path, monkeypatch, outcome):
+    """setup.py's build_aot (a wheel's build folder): an earlier build and the build's caches
+    never reach the wheel; a failed or skipped build leaves no modules and the install goes
+    on."""
+    from setuptools.dist import Distribution
+
+    setup = _setup_commands()
+    aot = tmp_path / "saddle_env" / "_aot"
+    aot.mkdir(parents=True)
+    (aot / "k_old.so").write_text("an earlier build")
+    (tmp_path / "saddle_env" / "__pycache__").mkdir()
+
+    def build(root, env):
+        assert env["NUMBA_CACHE_DIR"] != os.environ.get("NUMBA_CACHE_DIR")
+        (root / "saddle_env" / "_aot").mkdir()
+        (root / "saddle_env" / "_aot" / "k_rolling.so").write_text("built")
+        (root / "saddle_env" / "envs" / "__pycache__").mkdir(parents=True)
+        return outcome == "built"
+
+    monkeypatch.setattr(setup, "_run_build", build)
+    monkeypatch.setenv("SADDLE_ENV_AOT", "0" if outcome == "skipped" else "1")
+    cmd = setup.build_aot(Distribution())
+    cmd.build_lib, cmd.editable_mode = str(tmp_path), False
+    cmd.run()
+    shipped = sorted(p.name for p in aot.iterdir()) if aot.exists() else []
+    assert shipped == (["k_rolling.so"] if outcome == "built" else [])
+    assert [Path(p).name for p in cmd.get_outputs()] == shipped
+    assert outcome == "skipped" or not list((tmp_path / "saddle_env").rglob("__pycache__"))
+
+
+def test_a_build_that_overruns_is_stopped_with_its_workers(tmp_path, monkeypatch):
+    """The time limit stops the build's whole process group (its worker processes too)."""
+    setup = _setup_commands()
+    pkg = tmp_path / "saddle_env"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    pid_file = tmp_path / "worker.pid"
+    (pkg / "precompile.py").write_text(
+        "import subprocess, sys, time\n"
+        "w = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'])\n"
+        f"open({str(pid_file)!r}, 'w').write(str(w.pid))\n"
+        "time.sleep(60)\n")
+    monkeypatch.setattr(setup, "BUILD_TIMEOUT_S", 1.5)
+    assert setup._run_build(tmp_path, dict(os.environ)) is False
+    worker = int(pid_file.read_text())
+    for _ in range(50):
+        try:
+            os.kill(worker, 0)
+        except ProcessLookupError:
+            break
+        import time
+        time.sleep(0.1)
+    else:
+        pytest.fail("the build's worker process outlived the time limit")

@@ -107,8 +107,9 @@ class TrapEngine:
     def _entry(self, name: str, args: tuple):
         """``self._S``'s entry point ``name`` for ``args``, checked once
         (`_kernels.checked`: an ahead-of-time one only for exactly its argument types). The
-        engine's arguments keep their types from call to call: its own arrays, and the
-        caller's indices, actions and flags made int64, float64 and bool."""
+        engine's arguments keep their types from call to call: its own arrays are made once
+        and never rebound, and the caller's indices, actions and flags are made int64,
+        float64 and bool vectors (`_per_ball`)."""
         fn = self._entries.get(name)
         if fn is None:
             fn = self._entries[name] = K.checked(self._S, name, args)
@@ -308,8 +309,8 @@ class TrapEngine:
         generator, so a ball's run does not depend on how many others share the batch.
         """
         c = self.config
-        actions = np.ascontiguousarray(actions, dtype=np.float64)
-        active = np.ascontiguousarray(active, dtype=np.bool_)
+        actions = self._per_ball("actions", actions, np.float64)
+        active = self._per_ball("active", active, np.bool_)
         if c.air_force > 0:
             kick_std = c.air_force * math.sqrt(1 - self._air_decay ** 2)
             for i in np.flatnonzero(active):
@@ -339,6 +340,18 @@ class TrapEngine:
                 f"({why}); scene {self.scenes[bad]}")
         if self.obs is not self.frame:
             self._push_frames(active)
+
+    def _per_ball(self, name: str, values, dtype) -> np.ndarray:
+        """``values`` as a contiguous vector of ``dtype``, one per ball (what the compiled
+        step reads)."""
+        if (type(values) is np.ndarray and values.shape == (self.n,) and values.dtype == dtype
+                and values.flags.c_contiguous):
+            return values  # the usual case, at half the cost of the conversion below
+        arr = np.ascontiguousarray(values, dtype=dtype)
+        if arr.size != self.n:
+            raise ValueError(f"{name} must hold one value per ball ({self.n}), got shape "
+                             f"{arr.shape}")
+        return arr.reshape(self.n)
 
     def _push_frames(self, active: np.ndarray) -> None:
         """Shift the stepped balls' histories by one frame and put this step's in front."""
