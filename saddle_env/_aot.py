@@ -8,8 +8,8 @@ is used only while the sources still have that digest (an edited or pulled sourc
 back to the JIT and its on-disk cache, as without them). ``SADDLE_ENV_AOT=0`` turns them
 off. The modules are compiled for the building machine's CPU and its features, as numba's
 JIT compiles for the running one, and are used only on the same CPU and features and under
-the numba and llvmlite that built them. Only the standard library
-at import here: `_kernels` asks this module on its first specialisation.
+the numba and llvmlite that built them. Only the standard library at import here:
+`_kernels` imports this module, and asks it on its first specialisation.
 """
 from __future__ import annotations
 
@@ -84,7 +84,8 @@ def read_manifest() -> dict | None:
 
 def _load() -> dict[str, dict[str, dict[str, Callable]]]:
     """Import every module of a current build once; {} (and the reason in `_why_not`) when
-    there is none, it is off, or it was built from other sources or for another platform."""
+    there is none, it is off, or it was built from other sources or for another platform,
+    CPU or compiler."""
     global _why_not
     if os.environ.get(AOT_ENV, "1") in ("0", ""):
         _why_not = f"turned off ({AOT_ENV}=0)"
