@@ -129,16 +129,11 @@ def _build_one(flags: tuple[str, ...], spec: dict[str, object], out_dir: str) ->
     modules = {"saddle_env.envs._step": _step, "saddle_env.integrators": integrators}
     if spec["level"] is not None:
         import gymnasium as gym
-        env = gym.make(str(spec["level"]))
-        env.reset(seed=0)
-        env.step(env.action_space.sample() * 0)
-        env.close()
+
+        from .compile_profile import first_step
+        first_step(gym.make(str(spec["level"])))
         # the vector env below 2 x LANES balls (training's 64): SIMD blocks in one thread
-        from .envs._step import MIN_BLOCK
-        vec = gym.make_vec(str(spec["level"]), num_envs=MIN_BLOCK)
-        vec.reset(seed=0)
-        vec.step(vec.action_space.sample() * 0)
-        vec.close()
+        first_step(gym.make_vec(str(spec["level"]), num_envs=_step.MIN_BLOCK))
         exports["saddle_env.envs._step"] = ["place", "step_scalar", "step_serial"]
     if spec["contact"] is not None:
         from .runner import initial_state

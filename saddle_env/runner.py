@@ -135,18 +135,19 @@ def drive_row(profile: OmegaProfile, force: tuple[float, float] = (0.0, 0.0),
     return row
 
 
-_loops: dict[tuple[int, bool], object] = {}
+_loops: dict[int, object] = {}  # id of a `_kernels.specialise` namespace → its checked loop
 
 
 def _loop(model: int, resist: bool, args: tuple):
     """The integrator's loop compiled for this contact model alone (`_kernels.specialise`),
-    checked once per model against the arguments' types (`_kernels.checked`): `run`
+    checked once per namespace against the arguments' types (`_kernels.checked`): `run`
     builds every argument itself, as float64 and int64 arrays and records of floats and
     ints, so their types do not change from call to call."""
-    key = (model, bool(resist))
-    if key not in _loops:
-        _loops[key] = K.checked(K.specialise((model,), resist, integrators), "integrate_h", args)
-    return _loops[key]
+    space = K.specialise((model,), resist, integrators)
+    loop = _loops.get(id(space))  # namespaces live as long as the process
+    if loop is None:
+        loop = _loops[id(space)] = K.checked(space, "integrate_h", args)
+    return loop
 
 
 def _check_state(scene: Scene, state: object, name: str = "state") -> np.ndarray:

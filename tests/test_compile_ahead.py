@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from helpers import compiled_in_fresh_process
+from helpers import compiled_in_fresh_process, gone_within
 
 from agents import compile_ahead as ca
 from agents.runs import TrainSettings
@@ -84,12 +84,4 @@ def test_it_exits_when_the_run_that_started_it_is_killed(tmp_path):
     pid = int(pid_file.read_text())
     parent.kill()
     parent.wait()
-    for _ in range(100):
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
-            break
-        time.sleep(0.05)
-    else:
-        os.kill(pid, 9)
-        pytest.fail("the compile-ahead process outlived its parent by 5 s")
+    assert gone_within(pid, 5), "the compile-ahead process outlived its parent by 5 s"
