@@ -20,10 +20,10 @@ if "SADDLE_ENV_BEST_CONST_CACHE" not in os.environ:
 # each set cost its cold run about 70 CPU s (docs/coldstart.md): it runs the full kernels,
 # compiled once. The tests of the copies themselves turn this off (monkeypatch.delenv).
 os.environ.setdefault("SADDLE_ENV_FULL_KERNELS", "1")
-# The ahead-of-time build (saddle_env._aot) holds per-scene copies only, so the full kernels
-# never meet it; it stays off for the tests of the copies too, which test numba's JIT copies.
-# Its own tests (tests/test_aot.py) turn it on where they test it.
-os.environ.setdefault("SADDLE_ENV_AOT", "0")
+# The install's ahead-of-time build (saddle_env._aot) holds per-scene copies only, so the full
+# kernels never meet it. The tests of the copies get what is installed: the build's entry
+# points where it matches the sources (a fresh install, CI), so they check the build to the
+# last bit against the full kernels; numba's JIT copies where it does not (edited sources).
 
 # The few training runs with a closing comparison are seconds long: a compile-ahead process
 # beside each (agents/compile_ahead.py) would only add its start-up. Its own tests turn it on.
@@ -37,12 +37,27 @@ WARM_AFTER_TESTS = 500   # smaller sessions (one file, a -k selection) do withou
 _warmer = []
 
 
+# What the first tests need, the test process compiles itself, whatever the helper does:
+# test_agents.py's first test needs `mpc`'s look-ahead, half a minute of compiling, so with
+# the helper it runs last, after the helper has compiled the look-ahead (its first target).
+LAST_WITH_WARMER = ("test_agents.py",)
+
+
+def _warmer_wanted(config, items) -> bool:
+    return not (len(items) < WARM_AFTER_TESTS or os.environ.get("SADDLE_ENV_TEST_WARM") == "0"
+                or config.getoption("collectonly"))
+
+
+def pytest_collection_modifyitems(session, config, items):
+    if _warmer_wanted(config, items):
+        items.sort(key=lambda item: item.path.name in LAST_WITH_WARMER)   # stable: else kept
+
+
 def pytest_collection_finish(session):
     import subprocess
     import sys
 
-    if (len(session.items) < WARM_AFTER_TESTS or os.environ.get("SADDLE_ENV_TEST_WARM") == "0"
-            or session.config.getoption("collectonly")):
+    if not _warmer_wanted(session.config, session.items):
         return
     _warmer.append(subprocess.Popen(
         [sys.executable, str(Path(__file__).with_name("warm_cache.py"))],

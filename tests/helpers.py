@@ -8,6 +8,12 @@ from saddle_env import _kernels as K
 from saddle_env.scene import Scene
 
 
+def jit_copy(fn):
+    """The numba JIT copy behind an entry point of `_kernels.specialise`'s namespace: the
+    function itself, or the JIT copy an installed ahead-of-time build stands in for."""
+    return K._jit_of.get(id(fn), fn)
+
+
 def padded(state: np.ndarray) -> np.ndarray:
     out = np.zeros(K.STATE_WIDTH)
     out[: len(state)] = state

@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import jit_copy
 
 from saddle_env import METHODS, Scene, initial_state, simulate
 from saddle_env.integrators import EVENT_TIME_TOL
@@ -130,7 +131,8 @@ def test_a_dip_of_N_inside_one_step_is_not_stepped_over():
 
 
 def test_a_copy_compiled_for_one_contact_model_steps_it_identically(monkeypatch):
-    """`_kernels.specialise`: the rolling-only loop (what `simulate` runs for a rolling ball)
+    """`_kernels.specialise`: the rolling-only loop (what `simulate` runs for a rolling ball:
+    the install's ahead-of-time entry point where a build matches, else numba's JIT copy)
     gives the full loop's trajectory bit for bit, and a model it was not compiled for fails
     (NaN rates) instead of being stepped as another."""
     from saddle_env import _kernels as K
@@ -151,7 +153,7 @@ def test_a_copy_compiled_for_one_contact_model_steps_it_identically(monkeypatch)
     # only compiled code calls a copy that is not an entry point: no wrapper for Python
     assert rolling.rhs.targetoptions.get("no_cpython_wrapper") is True
     assert rolling._error_norm.targetoptions.get("no_cpython_wrapper") is True  # tests no flag
-    assert not rolling.integrate_h.targetoptions.get("no_cpython_wrapper", False)
+    assert not jit_copy(rolling.integrate_h).targetoptions.get("no_cpython_wrapper", False)
     with pytest.raises(TypeError, match="only compiled code calls"):  # not a crash
         rolling.step_factor(1.0, 2.0)
     def padded(scene):  # a state row as the loop takes it (STATE_WIDTH slots)
