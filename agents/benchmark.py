@@ -61,7 +61,8 @@ class Algo:
     # (warm start, wrappers, model selection on validation episodes, as `train.py` does).
     recipe_of: str | None = None
     # The `train.py --backend` a recipe row trains with ("sbx": SBX's PPO, its recipes file
-    # agents/hyperparams/ppo_sbx.yml, whose entries are ppo.yml's fast recipe but the budget).
+    # agents/hyperparams/ppo_sbx.yml, whose entries are ppo.yml's fast recipe but the budget
+    # and, on Storm, the rollout's shape; this row takes its Capture entry, as recipe_of says).
     backend: str = "sb3"
 
 

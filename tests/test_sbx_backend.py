@@ -172,13 +172,17 @@ def test_train_py_backend_sbx_checkpoints_on_sigterm_and_resumes_as_data(tmp_pat
     assert action.shape == env.action_space.shape and np.all(np.isfinite(action))
 
 
-def test_the_sbx_recipes_are_the_fast_recipe_but_for_the_budget():
+def test_the_sbx_recipes_are_the_fast_recipe_but_for_the_budget_and_rollout_shape():
+    """Each SBX entry is ppo.yml's fast recipe but for its budget and how its rollout of
+    n_envs x n_steps samples is shaped (Storm's: more balls, fewer steps), never its size."""
     from agents.recipes import load_hyperparams
     from saddle_env.envs import LEVEL_IDS
 
     fast = load_hyperparams("ppo", "SaddleTrap-Capture-v0")
+    free = ("n_timesteps", "n_envs", "n_steps")
     for level in LEVEL_IDS:
         ours = load_hyperparams("ppo", level, sbx_backend.RECIPES)
         theirs = fast if level != "SaddleTrap-v0" else load_hyperparams("ppo", level)
-        assert {k: v for k, v in ours.items() if k != "n_timesteps"} == \
-               {k: v for k, v in theirs.items() if k != "n_timesteps"}, level
+        assert {k: v for k, v in ours.items() if k not in free} == \
+               {k: v for k, v in theirs.items() if k not in free}, level
+        assert ours["n_envs"] * ours["n_steps"] == theirs["n_envs"] * theirs["n_steps"], level
