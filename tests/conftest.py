@@ -37,27 +37,12 @@ WARM_AFTER_TESTS = 500   # smaller sessions (one file, a -k selection) do withou
 _warmer = []
 
 
-# What the first tests need, the test process compiles itself, whatever the helper does:
-# test_agents.py's first test needs `mpc`'s look-ahead, half a minute of compiling, so with
-# the helper it runs last, after the helper has compiled the look-ahead (its first target).
-LAST_WITH_WARMER = ("test_agents.py",)
-
-
-def _warmer_wanted(config, items) -> bool:
-    return not (len(items) < WARM_AFTER_TESTS or os.environ.get("SADDLE_ENV_TEST_WARM") == "0"
-                or config.getoption("collectonly"))
-
-
-def pytest_collection_modifyitems(session, config, items):
-    if _warmer_wanted(config, items):
-        items.sort(key=lambda item: item.path.name in LAST_WITH_WARMER)   # stable: else kept
-
-
 def pytest_collection_finish(session):
     import subprocess
     import sys
 
-    if not _warmer_wanted(session.config, session.items):
+    if (len(session.items) < WARM_AFTER_TESTS or os.environ.get("SADDLE_ENV_TEST_WARM") == "0"
+            or session.config.getoption("collectonly")):
         return
     _warmer.append(subprocess.Popen(
         [sys.executable, str(Path(__file__).with_name("warm_cache.py"))],
