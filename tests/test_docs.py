@@ -222,12 +222,13 @@ _WRITTEN = tuple(line.strip().lstrip("/") for line in (ROOT / ".gitignore").read
 
 def _mentioned_paths(page: Path) -> list[str]:
     found = set()
-    for m in _PATH.finditer(page.read_text()):
+    text = page.read_text()
+    for m in _PATH.finditer(text):
         p = m.group(1).rstrip(".")
         if p.startswith(_WRITTEN):
             continue
         # placeholders (<algo>, <date>) and run outputs are not repository files
-        if "<" in page.read_text()[m.end():m.end() + 1]:
+        if "<" in text[m.end():m.end() + 1]:
             continue
         found.add(p)
     return sorted(found)
