@@ -41,7 +41,7 @@ import numpy as np
 
 from . import _aot
 
-# Threads for numba's parallel loops (the batch simulator, the vector environment). Measured
+# Threads for numba's parallel loop (the vector environment's step). Measured
 # on a shared 2-core machine, 1024-ball vector env, one run per row:
 #   layer                          idle           beside one CPU-bound process
 #   OpenMP, libgomp default spin   2.5-2.9 M/s    0.5-0.6 M/s (spinning threads steal the core)
@@ -57,8 +57,8 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
         os.environ["GOMP_SPINCOUNT"] = "1000"
 
 # GNU OpenMP cannot be used again in a child forked after the parent used it (numba
-# terminates the child), so callers of parallel kernels ask `threads_usable()` and run the
-# same code compiled serially when it says no.
+# terminates the child), so the vector environment asks `threads_usable()` and steps on one
+# thread when it says no.
 _in_forked_child = False
 
 
@@ -70,21 +70,6 @@ def _mark_forked_child() -> None:
 os.register_at_fork(after_in_child=_mark_forked_child)
 
 
-def serial_twin(parallel_kernel):
-    """The Python function behind a ``parallel=True`` kernel, compiled for one thread.
-
-    A renamed copy of the function, so numba's on-disk cache keeps the two apart (it keys
-    entries by the function's qualified name, not by its compile options)."""
-    f = parallel_kernel.py_func
-    twin = types.FunctionType(f.__code__, f.__globals__, f.__name__ + "_serial",
-                              f.__defaults__, f.__closure__)
-    twin.__qualname__ = f.__qualname__ + "_serial"
-    twin.__doc__ = f.__doc__
-    options = {k: v for k, v in parallel_kernel.targetoptions.items()
-               if k not in ("parallel", "nopython")}
-    return one_signature(nb.njit(cache=True, **options)(twin))
-
-
 def threads_usable() -> bool:
     """False in a forked child whose parent already ran numba's OpenMP threads."""
     if not _in_forked_child:
@@ -93,6 +78,66 @@ def threads_usable() -> bool:
         return nb.threading_layer() != "omp"
     except ValueError:  # no parallel region has run in this process (or its parent) yet
         return True
+
+
+# Threads for the batch kernels that run long per call (`prediction.integrate_segments`,
+# `integrators.integrate_batch`): plain Python threads, each calling a one-thread compiled
+# kernel on its own range of rows, with the GIL released inside (``nogil``). Unlike numba's
+# ``prange``, a kernel called this way is an ordinary compiled function, so the install's
+# ahead-of-time build can hold it (`aot_build`) and a first call compiles nothing; and
+# Python threads survive a fork (the pool is made again in the child). Waking a thread
+# costs tens of microseconds, nothing next to these calls' milliseconds; the vector
+# environment's step, a fraction of a millisecond, keeps numba's OpenMP threads.
+_pool: tuple[int, int, object] | None = None   # (its process id, its threads, the executor)
+
+
+# Below this much simulated time in a call (all balls together) the batch kernels run on the
+# calling thread alone: waking a pool thread costs tens of microseconds, and a look-ahead of
+# `mpc` (a few hundred runs of a few tenths of a second, ~0.2 ms) ran 10-40 % slower split
+# over two threads (measured 2026-11-26; numba's OpenMP threads, which spin briefly instead
+# of sleeping, had cost it less). 10 simulated seconds are about 1-2 ms of DOP853 at the
+# default tolerance.
+THREADS_FROM_SIMULATED_S = 10.0
+
+
+def thread_count() -> int:
+    """How many threads the batch kernels use: numba's setting (``NUMBA_NUM_THREADS``, by
+    default the machine's cores), read without starting numba's own threads."""
+    return max(1, int(nb.config.NUMBA_NUM_THREADS))
+
+
+def _executor(workers: int):
+    """A pool of at least ``workers`` threads, made on first use and again in a forked child
+    (which has the parent's executor object but none of its threads)."""
+    global _pool
+    from concurrent.futures import ThreadPoolExecutor
+    if _pool is None or _pool[0] != os.getpid() or _pool[1] < workers:
+        if _pool is not None and _pool[0] == os.getpid():
+            _pool[2].shutdown(wait=False)   # its threads end once idle
+        _pool = (os.getpid(), workers,
+                 ThreadPoolExecutor(workers, thread_name_prefix="saddle_env"))
+    return _pool[2]
+
+
+def in_threads(kernel, n: int, *args, threads: int | None = None) -> list:
+    """``kernel(lo, hi, *args)`` over contiguous ranges that split rows ``0..n-1`` among up
+    to ``threads`` threads (default `thread_count`), this one included; returns the calls'
+    results in the order of their ranges when all are done, and raises the first error any
+    of them raised. ``kernel`` must release the GIL (compiled with ``nogil=True``) for the
+    ranges to run at once."""
+    k = max(1, min(thread_count() if threads is None else threads, n))
+    if k == 1:
+        return [kernel(0, n, *args)]
+    bounds = [c * n // k for c in range(k + 1)]
+    pool = _executor(k - 1)
+    others = [pool.submit(kernel, bounds[c], bounds[c + 1], *args) for c in range(1, k)]
+    try:
+        first = kernel(bounds[0], bounds[1], *args)
+    finally:
+        for fut in others:   # wait for every range before the caller reuses the arrays
+            fut.exception()
+    return [first] + [fut.result() for fut in others]
+
 
 from .scene import (COULOMB, ION_PAUL, ION_RRF, P_A, P_ALPHA, P_B, P_DRAG_LINEAR,
                     P_DRAG_QUADRATIC, P_DRILL, P_G, P_MU, P_MU_STATIC, P_R, P_RESIST, P_SPIN_BAND,
@@ -333,6 +378,22 @@ def checked(space: types.SimpleNamespace, name: str, args: tuple):
     fn = getattr(space, name)
     if id(fn) in _jit_of and not _aot.matches(fn, args):
         return _jit_of[id(fn)]
+    return fn
+
+
+_entries: dict[tuple[int, str], object] = {}  # (id of a `specialise` namespace, name) → checked
+
+
+def entry(models, resist: bool, module: types.ModuleType, name: str, args: tuple):
+    """``module``'s entry point ``name`` compiled for the contact models ``models`` alone
+    (`specialise`), checked once per namespace against the types of ``args`` (`checked`).
+    For callers that build every argument themselves (float64 and int64 arrays, records of
+    floats and ints), whose types therefore never change from call to call."""
+    space = specialise(models, resist, module)
+    key = (id(space), name)  # namespaces live as long as the process
+    fn = _entries.get(key)
+    if fn is None:
+        fn = _entries[key] = checked(space, name, args)
     return fn
 
 

@@ -1,17 +1,19 @@
 """Build the ahead-of-time compiled kernels: the compiled code of a first `env.step` (the
-single env's and the vector env's below 2 x LANES balls, training's 64), its `reset` and a
-first `simulate`, as a C extension module per set of contact models, so that a fresh
-process starts without numba's 10-20 s of compiling (docs/coldstart.md).
+single env's and the vector env's below 2 x LANES balls, training's 64), its `reset`, a
+first `simulate`, `simulate_batch` and `predict_batch` (a model-predictive controller's
+look-ahead), as a C extension module per set of contact models, so that a fresh process
+starts without numba's 10-20 s of compiling (docs/coldstart.md).
 
 What is built is numba's own compile of the kernels, not a second implementation: for each
 set of contact models a registered level or a one-model `simulate` uses, this process runs
 those first calls once with the JIT (`_kernels.specialise`'s copies), then links the
 compiled code below each entry point into an extension module with `numba.pycc`, for this
 machine's CPU as the JIT would, whose entry points take exactly the argument types the JIT
-was called with. `saddle_env._aot` loads the modules when they were built from the sources
-in place (a digest of them is in the manifest), on the same platform and CPU, and otherwise
-leaves every call to the JIT. The vector env's threaded step is not built (pycc has no
-`prange`).
+was called with and release the GIL (the batch kernels run on several threads:
+`_kernels.in_threads`). `saddle_env._aot` loads the modules when they were built from the
+sources in place (a digest of them is in the manifest), on the same platform and CPU, and
+otherwise leaves every call to the JIT. The vector env's threaded step (from 2 x LANES
+balls) is not built: it uses numba's `prange`, which pycc cannot build.
 
 Run by the package's install (setup.py; an install never fails for it) and by
 ``python -m saddle_env.precompile --aot``.
@@ -59,12 +61,42 @@ def _integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_
                        Y_out, stats, h_start, work)
 
 
+def _integrate_batch(lo, hi, models, P, profiles, Y, t0, t_out, tab, ctl, scales, max_step,
+                     active, Y_out, status, t_final, stats):
+    integrate_batch(lo, hi, models, P, profiles, Y, t0, t_out, tab, ctl,  # noqa: F821
+                    scales, max_step, active, Y_out, status, t_final, stats)
+
+
+def _integrate_segments(lo, hi, models, P, scales, Y, drives, durations, sample, tab, ctl,
+                        t_out, Y_out, N_out, status):
+    integrate_segments(lo, hi, models, P, scales, Y, drives, durations,  # noqa: F821
+                       sample, tab, ctl, t_out, Y_out, N_out, status)
+
+
 # module whose JIT copy an export calls → {export name: its thin caller}
 _EXPORTS = {
     "saddle_env.envs._step": {"place": _place, "step_scalar": _step_scalar,
                               "step_serial": _step_serial},
-    "saddle_env.integrators": {"integrate_h": _integrate_h},
+    "saddle_env.integrators": {"integrate_h": _integrate_h, "integrate_batch": _integrate_batch},
+    "saddle_env.prediction": {"integrate_segments": _integrate_segments},
 }
+
+
+def _release_gil_in_exports() -> None:
+    """Make pycc's wrappers release the GIL around the compiled code, as the JIT's do for a
+    ``nogil`` function: the batch kernels run on several Python threads at once
+    (`_kernels.in_threads`). pycc compiles every export with one set of compiler flags and
+    offers no option for it, so its flags class is given the setting (in this build's worker
+    process only). Releasing and taking back the GIL costs well under a microsecond a call."""
+    from numba.core.compiler import Flags
+    from numba.pycc import compiler
+
+    class _NoGilFlags(Flags):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.release_gil = True
+
+    compiler.Flags = _NoGilFlags
 
 
 def planned_builds() -> dict[tuple[str, ...], dict[str, object]]:
@@ -110,7 +142,7 @@ def _build_one(flags: tuple[str, ...], spec: dict[str, object], out_dir: str) ->
     from numba.pycc import CC
 
     from . import _kernels as K
-    from . import integrators
+    from . import integrators, prediction
     from .envs import _step
 
     t0 = time.perf_counter()
@@ -126,7 +158,9 @@ def _build_one(flags: tuple[str, ...], spec: dict[str, object], out_dir: str) ->
     host = _aot.machine()
     AOTCPUCodegen._customize_tm_features = lambda self: host["features"]
     cc.target_cpu = host["cpu"]
-    modules = {"saddle_env.envs._step": _step, "saddle_env.integrators": integrators}
+    _release_gil_in_exports()
+    modules = {"saddle_env.envs._step": _step, "saddle_env.integrators": integrators,
+               "saddle_env.prediction": prediction}
     if spec["level"] is not None:
         import gymnasium as gym
 
@@ -136,11 +170,23 @@ def _build_one(flags: tuple[str, ...], spec: dict[str, object], out_dir: str) ->
         first_step(gym.make_vec(str(spec["level"]), num_envs=_step.MIN_BLOCK))
         exports["saddle_env.envs._step"] = ["place", "step_scalar", "step_serial"]
     if spec["contact"] is not None:
+        import numpy as np
+
+        from .prediction import predict_batch
         from .runner import initial_state
-        from .simulate import simulate
+        from .simulate import simulate, simulate_batch
         scene = _example_scene(str(spec["contact"]))
-        simulate(scene, initial_state(scene, 0.001, 0.001, omega=30.0), 0.01, omega=30.0)
-        exports["saddle_env.integrators"] = ["integrate_h"]
+        start = initial_state(scene, 0.001, 0.001, omega=30.0)
+        simulate(scene, start, 0.01, omega=30.0)
+        simulate_batch(scene, np.repeat(start[None], 2, 0), 0.01, omega=30.0)
+        exports["saddle_env.integrators"] = ["integrate_h", "integrate_batch"]
+        # a look-ahead, as a model-predictive controller makes it with one contact model
+        # (agents.mpc): the argument types are predict_batch's own, whatever the values
+        drives = np.zeros((2, 2, 8))
+        drives[:, :, 0] = 30.0
+        predict_batch(scene.model_code, np.repeat(scene.params()[None], 2, 0),
+                      np.repeat(start[None], 2, 0), drives, np.full((2, 2), 0.01), 0.005)
+        exports["saddle_env.prediction"] = ["integrate_segments"]
     for mod_name, names in exports.items():
         space = K.specialise(frozenset(spec["models"]), bool(spec["resist"]), modules[mod_name])
         for name in names:

@@ -33,7 +33,7 @@ import numpy as np
 
 from ._kernels import (COULOMB_ON, ONSET, PHASE_SLOT, RESIST_ON, ROW_WIDTH, SLIP, STATE_WIDTH,
                        STICK, coulomb_contact, integrated_size, ir_inline, jit, python_entry, rhs,
-                       rolling_spin, rolling_velocity, serial_twin, specialisable, spin_held,
+                       rolling_spin, rolling_velocity, specialisable, spin_held,
                        stick_margin, stop_rolling, stop_slip, work_slot)
 from .scene import COULOMB, P_A, P_B, P_G, P_R, P_RESIST, P_RIM, P_SPIN_BAND, ROLLING
 
@@ -795,10 +795,13 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
     return Outcome(STATUS_DONE, t, h, accepted_normal)
 
 
-@nb.njit(cache=True, parallel=True)
-def integrate_batch(models, P, profiles, Y, t0, t_out, tab, ctl, scales, max_step, active,
-                    Y_out, status, t_final, stats):
-    """`integrate` for many balls at once, each with its own scene row, Ω profile and state.
+@python_entry
+@nb.njit(cache=True, nogil=True)
+def integrate_batch(lo, hi, models, P, profiles, Y, t0, t_out, tab, ctl, scales, max_step,
+                    active, Y_out, status, t_final, stats):
+    """`integrate` for balls ``lo`` to ``hi - 1`` of a batch, each with its own scene row, Ω
+    profile and state, on one thread without the GIL (`runner.simulate_batch` runs ranges on
+    several: `_kernels.in_threads`).
 
     All balls start at ``t0`` and share the output times and ``ctl``, except that ball i's
     largest step is ``max_step[i]``. Balls with ``active[i] == False`` are not touched.
@@ -806,18 +809,12 @@ def integrate_batch(models, P, profiles, Y, t0, t_out, tab, ctl, scales, max_ste
     rows, Y (n, STATE_WIDTH), scales (n, STATE_WIDTH), max_step (n,), Y_out (n, m,
     STATE_WIDTH), status (n,), t_final (n,), stats (n, 4).
     """
-    n = Y.shape[0]
-    for i in nb.prange(n):
+    for i in range(lo, hi):
         if active[i]:
             own = StepControl(ctl.dt, ctl.rtol, ctl.atol, max_step[i], ctl.events,
                               ctl.max_steps)
             status[i], t_final[i] = integrate(models[i], P[i], profiles[i], Y[i], t0, t_out,
                                               tab, own, scales[i], Y_out[i], stats[i])
-
-
-# The same loop on one thread, for processes where numba's threads cannot run
-# (`_kernels.threads_usable`).
-integrate_batch_serial = serial_twin(integrate_batch)
 
 
 def state_scale(p: np.ndarray, model: int) -> np.ndarray:

@@ -59,15 +59,17 @@ def samples_in(duration, sample):
 
 
 @K.python_entry
-@nb.njit(cache=True, parallel=True)
-def integrate_segments(models, P, scales, Y, drives, durations, sample, tab, ctl, t_out, Y_out,
-                       N_out, status):
-    """The kernel of `predict_batch`: run r from ``Y[r]`` (advanced in place to its final
-    state) through the segments of ``drives[r]`` and ``durations[r]``, filling row r of
-    ``t_out``, ``Y_out`` and ``N_out`` (NaN-filled by the caller) and ``status[r]``. The
-    step size carries over from segment to segment, as in one run."""
-    n, S = durations.shape
-    for r in nb.prange(n):
+@nb.njit(cache=True, nogil=True)
+def integrate_segments(lo, hi, models, P, scales, Y, drives, durations, sample, tab, ctl, t_out,
+                       Y_out, N_out, status):
+    """The kernel of `predict_batch`, for runs ``lo`` to ``hi - 1``: run r from ``Y[r]``
+    (advanced in place to its final state) through the segments of ``drives[r]`` and
+    ``durations[r]``, filling row r of ``t_out``, ``Y_out`` and ``N_out`` (NaN-filled by the
+    caller) and ``status[r]``. The step size carries over from segment to segment, as in one
+    run. One thread; `predict_batch` runs ranges on several (`_kernels.in_threads`), and
+    without the GIL so that they run at once."""
+    S = durations.shape[1]
+    for r in range(lo, hi):
         model, p, y = models[r], P[r], Y[r]
         stats = np.zeros(4, dtype=np.int64)
         work = workspace(tab)
@@ -97,10 +99,6 @@ def integrate_segments(models, P, scales, Y, drives, durations, sample, tab, ctl
             if st != 0:
                 break
         status[r] = st
-
-
-# The same kernel on one thread (a forked child cannot reuse its parent's OpenMP threads).
-integrate_segments_serial = K.python_entry(K.serial_twin(integrate_segments))
 
 
 def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drives: np.ndarray,
@@ -155,13 +153,14 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
     state = np.full((n, S, m, K.STATE_WIDTH), np.nan)
     normal = np.full((n, S, m), np.nan)
     status = np.zeros(n, dtype=np.int64)
+    args = (codes, P, np.ascontiguousarray(scales, dtype=float), Y, drives, durations,
+            float(sample), settings.method.tableau, settings.control(max_step), t, state, normal,
+            status)
     # compiled for the contact models (and rolling resistance) of these runs alone
-    own = K.specialise(np.unique(codes), bool((P[:, P_RESIST] != 0.0).any()),
-                       sys.modules[__name__])
-    kernel = own.integrate_segments if K.threads_usable() else own.integrate_segments_serial
-    kernel(codes, P, np.ascontiguousarray(scales, dtype=float), Y, drives, durations,
-           float(sample), settings.method.tableau, settings.control(max_step), t, state, normal,
-           status)
+    kernel = K.entry(np.unique(codes), bool((P[:, P_RESIST] != 0.0).any()),
+                     sys.modules[__name__], "integrate_segments", (0, n, *args))
+    simulated = float(np.maximum(durations, 0.0).sum())
+    K.in_threads(kernel, n, *args, threads=1 if simulated < K.THREADS_FROM_SIMULATED_S else None)
     width = padded_width(codes)
     return Prediction(t, np.ascontiguousarray(state[..., :width]), normal, status,
                       np.ascontiguousarray(Y[:, :width]))

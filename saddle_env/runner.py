@@ -21,9 +21,8 @@ import numpy as np
 from . import _kernels as K
 from . import integrators
 from .integrators import (EVENT_DETACH, EVENT_ESCAPE, EVENT_KINDS, LOG_PHASE, LOG_T, METHODS,
-                          STATUS_FAILED, STATUS_MAX_STEPS, Method, StepControl, integrate_batch,
-                          integrate_batch_serial, state_scale, step_control,
-                          transition_log, workspace)
+                          STATUS_FAILED, STATUS_MAX_STEPS, Method, StepControl, state_scale,
+                          step_control, transition_log, workspace)
 from .omega import OmegaProfile
 from .scene import COULOMB, P_RESIST, Scene, _finite_number
 
@@ -135,19 +134,10 @@ def drive_row(profile: OmegaProfile, force: tuple[float, float] = (0.0, 0.0),
     return row
 
 
-_loops: dict[int, object] = {}  # id of a `_kernels.specialise` namespace → its checked loop
-
-
 def _loop(model: int, resist: bool, args: tuple):
-    """The integrator's loop compiled for this contact model alone (`_kernels.specialise`),
-    checked once per namespace against the arguments' types (`_kernels.checked`): `run`
-    builds every argument itself, as float64 and int64 arrays and records of floats and
-    ints, so their types do not change from call to call."""
-    space = K.specialise((model,), resist, integrators)
-    loop = _loops.get(id(space))  # namespaces live as long as the process
-    if loop is None:
-        loop = _loops[id(space)] = K.checked(space, "integrate_h", args)
-    return loop
+    """The integrator's loop compiled for this contact model alone (`_kernels.entry`): `run`
+    builds every argument itself, so their types do not change from call to call."""
+    return K.entry((model,), resist, integrators, "integrate_h", args)
 
 
 def _check_state(scene: Scene, state: object, name: str = "state") -> np.ndarray:
@@ -587,10 +577,14 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
     status = np.zeros(n, dtype=np.int64)
     t_final = np.zeros(n)
     stats = np.zeros((n, 4), dtype=np.int64)
-    batch = integrate_batch if K.threads_usable() else integrate_batch_serial
     # Each ball's own largest step replaces the record's (integrate_batch).
-    batch(models, P, drives, Y, 0.0, t_out, m.tableau, settings.control(math.inf), scales,
-          max_step_arr, np.ones(n, dtype=bool), Y_out, status, t_final, stats)
+    args = (models, P, drives, Y, 0.0, t_out, m.tableau, settings.control(math.inf), scales,
+            max_step_arr, np.ones(n, dtype=bool), Y_out, status, t_final, stats)
+    # compiled for these balls' contact models alone, as `simulate` is for its one
+    batch = K.entry(np.unique(models), bool((P[:, P_RESIST] != 0.0).any()), integrators,
+                    "integrate_batch", (0, n, *args))
+    simulated = n * float(t_out[-1])
+    K.in_threads(batch, n, *args, threads=1 if simulated < K.THREADS_FROM_SIMULATED_S else None)
     work = np.array([Y_out[i, :, sc.state_size] for i, sc in enumerate(scene_list)])
     width = padded_width(models)
     return BatchResult(t_out, Y_out[..., :width], stats[:, 3].copy(), status, t_final,

@@ -16,14 +16,14 @@ if "SADDLE_ENV_BEST_CONST_CACHE" not in os.environ:
     atexit.register(shutil.rmtree, _cache_dir, ignore_errors=True)   # no litter in /tmp
     os.environ["SADDLE_ENV_BEST_CONST_CACHE"] = os.path.join(_cache_dir, "best_const.json")
 
-# The suite meets every set of contact models, and a per-scene copy of the compiled loop for
-# each set cost its cold run about 70 CPU s (docs/coldstart.md): it runs the full kernels,
-# compiled once. The tests of the copies themselves turn this off (monkeypatch.delenv).
-os.environ.setdefault("SADDLE_ENV_FULL_KERNELS", "1")
-# The install's ahead-of-time build (saddle_env._aot) holds per-scene copies only, so the full
-# kernels never meet it. The tests of the copies get what is installed: the build's entry
-# points where it matches the sources (a fresh install, CI), so they check the build to the
-# last bit against the full kernels; numba's JIT copies where it does not (edited sources).
+# The suite runs what users run: each scene's own compiled copy of the kernels, which the
+# install's ahead-of-time build (saddle_env._aot) holds for the registered levels and each
+# contact model, so where the build matches the sources (a fresh install, CI) most tests
+# compile nothing and check the build itself; with edited sources the JIT compiles the
+# copies. The tests that compare a copy with the full kernels set SADDLE_ENV_FULL_KERNELS=1
+# themselves (monkeypatch.setenv). Until 2026-11-26 the suite ran the full kernels, which no
+# build holds (docs/coldstart.md, "The test suite on the users' kernels").
+os.environ.setdefault("SADDLE_ENV_FULL_KERNELS", "0")
 
 # The few training runs with a closing comparison are seconds long: a compile-ahead process
 # beside each (agents/compile_ahead.py) would only add its start-up. Its own tests turn it on.

@@ -183,6 +183,14 @@ for contact in ("rolling", "slipping", "coulomb"):
     scene = se.Scene(contact=contact, mu=0.3) if contact == "coulomb" else se.Scene(contact=contact)
     state = se.initial_state(scene, x=0.001, y=0.001, start="lab-rest", omega=30.0)
     out[contact] = se.simulate(scene, state, t_end=2.0, omega=30.0, dt_out=0.01).y.tolist()
+    starts = np.array([state * (1.0 + 0.1 * i) for i in range(3)])
+    batch = se.simulate_batch(scene, starts, t_end=1.0, omega=[28.0, 30.0, 32.0], dt_out=0.05)
+    out["batch " + contact] = np.nan_to_num(batch.state, nan=-1.0).tolist()
+    drives = np.zeros((3, 2, 8))
+    drives[:, :, 0] = [[28.0, 29.0], [30.0, 31.0], [32.0, 33.0]]
+    pred = se.predict_batch(scene.model_code, np.repeat(scene.params()[None], 3, 0), starts,
+                            drives, np.full((3, 2), 0.2), 0.02)  # mpc's look-ahead
+    out["prediction " + contact] = np.nan_to_num(pred.state, nan=-1.0).tolist()
 print(json.dumps({"status": _aot.status(), "runs": out}))
 """
 
@@ -190,7 +198,8 @@ print(json.dumps({"status": _aot.status(), "runs": out}))
 @pytest.mark.slow
 def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(tmp_path):
     """Build into a copy of the package; a fresh process on the build's cache then takes
-    every level's first steps and a first simulate of each contact model from the build,
+    every level's first steps and a first simulate, simulate_batch and predict_batch of each
+    contact model from the build,
     compiling only a few small helpers called from Python, with the JIT's results
     to the last bit; an edited source retires the build."""
     from saddle_env.envs import LEVEL_IDS
@@ -212,7 +221,7 @@ def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(t
     fresh = {**env, "NUMBA_CACHE_DIR": str(tmp_path / "empty")}
     compiled = compiled_in_fresh_process(code, fresh, cwd=str(tmp_path))
     entry_points = {"place", "step_scalar", "step_serial", "integrate_h", "_step_range_scalar",
-                    "_step_range"}
+                    "_step_range", "integrate_batch", "integrate_segments"}
     # a per-scene copy is named after its original: step_scalar__rolling
     assert compiled[-1] == "<lambda>", compiled
     assert not {name.split("__")[0] for name in compiled} & entry_points, compiled

@@ -410,8 +410,9 @@ def _forked_child(queue):
 
 
 def test_vector_env_and_batch_run_in_a_child_forked_after_threads_were_used():
-    """GNU OpenMP cannot run again in a forked child (numba would terminate it): the child
-    falls back to one thread and gives the same numbers."""
+    """GNU OpenMP cannot run again in a forked child (numba would terminate it): the child's
+    vector env falls back to one thread, and `simulate_batch` makes its Python threads
+    again (the parent's do not survive the fork); the same numbers."""
     import multiprocessing as mp
 
     from saddle_env import simulate_batch
@@ -456,7 +457,7 @@ def test_each_levels_own_compiled_step_matches_the_full_kernels(env_id, monkeypa
     from saddle_env import _kernels as K
     from saddle_env.envs import _step
 
-    monkeypatch.delenv(K.FULL_KERNELS_ENV)           # the suite runs the full kernels
+    monkeypatch.delenv(K.FULL_KERNELS_ENV)           # the copies (the suite's default)
     engine, own = _seeded_steps(env_id)
     assert engine._S is not _step                    # a copy, without the other models
     monkeypatch.setenv(K.FULL_KERNELS_ENV, "1")

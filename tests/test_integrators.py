@@ -139,7 +139,7 @@ def test_a_copy_compiled_for_one_contact_model_steps_it_identically(monkeypatch)
     from saddle_env import integrators as I
     from saddle_env.scene import ROLLING, SLIPPING
 
-    monkeypatch.delenv(K.FULL_KERNELS_ENV)          # the suite runs the full kernels
+    monkeypatch.delenv(K.FULL_KERNELS_ENV)          # the copies (the suite's default)
     scene = Scene(a=0.159, R=0.02, contact="rolling")
     p = scene.params()
     tab = METHODS["dopri5"].tableau

@@ -67,14 +67,20 @@ def test_one_segment_is_simulate_bit_for_bit():
         np.testing.assert_array_equal(pred.normal[0, 0, :m], expected)
 
 
-def test_runs_of_a_batch_do_not_interact():
-    """A batch of mixed contact models gives each run what it gives alone."""
+def _cases_batch():
+    """Every case of CASES as one run of a batch: models, P, Y0, drives, durations."""
     scenes = [c[0] for c in CASES]
     Y0 = np.array([_padded(s, _start(c)) for s, c in zip(scenes, CASES)])
     drives = _drives([[(c[2], c[3])] for c in CASES])
     durations = np.full((len(CASES), 1), 0.3)
     P = np.array([s.params() for s in scenes])
     models = np.array([s.model_code for s in scenes])
+    return models, P, Y0, drives, durations
+
+
+def test_runs_of_a_batch_do_not_interact():
+    """A batch of mixed contact models gives each run what it gives alone."""
+    models, P, Y0, drives, durations = _cases_batch()
     together = predict_batch(models, P, Y0, drives, durations, 0.05, rtol=RTOL, max_step=MAX_STEP)
     for r in range(len(CASES)):
         alone = predict_batch(models[r], P[r:r + 1], Y0[r:r + 1], drives[r:r + 1],
@@ -165,7 +171,7 @@ def test_a_batch_compiled_for_its_own_contact_models_predicts_identically(monkey
         return predict_batch(models[:k], P[:k], Y0[:k], drives[:k], durations[:k], 0.05,
                              rtol=RTOL, max_step=MAX_STEP)
 
-    monkeypatch.delenv(K.FULL_KERNELS_ENV)           # the suite runs the full kernels
+    monkeypatch.delenv(K.FULL_KERNELS_ENV)           # the copies (the suite's default)
     own = [predict(1), predict(2)]
     module = sys.modules["saddle_env.prediction"]
     assert K.specialise(models[:1], False, module) is not module
@@ -174,3 +180,46 @@ def test_a_batch_compiled_for_its_own_contact_models_predicts_identically(monkey
         full = predict(k)
         for name in ("t", "state", "normal", "status", "final_state"):
             np.testing.assert_array_equal(getattr(pred, name), getattr(full, name))
+
+
+@pytest.mark.parametrize("threads", [2, 3, 7])
+def test_a_batch_over_threads_is_the_batch_on_one_thread_bit_for_bit(monkeypatch, threads):
+    """`predict_batch` splits its runs among threads (`_kernels.in_threads`) when there is
+    enough to simulate: any split gives the one-thread results to the last bit (more
+    threads than runs included)."""
+    models, P, Y0, drives, durations = _cases_batch()
+
+    def predict():
+        return predict_batch(models, P, Y0, drives, durations, 0.05, rtol=RTOL,
+                             max_step=MAX_STEP)
+
+    monkeypatch.setattr(K, "thread_count", lambda: 1)
+    alone = predict()
+    monkeypatch.setattr(K, "thread_count", lambda: threads)
+    monkeypatch.setattr(K, "THREADS_FROM_SIMULATED_S", 0.0)   # split even this small batch
+    split = predict()
+    for name in ("t", "state", "normal", "status", "final_state"):
+        np.testing.assert_array_equal(getattr(split, name), getattr(alone, name))
+
+
+def test_threads_cover_every_row_once_and_pass_on_an_error():
+    """`in_threads` hands out contiguous ranges that cover 0..n-1 once, and an error in any
+    range (this thread's or another's) reaches the caller after every range has ended."""
+    seen = []
+
+    def record(lo, hi, out):
+        seen.append((lo, hi))
+        out[lo:hi] += 1
+
+    out = np.zeros(10, dtype=np.int64)
+    K.in_threads(record, 10, out, threads=3)
+    assert sorted(seen) == [(0, 3), (3, 6), (6, 10)] and np.all(out == 1)
+
+    def fail_late(lo, hi, out):
+        if lo > 0:
+            raise ValueError("range %d-%d" % (lo, hi))
+        out[lo:hi] += 1
+
+    with pytest.raises(ValueError, match="range 5-10"):
+        K.in_threads(fail_late, 10, out, threads=2)
+    assert np.all(out[:5] == 2)
