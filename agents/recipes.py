@@ -5,8 +5,9 @@ A recipe is an entry keyed by environment id in a zoo-format YAML file
 its own uses the ``SaddleTrap-v0`` entry (a note says so). Besides the algorithm's own
 arguments, the zoo keys in `ZOO_ONLY_KEYS` are read here or by the back ends:
 ``n_envs``, ``n_timesteps``, ``policy``, ``noise_type``/``noise_std``, ``normalize``,
-``frame_stack``, ``warm_start``, ``imitation``, ``train_episode_steps`` and
-``reward_shaping``. ``env_wrapper`` and ``callback`` are rejected (no class is importable
+``frame_stack``, ``warm_start``, ``imitation``, ``train_episode_steps``,
+``reward_shaping``, and the model selection's ``eval_freq`` and ``eval_episodes`` (the
+command line's ``--eval-freq`` and ``--eval-episodes`` win). ``env_wrapper`` and ``callback`` are rejected (no class is importable
 by name here), and strings such as ``policy_kwargs`` are parsed as data
 (`agents.literal_kwargs`), never evaluated.
 """
@@ -25,7 +26,7 @@ HYPERPARAMS_DIR = Path(__file__).parent / "hyperparams"
 # Keys of the zoo format that are not constructor arguments of the algorithm.
 ZOO_ONLY_KEYS = {"n_envs", "n_timesteps", "policy", "noise_type", "noise_std", "normalize",
                  "env_wrapper", "frame_stack", "callback", "warm_start", "imitation",
-                 "train_episode_steps", "reward_shaping"}
+                 "train_episode_steps", "reward_shaping", "eval_freq", "eval_episodes"}
 # Zoo keys no back end can honour: an error, never silently dropped.
 REJECTED_KEYS = {"env_wrapper": "environment wrappers by class name are not supported; wrap "
                                 "in code (agents.sb3_backend.make_vec_env) instead",

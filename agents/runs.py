@@ -38,6 +38,7 @@ ALGO_NAMES = BACKEND_ALGOS["sb3"]
 # Balls stepped together when the recipe has no n_envs: SB3's batch env, or per RLlib runner.
 DEFAULT_N_ENVS = {"sb3": 8, "sbx": 8, "rllib": 16}
 DEFAULT_ENV_RUNNERS = 2
+DEFAULT_EVAL_EPISODES = 64   # validation episodes per evaluation, unless the recipe says
 # Settings only the RLlib back end uses (flag names in errors).
 RLLIB_ONLY = ("num_env_runners", "address", "num_cpus")
 
@@ -59,8 +60,11 @@ class TrainSettings:
     recipe_of: str | None = None         # the level whose entry is the recipe (None: env_id's)
     log_dir: str = "runs"
     run_name: str | None = None
-    eval_freq: int | None = None     # None: 20 evaluations per run (at least 20,000 steps apart)
-    eval_episodes: int = 64
+    # Model selection on the validation seeds. None: the recipe's ``eval_freq`` and
+    # ``eval_episodes``, else 20 evaluations per run (at least 20,000 steps apart) of
+    # DEFAULT_EVAL_EPISODES episodes.
+    eval_freq: int | None = None
+    eval_episodes: int | None = None
     save_freq: int = 50_000
     max_episode_steps: int | None = None                       # None: the level's
     progress_bar: bool = True
@@ -132,12 +136,15 @@ class TrainSettings:
 
     def take_recipe(self, hyper: dict[str, Any]) -> None:
         """Fill what the command line left to the recipe: the balls, the budget and the
-        evaluation period; record the recipe (``config.json`` keeps it)."""
+        model selection's evaluations; record the recipe (``config.json`` keeps it)."""
         self.hyperparams_used = hyper
         self.n_envs = int(self.n_envs or hyper.get("n_envs", DEFAULT_N_ENVS[self.backend]))
         self.total_timesteps = int(self.total_timesteps or float(hyper.get("n_timesteps", 1e5)))
         if self.eval_freq is None:
-            self.eval_freq = max(20_000, self.total_timesteps // 20)
+            self.eval_freq = int(hyper.get("eval_freq")
+                                 or max(20_000, self.total_timesteps // 20))
+        if self.eval_episodes is None:
+            self.eval_episodes = int(hyper.get("eval_episodes") or DEFAULT_EVAL_EPISODES)
 
     def open_run_folder(self, resume: str | Path | None = None) -> Path:
         """The run folder (a resumed checkpoint's own, else ``log_dir/run_name``, named

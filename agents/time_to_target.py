@@ -89,7 +89,8 @@ def median_time(times: list[float | None]) -> float | None:
 
 def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
         label: str = "recipe", total_timesteps: int | None = None,
-        eval_freq: int | None = None, eval_episodes: int = 64, final_episodes: int = 200,
+        eval_freq: int | None = None, eval_episodes: int | None = None,
+        final_episodes: int = 200,
         max_episode_steps: int | None = None, figure: Path | None = None,
         log: Any = print, reuse: bool = False, recipe_of: str | None = None,
         algo: str = "ppo", backend: str = "sb3", budgets: list[float] = ()) -> dict[str, Any]:
@@ -99,9 +100,14 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
     wall time is that of its last evaluation). ``budgets``: also what each shorter budget
     would have shipped (`shorter_budgets`)."""
     from .run_report import WALL_CSV, read_wall_rows
-    from .training import TrainSettings, train
+    from .training import TrainSettings, recipe, train
 
     out.mkdir(parents=True, exist_ok=True)
+    if eval_episodes is None:   # the recipe's, as training will take it
+        probe = TrainSettings(algo=algo, backend=backend, env_id=env_id,
+                              hyperparams=hyperparams, recipe_of=recipe_of).validate()
+        probe.take_recipe(recipe(probe))
+        eval_episodes = probe.eval_episodes
     log(f"targets: best-const and mpc on {eval_episodes} validation episodes "
         f"(seeds from {VALIDATION_SEED:,}) ...")
     ref = references(env_id, eval_episodes, VALIDATION_SEED, max_episode_steps)
@@ -263,7 +269,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--total-timesteps", type=int, default=None)
     ap.add_argument("--eval-freq", type=int, default=None)
-    ap.add_argument("--eval-episodes", type=int, default=64)
+    ap.add_argument("--eval-episodes", type=int, default=None,
+                    help="validation episodes per evaluation (None: the recipe's, else 64)")
     ap.add_argument("--final-episodes", type=int, default=200,
                     help="fresh episodes for each seed's selected model (0: skip)")
     ap.add_argument("--max-episode-steps", type=int, default=None)

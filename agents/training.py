@@ -70,6 +70,15 @@ def check_dependencies(settings: TrainSettings) -> None:
     backend(settings).check_dependencies(settings.progress_bar)
 
 
+def recipe(settings: TrainSettings, note: bool = False) -> dict:
+    """The recipe ``settings`` train with: the entry of ``--hyperparams`` or of the back
+    end's own file (``RECIPES``, else agents/hyperparams/<algo>.yml) for the level or
+    ``--recipe-of``'s."""
+    return load_hyperparams(settings.algo, settings.recipe_of or settings.env_id,
+                            settings.hyperparams or getattr(backend(settings), "RECIPES", None),
+                            note=note)
+
+
 def train(settings: TrainSettings, resume: str | Path | None = None, trust: bool = False
           ) -> Path:
     """Train (or resume from the checkpoint ``resume``) an agent; return the run folder.
@@ -81,8 +90,7 @@ def train(settings: TrainSettings, resume: str | Path | None = None, trust: bool
     if resume is not None and back.RESUME_NEEDS_TRUST and not trust:
         raise untrusted(resume, f"resuming restores {settings.backend}'s own checkpoint, "
                                 f"which is pickled (evaluating it does not need this)")
-    hyper = load_hyperparams(settings.algo, settings.recipe_of or settings.env_id,
-                             settings.hyperparams or getattr(back, "RECIPES", None), note=True)
+    hyper = recipe(settings, note=True)
     settings.take_recipe(hyper)
     run_dir = settings.open_run_folder(resume)
     ahead = compile_ahead.start(settings)   # the comparison's kernels, on the other core
@@ -100,5 +108,6 @@ def train(settings: TrainSettings, resume: str | Path | None = None, trust: bool
 
 __all__ = ["ALGO_NAMES", "BACKENDS", "COMPARE_SEED", "MAIN_JOB_ENV_ID", "VALIDATION_SEED",
            "TrainSettings", "backend", "check_dependencies", "compare", "load_hyperparams",
+           "recipe",
            "parse_env_kwargs", "parse_policy_kwargs", "plot_learning_curve",
            "settings_for_resume", "train", "wrapper_settings"]

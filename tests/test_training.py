@@ -203,6 +203,26 @@ def test_every_setting_is_declared_once_and_every_flag_reaches_it():
         assert changed <= {name, "backend", "max_episode_steps", "num_env_runners"}, name
 
 
+def test_a_recipe_sets_the_model_selection_and_the_command_line_wins():
+    """``eval_freq`` and ``eval_episodes`` in a recipe set the model selection's evaluations
+    (Capture's SBX entry: 256 episodes every 499,200 steps); the flags win; without either,
+    20 evaluations of DEFAULT_EVAL_EPISODES episodes. Neither reaches the algorithm."""
+    from agents.recipes import ZOO_ONLY_KEYS
+    from agents.runs import DEFAULT_EVAL_EPISODES, TrainSettings
+
+    recipe = {"n_envs": 256, "n_timesteps": 6e6, "eval_freq": 499200, "eval_episodes": 256}
+    settings = TrainSettings(backend="sbx")
+    settings.take_recipe(recipe)
+    assert (settings.eval_freq, settings.eval_episodes) == (499_200, 256)
+    settings = TrainSettings(backend="sbx", eval_freq=1000, eval_episodes=8)
+    settings.take_recipe(recipe)
+    assert (settings.eval_freq, settings.eval_episodes) == (1000, 8)
+    settings = TrainSettings(backend="sbx")
+    settings.take_recipe({"n_timesteps": 6e6})
+    assert (settings.eval_freq, settings.eval_episodes) == (300_000, DEFAULT_EVAL_EPISODES)
+    assert {"eval_freq", "eval_episodes"} <= ZOO_ONLY_KEYS
+
+
 def test_the_seam_runs_any_back_end_and_closes_a_finished_run(tmp_path, monkeypatch):
     """A back end is a module with check_dependencies, RESUME_NEEDS_TRUST and run: the seam
     checks the settings, fills them from the recipe, saves config.json in the run folder,
