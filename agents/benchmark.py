@@ -35,6 +35,7 @@ import numpy as np
 
 from saddle_env.envs import LEVELS, get_level
 
+from .recipes import HYPERPARAMS_DIR
 from .seeds import TEST_SEED
 
 RESULTS = Path(__file__).resolve().parent.parent / "benchmark" / "results"
@@ -60,9 +61,11 @@ class Algo:
     # agents/hyperparams/ppo.yml the row runs on every level, through `agents.training.train`
     # (warm start, wrappers, model selection on validation episodes, as `train.py` does).
     recipe_of: str | None = None
-    # The `train.py --backend` a recipe row trains with ("sbx": SBX's PPO, its recipes file
-    # agents/hyperparams/ppo_sbx.yml, whose entries are ppo.yml's fast recipe but the budget
-    # and, on Storm, the rollout's shape; this row takes its Capture entry, as recipe_of says).
+    # The `train.py --backend` a recipe row trains with ("sbx": SBX's PPO). A recipe row
+    # always reads ppo.yml (`hyperparams`), whatever the back end's own file: the SBX row
+    # is ppo-fast's recipe with another learner, while agents/hyperparams/ppo_sbx.yml's
+    # Capture entry has since been tuned for Capture alone (its rollout, schedule and
+    # selection).
     backend: str = "sb3"
 
 
@@ -234,6 +237,7 @@ def _train_recipe(level: Any, algo: Algo, seed: int, steps: int, work: Path,
     from .training import TrainSettings, train
 
     settings = TrainSettings(algo="ppo", env_id=level.id, seed=seed, total_timesteps=steps,
+                             hyperparams=str(HYPERPARAMS_DIR / "ppo.yml"),
                              recipe_of=algo.recipe_of, backend=algo.backend,
                              log_dir=str(work / "runs"),
                              run_name=f"{algo.name}_seed{seed}",
