@@ -119,13 +119,17 @@ def _executor(workers: int):
     return _pool[2]
 
 
-def in_threads(kernel, n: int, *args, threads: int | None = None) -> list:
+def in_threads(kernel, n: int, *args, simulated_s: float = math.inf,
+               threads: int | None = None) -> list:
     """``kernel(lo, hi, *args)`` over contiguous ranges that split rows ``0..n-1`` among up
-    to ``threads`` threads (default `thread_count`), this one included; returns the calls'
-    results in the order of their ranges when all are done, and raises the first error any
-    of them raised. ``kernel`` must release the GIL (compiled with ``nogil=True``) for the
-    ranges to run at once."""
-    k = max(1, min(thread_count() if threads is None else threads, n))
+    to ``threads`` threads (default `thread_count`; one below `THREADS_FROM_SIMULATED_S` of
+    ``simulated_s``, the call's simulated time over all rows), this one included; returns
+    the calls' results in the order of their ranges when all are done, and raises the first
+    error any of them raised. ``kernel`` must release the GIL (compiled with ``nogil=True``)
+    for the ranges to run at once."""
+    if threads is None:
+        threads = 1 if simulated_s < THREADS_FROM_SIMULATED_S else thread_count()
+    k = max(1, min(threads, n))
     if k == 1:
         return [kernel(0, n, *args)]
     bounds = [c * n // k for c in range(k + 1)]

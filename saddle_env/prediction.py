@@ -159,8 +159,7 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
     # compiled for the contact models (and rolling resistance) of these runs alone
     kernel = K.entry(np.unique(codes), bool((P[:, P_RESIST] != 0.0).any()),
                      sys.modules[__name__], "integrate_segments", (0, n, *args))
-    simulated = float(np.maximum(durations, 0.0).sum())
-    K.in_threads(kernel, n, *args, threads=1 if simulated < K.THREADS_FROM_SIMULATED_S else None)
+    K.in_threads(kernel, n, *args, simulated_s=float(np.maximum(durations, 0.0).sum()))
     width = padded_width(codes)
     return Prediction(t, np.ascontiguousarray(state[..., :width]), normal, status,
                       np.ascontiguousarray(Y[:, :width]))

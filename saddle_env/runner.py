@@ -583,8 +583,7 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
     # compiled for these balls' contact models alone, as `simulate` is for its one
     batch = K.entry(np.unique(models), bool((P[:, P_RESIST] != 0.0).any()), integrators,
                     "integrate_batch", (0, n, *args))
-    simulated = n * float(t_out[-1])
-    K.in_threads(batch, n, *args, threads=1 if simulated < K.THREADS_FROM_SIMULATED_S else None)
+    K.in_threads(batch, n, *args, simulated_s=n * float(t_out[-1]))
     work = np.array([Y_out[i, :, sc.state_size] for i, sc in enumerate(scene_list)])
     width = padded_width(models)
     return BatchResult(t_out, Y_out[..., :width], stats[:, 3].copy(), status, t_final,
