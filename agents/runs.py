@@ -193,28 +193,62 @@ class Stop(Exception):
     Ctrl-C."""
 
 
+class _Held:
+    """A stop that came while files were being written (`stops_held`)."""
+    depth = 0
+    pending: BaseException | None = None
+
+
+@contextmanager
+def stops_held() -> Iterator[None]:
+    """Within the block, a stop (SIGTERM's `Stop` or Ctrl-C's KeyboardInterrupt, under
+    `sigterm_stops`) waits and is raised when the block ends: a save it interrupted would be
+    left half-written, and the exception would not even come out as itself (torch's zip
+    writer, closing early, raises a RuntimeError in its place), so the run would crash
+    instead of checkpointing."""
+    _Held.depth += 1
+    try:
+        yield
+    finally:
+        _Held.depth -= 1
+    if _Held.depth == 0 and _Held.pending is not None:
+        stop, _Held.pending = _Held.pending, None
+        raise stop
+
+
 @contextmanager
 def sigterm_stops(deferred: bool = False) -> Iterator[threading.Event]:
-    """Within the block, SIGTERM raises `Stop` (the previous handler comes back after).
+    """Within the block, SIGTERM raises `Stop` and Ctrl-C KeyboardInterrupt (as ever), each
+    held until the end of a `stops_held` block in progress; the previous handlers come back
+    after.
 
     With ``deferred=True`` SIGTERM only sets the yielded event and the loop checks it
-    between iterations: an exception raised from a signal handler while the main thread
-    waits inside Ray's compiled ``CoreWorker.wait`` comes out as a ``SystemError``
-    ("returned a result with an exception set"), not as `Stop`."""
+    between iterations (Ctrl-C is left alone): an exception raised from a signal handler
+    while the main thread waits inside Ray's compiled ``CoreWorker.wait`` comes out as a
+    ``SystemError`` ("returned a result with an exception set"), not as `Stop`."""
     requested = threading.Event()
 
-    def on_sigterm(signum, frame):
+    def on_signal(signum, frame):
         requested.set()
-        if not deferred:
-            raise Stop()
+        if deferred:
+            return
+        stop = Stop() if signum == signal.SIGTERM else KeyboardInterrupt()
+        if _Held.depth:
+            _Held.pending = _Held.pending or stop
+            return
+        raise stop
 
-    previous = signal.signal(signal.SIGTERM, on_sigterm)
+    previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, on_signal)}
+    if not deferred and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, on_signal)
     try:
         yield requested
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        _Held.pending = None
 
 
 __all__ = ["ALGO_NAMES", "BACKENDS", "BACKEND_ALGOS", "DEFAULT_ENV_RUNNERS", "DEFAULT_N_ENVS",
            "MAIN_JOB_ENV_ID", "Stop", "TrainSettings", "run_folder_of", "settings_for_resume",
-           "sigterm_stops"]
+           "sigterm_stops", "stops_held"]

@@ -45,7 +45,7 @@ from saddle_env.envs import ENV_ID
 from .cli_args import MissingExtra, install_hint, level_overrides, missing, resolve_env
 from .recipes import ZOO_ONLY_KEYS, parse_policy_kwargs, train_episode_steps, wrapper_settings
 from .run_report import append_curve_point
-from .runs import Stop, TrainSettings, sigterm_stops
+from .runs import Stop, TrainSettings, sigterm_stops, stops_held
 from .schedules import with_schedules
 from .seeds import VALIDATION_SEED
 
@@ -161,11 +161,12 @@ def save_model(model, path: Path, settings: TrainSettings, extra: dict[str, Any]
     from .model_files import save_normalizer
     from .policies import vecnormalize_path
 
-    model.save(path)
-    norm = model.get_vec_normalize_env()
-    if norm is not None:
-        save_normalizer(norm, vecnormalize_path(path))
-    write_sidecar(path, settings, extra)
+    with stops_held():    # a stop during the save comes after it, with the files whole
+        model.save(path)
+        norm = model.get_vec_normalize_env()
+        if norm is not None:
+            save_normalizer(norm, vecnormalize_path(path))
+        write_sidecar(path, settings, extra)
     return path
 
 
@@ -191,9 +192,10 @@ REPLAY_SUFFIX = ".replay.npz"
 def _save_checkpoint(model, folder: Path, tag: str, settings: TrainSettings) -> Path:
     from .model_files import save_replay_buffer
 
-    path = save_model(model, folder / f"{tag}_{model.num_timesteps}_steps.zip", settings)
-    if getattr(model, "replay_buffer", None) is not None:
-        save_replay_buffer(model.replay_buffer, path.with_suffix(REPLAY_SUFFIX))
+    with stops_held():
+        path = save_model(model, folder / f"{tag}_{model.num_timesteps}_steps.zip", settings)
+        if getattr(model, "replay_buffer", None) is not None:
+            save_replay_buffer(model.replay_buffer, path.with_suffix(REPLAY_SUFFIX))
     return path
 
 

@@ -107,6 +107,39 @@ def test_sigterm_raises_stop_or_only_sets_the_flag_when_deferred():
     assert signal.getsignal(signal.SIGTERM) is before
 
 
+def test_a_stop_during_a_save_comes_after_the_files_are_whole(tmp_path, monkeypatch):
+    """SIGTERM or Ctrl-C while a checkpoint or the selected model is being written waits
+    for the save to finish (it used to break torch's zip writer mid-file, whose RuntimeError
+    then crashed the run instead of checkpointing), and is raised as itself after it."""
+    import os
+
+    from agents import sb3_backend
+    from agents.runs import Stop, sigterm_stops, stops_held
+    written = []
+
+    class Model:
+        def save(self, path):
+            os.kill(os.getpid(), signal.SIGTERM)     # the stop comes in the middle of a save
+            time.sleep(0.05)                         # its handler runs here
+            Path(path).write_bytes(b"whole")
+            written.append(Path(path).name)
+
+        def get_vec_normalize_env(self):
+            return None
+
+    monkeypatch.setattr(sb3_backend, "write_sidecar", lambda *a: written.append("sidecar"))
+    with pytest.raises(Stop), sigterm_stops():
+        sb3_backend.save_model(Model(), tmp_path / "m.zip", None)
+    assert written == ["m.zip", "sidecar"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    with pytest.raises(KeyboardInterrupt), sigterm_stops(), stops_held():
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)
+        written.append("after Ctrl-C")
+    assert written[-1] == "after Ctrl-C"
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
 def test_checkpoints_are_valid_sb3_archives(tmp_path):
     proc = _train(tmp_path, "--algo", "td3", "--n-envs", "2", "--total-timesteps", "2200",
                   "--run-name", "td3")
