@@ -141,7 +141,9 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
                          f"(n, {K.DYNAMICS_WIDTH}), (n, S, {K.DRIVE_WIDTH}), (n, S))")
     if not (isinstance(sample, (int, float)) and math.isfinite(sample) and sample > 0):
         raise ValueError(f"sample must be a positive number of seconds, got {sample!r}")
-    codes = np.ascontiguousarray(np.broadcast_to(np.asarray(models, dtype=np.int64), (n,)))
+    # always a fresh, writable array: a view of the caller's (read-only once broadcast)
+    # would be another argument type, which the install's build has no entry point for
+    codes = np.array(np.broadcast_to(np.asarray(models, dtype=np.int64), (n,)))
     settings = Settings.build(method, rtol, atol, None, events, max_step, max_steps)
     if max_step is None:
         max_step = default_max_step(_speed_bound(drives, durations))

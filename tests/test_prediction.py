@@ -78,6 +78,30 @@ def _cases_batch():
     return models, P, Y0, drives, durations
 
 
+def test_the_kernel_is_called_with_the_same_types_however_the_models_are_given(monkeypatch):
+    """One model for all runs (an int), one per run (an array, of any integer type): the
+    compiled kernel gets the same argument types, so one compiled entry point (the install's
+    build holds one per contact model) serves every form, and `_kernels.entry`, which keeps
+    the entry it checked first, never hands it others."""
+    import numba
+
+    models, P, Y0, drives, durations = _cases_batch()
+    keep = [0, 0, 0]      # three runs of one model
+    seen = []
+    real = K.entry
+
+    def spy(codes, resist, module, name, args):
+        seen.append(tuple(numba.typeof(a) for a in args))
+        return real(codes, resist, module, name, args)
+
+    monkeypatch.setattr(K, "entry", spy)
+    for given in (int(models[0]), models[keep], models[keep].astype(np.int32),
+                  np.broadcast_to(models[:1], (3,))):
+        predict_batch(given, P[keep], Y0[keep], drives[keep], durations[keep], 0.05,
+                      rtol=RTOL, max_step=MAX_STEP)
+    assert len(seen) == 4 and len(set(seen)) == 1, seen
+
+
 def test_runs_of_a_batch_do_not_interact():
     """A batch of mixed contact models gives each run what it gives alone."""
     models, P, Y0, drives, durations = _cases_batch()
