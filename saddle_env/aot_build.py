@@ -101,27 +101,39 @@ def _release_gil_in_exports() -> None:
 
 def planned_builds() -> dict[tuple[str, ...], dict[str, object]]:
     """Each module to build, by its `_kernels.variant_flags`: the contact models, the
-    resistance flag, a registered level whose first step uses them (None if none) and a
-    contact model whose `simulate` does (None if none)."""
+    resistance flag, the environment whose first step uses them (``[id, options]``: a
+    registered level, or ``SaddleTrap-v0`` given one contact model where no level has it
+    alone), a contact model whose `simulate` does (None if none), and whether a batch mixes
+    them (a level that draws several models: `simulate_batch` and `predict_batch` over its
+    balls)."""
     from . import _kernels as K
     from .envs.engine import contact_uses
     from .envs.levels import LEVELS
     from .scene import CONTACT_MODELS
 
     plan: dict[tuple[str, ...], dict[str, object]] = {}
+
+    def module_for(models, resist: bool) -> dict[str, object]:
+        return plan.setdefault(K.variant_flags(models, resist),
+                               {"models": sorted(models), "resist": resist, "env": None,
+                                "contact": None, "mix": False})
+
     for level in LEVELS:
         models, resist = contact_uses(level.config())
-        entry = plan.setdefault(K.variant_flags(models, resist),
-                                {"models": sorted(models), "resist": resist, "level": None,
-                                 "contact": None})
-        entry["level"] = entry["level"] or level.id
+        entry = module_for(models, resist)
+        entry["env"] = entry["env"] or [level.id, {}]
+        entry["mix"] = entry["mix"] or len(models) > 1
     for contact in CONTACT_MODELS:
-        code = _example_scene(contact).model_code
-        entry = plan.setdefault(K.variant_flags((code,), False),
-                                {"models": [code], "resist": False, "level": None,
-                                 "contact": None})
+        entry = module_for((_example_scene(contact).model_code,), False)
         entry["contact"] = entry["contact"] or contact
+        # an environment of this one model (``gym.make("SaddleTrap-v0", contact=...)``)
+        entry["env"] = entry["env"] or [LEVELS[0].id, _one_model_options(contact)]
     return plan
+
+
+def _one_model_options(contact: str) -> dict[str, object]:
+    """Environment options that draw only balls of the contact model ``contact``."""
+    return {"contact": contact, "mu": 0.3} if contact == "coulomb" else {"contact": contact}
 
 
 def _example_scene(contact: str):
@@ -144,6 +156,7 @@ def _build_one(flags: tuple[str, ...], spec: dict[str, object], out_dir: str) ->
     from . import _kernels as K
     from . import integrators, prediction
     from .envs import _step
+    from .scene import CONTACT_MODELS
 
     t0 = time.perf_counter()
     exports: dict[str, list[str]] = {}
@@ -161,31 +174,44 @@ def _build_one(flags: tuple[str, ...], spec: dict[str, object], out_dir: str) ->
     _release_gil_in_exports()
     modules = {"saddle_env.envs._step": _step, "saddle_env.integrators": integrators,
                "saddle_env.prediction": prediction}
-    if spec["level"] is not None:
+    if spec["env"] is not None:
         import gymnasium as gym
 
         from .compile_profile import first_step
-        first_step(gym.make(str(spec["level"])))
+        env_id, options = spec["env"]
+        first_step(gym.make(env_id, **options))
         # the vector env below 2 x LANES balls (training's 64): SIMD blocks in one thread
-        first_step(gym.make_vec(str(spec["level"]), num_envs=_step.MIN_BLOCK))
+        first_step(gym.make_vec(env_id, num_envs=_step.MIN_BLOCK, **options))
         exports["saddle_env.envs._step"] = ["place", "step_scalar", "step_serial"]
-    if spec["contact"] is not None:
+    if spec["contact"] is not None or spec["mix"]:
         import numpy as np
 
         from .prediction import predict_batch
         from .runner import initial_state
         from .simulate import simulate, simulate_batch
-        scene = _example_scene(str(spec["contact"]))
-        start = initial_state(scene, 0.001, 0.001, omega=30.0)
-        simulate(scene, start, 0.01, omega=30.0)
-        simulate_batch(scene, np.repeat(start[None], 2, 0), 0.01, omega=30.0)
-        exports["saddle_env.integrators"] = ["integrate_h", "integrate_batch"]
-        # a look-ahead, as a model-predictive controller makes it with one contact model
-        # (agents.mpc): the argument types are predict_batch's own, whatever the values
-        drives = np.zeros((2, 2, 8))
+        # one ball of each model (a mix's batch has rows of several)
+        by_code: dict[int, object] = {}
+        for contact in CONTACT_MODELS:
+            scene = _example_scene(contact)
+            if scene.model_code in spec["models"]:
+                by_code.setdefault(scene.model_code, scene)
+        scenes = list(by_code.values())
+        width = max(sc.state_size for sc in scenes)
+        starts = np.array([np.pad(s, (0, width - len(s))) for s in
+                           (initial_state(sc, 0.001, 0.001, omega=30.0) for sc in scenes)])
+        if spec["contact"] is not None:
+            simulate(scenes[0], starts[0, :scenes[0].state_size], 0.01, omega=30.0)
+            exports["saddle_env.integrators"] = ["integrate_h"]
+        simulate_batch(scenes * 2, np.concatenate([starts, starts]), 0.01, omega=30.0)
+        exports.setdefault("saddle_env.integrators", []).append("integrate_batch")
+        # a look-ahead, as a model-predictive controller makes it (agents.mpc): the argument
+        # types are predict_batch's own, whatever the values
+        rows = np.array([sc.model_code for sc in scenes] * 2)
+        P = np.array([sc.params() for sc in scenes] * 2)
+        drives = np.zeros((len(rows), 2, 8))
         drives[:, :, 0] = 30.0
-        predict_batch(scene.model_code, np.repeat(scene.params()[None], 2, 0),
-                      np.repeat(start[None], 2, 0), drives, np.full((2, 2), 0.01), 0.005)
+        predict_batch(rows, P, np.concatenate([starts, starts]), drives,
+                      np.full((len(rows), 2), 0.01), 0.005)
         exports["saddle_env.prediction"] = ["integrate_segments"]
     for mod_name, names in exports.items():
         space = K.specialise(frozenset(spec["models"]), bool(spec["resist"]), modules[mod_name])

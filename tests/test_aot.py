@@ -162,8 +162,9 @@ _FIRST_CALLS = """
 import json, numpy as np, gymnasium as gym, saddle_env as se
 from saddle_env import _aot
 out = {}
-for lid in %r:
-    env = gym.make(lid)
+for lid, options in [(lid, {}) for lid in %r] + [("SaddleTrap-v0", {"contact": "slipping"})]:
+    name = " ".join([lid, *options.values()])
+    env = gym.make(lid, **options)
     obs, _ = env.reset(seed=3)
     rows = [obs.tolist() + [0.0, 0.0]]
     for k in range(150):
@@ -171,14 +172,14 @@ for lid in %r:
         rows.append(obs.tolist() + [r, info["time"]])
         if term or trunc:
             break
-    out[lid] = rows
-    vec = gym.make_vec(lid, num_envs=8)  # below 2 x LANES balls: SIMD blocks, one thread
+    out[name] = rows
+    vec = gym.make_vec(lid, num_envs=8, **options)  # below 2 x LANES balls: one thread
     obs, _ = vec.reset(seed=5)
     rows = [obs.ravel().tolist() + [0.0] * 8]
     for k in range(60):
         obs, r, term, trunc, info = vec.step(np.full((8, 1), 0.3 * np.sin(0.1 * k)))
         rows.append(obs.ravel().tolist() + r.tolist())
-    out["vector " + lid] = rows
+    out["vector " + name] = rows
 for contact in ("rolling", "slipping", "coulomb"):
     scene = se.Scene(contact=contact, mu=0.3) if contact == "coulomb" else se.Scene(contact=contact)
     state = se.initial_state(scene, x=0.001, y=0.001, start="lab-rest", omega=30.0)
@@ -191,6 +192,18 @@ for contact in ("rolling", "slipping", "coulomb"):
     pred = se.predict_batch(scene.model_code, np.repeat(scene.params()[None], 3, 0), starts,
                             drives, np.full((3, 2), 0.2), 0.02)  # mpc's look-ahead
     out["prediction " + contact] = np.nan_to_num(pred.state, nan=-1.0).tolist()
+# a batch mixing the models a level draws (Storm's rolling and slipping balls)
+scenes = [se.Scene(), se.Scene(contact="slipping"), se.Scene(contact="point")]
+starts = np.zeros((3, 7))
+for i, scene in enumerate(scenes):
+    state = se.initial_state(scene, x=0.002, y=-0.001, start="lab-rest", omega=30.0)
+    starts[i, :len(state)] = state
+batch = se.simulate_batch(scenes, starts, t_end=1.0, omega=[28.0, 30.0, 32.0], dt_out=0.05)
+out["batch mixed"] = np.nan_to_num(batch.state, nan=-1.0).tolist()
+pred = se.predict_batch(np.array([sc.model_code for sc in scenes]),
+                        np.array([sc.params() for sc in scenes]), starts, drives,
+                        np.full((3, 2), 0.2), 0.02)
+out["prediction mixed"] = np.nan_to_num(pred.state, nan=-1.0).tolist()
 print(json.dumps({"status": _aot.status(), "runs": out}))
 """
 
@@ -198,8 +211,9 @@ print(json.dumps({"status": _aot.status(), "runs": out}))
 @pytest.mark.slow
 def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(tmp_path):
     """Build into a copy of the package; a fresh process on the build's cache then takes
-    every level's first steps and a first simulate, simulate_batch and predict_batch of each
-    contact model from the build,
+    every level's first steps (and a slipping-only environment's, which no level draws), a
+    first simulate, simulate_batch and predict_batch of each contact model and a batch
+    mixing rolling and slipping balls from the build,
     compiling only a few small helpers called from Python, with the JIT's results
     to the last bit; an edited source retires the build."""
     from saddle_env.envs import LEVEL_IDS
