@@ -103,20 +103,20 @@ def planned_builds() -> dict[tuple[str, ...], dict[str, object]]:
     """Each module to build, by its `_kernels.variant_flags`: the contact models, the
     resistance flag, the environment whose first step uses them (``[id, options]``: a
     registered level, or ``SaddleTrap-v0`` given one contact model where no level has it
-    alone), a contact model whose `simulate` does (None if none), and whether a batch mixes
+    alone), a contact model whose `simulate` does (None if none), whether a batch mixes
     them (a level that draws several models: `simulate_batch` and `predict_batch` over its
-    balls)."""
+    balls), and whether they are the ion trap's (`iontrap.simulate_ion`)."""
     from . import _kernels as K
     from .envs.engine import contact_uses
     from .envs.levels import LEVELS
-    from .scene import CONTACT_MODELS
+    from .scene import CONTACT_MODELS, ION_PAUL, ION_RRF
 
     plan: dict[tuple[str, ...], dict[str, object]] = {}
 
     def module_for(models, resist: bool) -> dict[str, object]:
         return plan.setdefault(K.variant_flags(models, resist),
                                {"models": sorted(models), "resist": resist, "env": None,
-                                "contact": None, "mix": False})
+                                "contact": None, "mix": False, "ion": False})
 
     for level in LEVELS:
         models, resist = contact_uses(level.config())
@@ -128,6 +128,7 @@ def planned_builds() -> dict[tuple[str, ...], dict[str, object]]:
         entry["contact"] = entry["contact"] or contact
         # an environment of this one model (``gym.make("SaddleTrap-v0", contact=...)``)
         entry["env"] = entry["env"] or [LEVELS[0].id, _one_model_options(contact)]
+    module_for((ION_RRF, ION_PAUL), False)["ion"] = True   # `iontrap.simulate_ion`
     return plan
 
 
@@ -213,6 +214,12 @@ def _build_one(flags: tuple[str, ...], spec: dict[str, object], out_dir: str) ->
         predict_batch(rows, P, np.concatenate([starts, starts]), drives,
                       np.full((len(rows), 2), 0.01), 0.005)
         exports["saddle_env.prediction"] = ["integrate_segments"]
+    if spec["ion"]:
+        import numpy as np
+
+        from .iontrap import RRFTrap, simulate_ion
+        simulate_ion(RRFTrap(omega=20.0, kappa=1.0), np.array([1e-3, 0.0, 0.0, 0.0]), 0.01)
+        exports["saddle_env.integrators"] = ["integrate_h"]
     for mod_name, names in exports.items():
         space = K.specialise(frozenset(spec["models"]), bool(spec["resist"]), modules[mod_name])
         for name in names:

@@ -204,6 +204,11 @@ pred = se.predict_batch(np.array([sc.model_code for sc in scenes]),
                         np.array([sc.params() for sc in scenes]), starts, drives,
                         np.full((3, 2), 0.2), 0.02)
 out["prediction mixed"] = np.nan_to_num(pred.state, nan=-1.0).tolist()
+from saddle_env.iontrap import PaulTrap, RRFTrap, simulate_ion
+for trap in (RRFTrap(omega=20.0, kappa=123.0, omega_B=3.0, kappa_t=-5.0),
+             PaulTrap(omega=40.0)):
+    ion = simulate_ion(trap, [1e-3, -5e-4, 2e-3, 0.0], 2.0, dt_out=0.05)
+    out["ion " + type(trap).__name__] = ion.state.tolist()
 print(json.dumps({"status": _aot.status(), "runs": out}))
 """
 
@@ -212,8 +217,8 @@ print(json.dumps({"status": _aot.status(), "runs": out}))
 def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(tmp_path):
     """Build into a copy of the package; a fresh process on the build's cache then takes
     every level's first steps (and a slipping-only environment's, which no level draws), a
-    first simulate, simulate_batch and predict_batch of each contact model and a batch
-    mixing rolling and slipping balls from the build,
+    first simulate, simulate_batch and predict_batch of each contact model, a batch
+    mixing rolling and slipping balls and a first ion in each trap from the build,
     compiling only a few small helpers called from Python, with the JIT's results
     to the last bit; an edited source retires the build."""
     from saddle_env.envs import LEVEL_IDS
@@ -228,7 +233,8 @@ def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(t
     assert done.returncode == 0, done.stderr
     manifest = json.loads((tmp_path / "saddle_env" / "_aot" / _aot.MANIFEST).read_text())
     assert {tuple(m["flags"]) for m in manifest["modules"]} == {
-        ("ROLLING_ON",), ("SLIPPING_ON",), ("COULOMB_ON",), ("ROLLING_ON", "SLIPPING_ON")}
+        ("ROLLING_ON",), ("SLIPPING_ON",), ("COULOMB_ON",), ("ROLLING_ON", "SLIPPING_ON"),
+        ("ION_ON",)}
 
     code = _FIRST_CALLS % (list(LEVEL_IDS),)
     # the empty cache of a fresh install: only the build's modules
@@ -249,7 +255,7 @@ def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(t
         return json.loads(out.stdout.strip().splitlines()[-1])
 
     ahead, jit = run("1"), run("0")
-    assert ahead["status"].startswith("ahead-of-time kernels in use (4 modules")
+    assert ahead["status"].startswith("ahead-of-time kernels in use (5 modules")
     assert jit["status"].startswith("no ahead-of-time kernels: turned off")
     assert ahead["runs"].keys() == jit["runs"].keys()
     for key in jit["runs"]:

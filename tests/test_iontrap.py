@@ -136,6 +136,27 @@ def test_every_registered_method_integrates_an_ion(method):
     assert method in tr.settings
 
 
+def test_an_ion_runs_on_the_ion_traps_own_compiled_loop_as_on_the_full_kernels(monkeypatch):
+    """`simulate_ion` compiles the integrator's loop for the ion trap alone (or takes it
+    from the install's build): each trap's trajectory, escape included, is the full
+    kernels' to the last bit."""
+    from saddle_env import integrators
+
+    runs = {}
+    for full in ("0", "1"):
+        monkeypatch.setenv(K.FULL_KERNELS_ENV, full)
+        runs[full] = [simulate_ion(trap, [1e-3, -5e-4, 2e-3, 0.0], 2.0, dt_out=0.05)
+                      for trap in (RRFTrap(omega=20.0, kappa=KAPPA, omega_B=3.0, kappa_t=-5.0),
+                                   PaulTrap(omega=40.0),
+                                   RRFTrap(omega=5.0, kappa=KAPPA, r0=0.01))]
+    assert runs["1"][2].event is not None                      # the runaway escapes
+    for own, full in zip(runs["0"], runs["1"]):
+        np.testing.assert_array_equal(own.state, full.state)
+        assert own.event == full.event
+    monkeypatch.setenv(K.FULL_KERNELS_ENV, "0")
+    assert K.specialise((RRFTrap().model_code,), False, integrators) is not integrators
+
+
 def test_escape_at_r0_and_unstable_runaway():
     trap = RRFTrap(omega=0.5 * math.sqrt(KAPPA), kappa=KAPPA, r0=0.01)
     tr = simulate_ion(trap, [1e-3, 0, 0, 0], 20.0)
