@@ -5,7 +5,8 @@ look-ahead), as a C extension module per set of contact models, so that a fresh 
 starts without numba's 10-20 s of compiling (docs/coldstart.md).
 
 What is built is numba's own compile of the kernels, not a second implementation: for each
-set of contact models a registered level or a one-model `simulate` uses, this process runs
+set of contact models a registered level, a one-model environment or `simulate`, or the ion
+trap's `simulate_ion` uses (`planned_builds`), this process runs
 those first calls once with the JIT (`_kernels.specialise`'s copies), then links the
 compiled code below each entry point into an extension module with `numba.pycc`, for this
 machine's CPU as the JIT would, whose entry points take exactly the argument types the JIT
