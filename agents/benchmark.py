@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from saddle_env.envs import LEVELS, get_level
+from saddle_env.files import write_text_atomically
 
 from .recipes import HYPERPARAMS_DIR
 from .seeds import TEST_SEED
@@ -257,11 +258,7 @@ def _train_recipe(level: Any, algo: Algo, seed: int, steps: int, work: Path,
 def write_result(out: Path, result: dict[str, Any]) -> Path:
     """Write a cell's result atomically (a killed run never leaves half a file)."""
     path = result_path(out, result["level"], result["algo"], int(result["seed"]))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(result, indent=1) + "\n")
-    os.replace(tmp, path)
-    return path
+    return write_text_atomically(path, json.dumps(result, indent=1) + "\n")
 
 
 def _run_local(todo: list[tuple[str, str, int]], out: Path, cell: dict[str, Any]) -> int:

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from saddle_env.envs import DEFAULT_EPISODE_STEPS, EnvConfig
+from saddle_env.files import write_text_atomically
 from saddle_env.linear import critical_omega
 
 from .controllers import ConstantSpeed, critical_speed
@@ -146,10 +147,7 @@ def best_constant(config: EnvConfig, episodes: int = SEARCH_EPISODES, seed: int 
         try:
             data = _read_cache(path)
             data[key] = entry
-            path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_suffix(f".{os.getpid()}.tmp")
-            tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
-            os.replace(tmp, path)
+            write_text_atomically(path, json.dumps(data, indent=1, sort_keys=True) + "\n")
             break
         except OSError:
             continue

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from saddle_env.envs import LEVELS, get_level
+from saddle_env.files import write_text_atomically
 
 from .benchmark_report import clairvoyant_reference
 from .model_files import TRUST_FLAG
@@ -189,7 +190,7 @@ def write_markdown(results: dict[str, Any], path: Path, figures: dict[str, str],
     ]
     body = [level_markdown(results["levels"][lid], figures.get(lid))
             for lid in results["order"] if lid in results["levels"]]
-    path.write_text("\n".join(head) + "\n" + "\n".join(body))
+    write_text_atomically(path, "\n".join(head) + "\n" + "\n".join(body))
 
 
 def levels_markdown() -> str:
@@ -336,7 +337,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     computed += 1
                 table["policies"].append(row)
                 episodes[key] = eps
-                json_path.write_text(json.dumps(results, indent=1) + "\n")  # as it comes
+                # as it comes, whole: a stop mid-write keeps the previous file for --resume
+                write_text_atomically(json_path, json.dumps(results, indent=1) + "\n")
             fig = figs / f"leaderboard_{lid}.png"
             survival_plot(lid, {row["policy"]: episodes[row["key"]] for row in table["policies"]},
                           table["episode_length_s"], fig)

@@ -147,3 +147,19 @@ def test_a_shipped_model_is_named_by_its_path_in_the_repository(tmp_path):
     assert shown_spec("mpc") == "mpc"
     elsewhere = str(tmp_path / "mine.zip")
     assert shown_spec(elsewhere) == elsewhere
+
+
+def test_a_results_file_is_written_whole_or_not_at_all(tmp_path):
+    """The leaderboard's, the benchmark's and the figures' files go through
+    `saddle_env.files`: a stop in the middle of a write keeps the previous file (what
+    ``--resume`` reads) and leaves no temporary file."""
+    from saddle_env.files import atomic_open, write_text_atomically
+
+    path = tmp_path / "leaderboard.json"
+    write_text_atomically(path, '{"old": 1}\n')
+    with pytest.raises(KeyboardInterrupt), atomic_open(path) as fh:
+        fh.write('{"new": ')
+        raise KeyboardInterrupt
+    assert path.read_text() == '{"old": 1}\n'
+    assert [p.name for p in tmp_path.iterdir()] == ["leaderboard.json"]
+    assert path.stat().st_mode & 0o777 == 0o644

@@ -16,10 +16,7 @@ import csv
 import hashlib
 import json
 import math
-import os
-import tempfile
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from .. import __version__
+from ..files import atomic_open
 from ..scene import Scene
 from ..simulate import simulate_batch
 
@@ -53,21 +51,6 @@ def _jsonable(value: Any) -> Any:
     if isinstance(value, np.bool_):
         return bool(value)
     return value
-
-
-@contextmanager
-def _atomic(path: Path, mode: str = "w") -> Iterator[Any]:
-    """Open a temporary file next to ``path``; rename it over ``path`` on success only."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, mode, **({"newline": ""} if "b" not in mode else {})) as fh:
-            yield fh
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; outputs are ordinary readable files
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 @dataclass
@@ -98,7 +81,7 @@ class Context:
         if len(lengths) != 1:
             raise ValueError(f"{name}: columns have different lengths {sorted(lengths)}")
         path = self.out / f"{name}.csv"
-        with _atomic(path) as fh:
+        with atomic_open(path) as fh:
             for line in comments:
                 fh.write(f"# {line}\n")
             w = csv.writer(fh)
@@ -127,7 +110,7 @@ class Context:
         img = Image.open(buf).convert("RGB").quantize(colors=128,
                                                        method=Image.Quantize.FASTOCTREE)
         path = self.out / f"{name}.png"
-        with _atomic(path, "wb") as fh:
+        with atomic_open(path, "wb") as fh:
             img.save(fh, format="PNG", optimize=True)
         self.written.append(path)
         return path
@@ -146,7 +129,7 @@ class Context:
                          "note": "each entry names the initial-velocity convention it used: "
                                  "'rotating-rest' = at rest on the saddle, 'lab-rest' = "
                                  "placed at rest in the laboratory (saddle_env.initial_state)"}
-        with _atomic(path) as fh:
+        with atomic_open(path) as fh:
             json.dump(data, fh, indent=2, sort_keys=True)
             fh.write("\n")
         if path not in self.written:
@@ -168,7 +151,7 @@ class Context:
             with np.load(path, allow_pickle=False) as z:
                 return {k: z[k] for k in z.files}
         result = {k: np.asarray(v) for k, v in compute().items()}
-        with _atomic(path, "wb") as fh:
+        with atomic_open(path, "wb") as fh:
             np.savez_compressed(fh, **result)
         return result
 
