@@ -39,11 +39,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _kernels as K
-from . import integrators
 from .integrators import EVENT_ESCAPE, EVENT_KINDS, STATUS_FAILED, STATUS_MAX_STEPS, workspace
 from .linear import (ABCD, abcd, eigenfrequencies, eigenfrequencies_of, is_stable_abcd,
                      linear_trajectory)
 from .omega import OmegaProfile
+from .runner import integrator_loop
 from .scene import ION_PAUL, ION_RRF, N_PARAMS, P_RIM, Scene, _finite_number
 from .simulate import Settings, SimulationError, default_max_step, drive_row
 
@@ -413,10 +413,9 @@ def simulate_ion(trap: RRFTrap | PaulTrap, state: Sequence[float] | np.ndarray, 
     stats = np.zeros(4, dtype=np.int64)
     args = (trap.model_code, trap.params(), drive_row(prof, theta0=theta0), y, 0.0, t_out,
             m.tableau, settings.control(hmax), scale, Y_out, stats, 0.0, workspace(m.tableau))
-    # the integrator's loop compiled for the ion trap alone (`_kernels.entry`), without the
-    # balls' contact models: a third of the full loop's compile
-    status, t_final = K.entry((trap.model_code,), False, integrators, "integrate_h",
-                              args)(*args)[:2]
+    # compiled for the ion trap alone, without the balls' contact models: a third of the
+    # full loop's compile
+    status, t_final = integrator_loop(trap.model_code, False, args)(*args)[:2]
     if status == STATUS_FAILED:
         raise SimulationError(f"ion integration failed at t = {t_final:.9g} s (non-finite "
                               "state or step-size underflow: an unstable trap with no r0?)")

@@ -134,9 +134,10 @@ def drive_row(profile: OmegaProfile, force: tuple[float, float] = (0.0, 0.0),
     return row
 
 
-def _loop(model: int, resist: bool, args: tuple):
-    """The integrator's loop compiled for this contact model alone (`_kernels.entry`): `run`
-    builds every argument itself, so their types do not change from call to call."""
+def integrator_loop(model: int, resist: bool, args: tuple):
+    """The integrator's loop compiled for this contact model (or ion trap) alone
+    (`_kernels.entry`), for ``args``: its callers (`run`, `iontrap.simulate_ion`) build
+    every argument themselves, so their types do not change from call to call."""
     return K.entry((model,), resist, integrators, "integrate_h", args)
 
 
@@ -464,7 +465,7 @@ def run(scene: Scene, state: np.ndarray, t_end: float, *,
     args = (scene.model_code, p, drive_row(profile, force), y, 0.0, t_out, tab,
             settings.control(settings.max_step_for(profile, float(t_out[-1]))),
             state_scale(p, scene.model_code), Y_out, stats, 0.0, work)
-    status, t_final = _loop(scene.model_code, p[P_RESIST] != 0.0, args)(*args)[:2]
+    status, t_final = integrator_loop(scene.model_code, p[P_RESIST] != 0.0, args)(*args)[:2]
     _raise_on_failure(status, t_final, math.hypot(y[0], y[1]), scene)
     total, rows = transition_log(tab, work) if coulomb else (0, work[:0])
     n = int(stats[3])
