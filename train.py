@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Train an agent on a task level — a thin command line over ``agents.training``.
+"""Train an agent on a task level — a thin command line over ``agents.training.trainer``.
 
     python train.py                                  # PPO (SB3) on SaddleTrap-Gusty-v0
     python train.py --backend sbx                    # the same with SBX's PPO: about 2x faster
@@ -21,7 +21,7 @@ import time
 
 def build_parser() -> argparse.ArgumentParser:
     # Only the core install is needed to build the parser (and print --help).
-    from agents.runs import ALGO_NAMES, BACKENDS, TrainSettings
+    from agents.training.runs import ALGO_NAMES, BACKENDS, TrainSettings
     from saddle_env.envs import LEVEL_IDS
 
     d = TrainSettings()
@@ -93,7 +93,7 @@ def settings_from_args(args: argparse.Namespace):
     """The run's settings: each TrainSettings field from the flag of its name (or
     `FIELD_OF_FLAG`'s), validated; from the checkpoint's run folder for ``--resume``."""
     from agents.cli_args import parse_env_kwargs
-    from agents.runs import TrainSettings, settings_for_resume
+    from agents.training.runs import TrainSettings, settings_for_resume
 
     progress_bar = not args.no_progress_bar
     if args.resume:
@@ -108,7 +108,7 @@ def settings_from_args(args: argparse.Namespace):
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Build the settings, train through the one seam (`agents.training.train`), print the
+    """Build the settings, train through the one seam (`agents.training.trainer.train`), print the
     run folder. Bad input and a missing extra end as one-line errors (exit 2)."""
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -117,10 +117,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         settings = settings_from_args(args)
         if settings.address is not None:
-            from agents.rllib_backend import check_reachable
+            from agents.training.backends.rllib import check_reachable
 
             check_reachable(settings.address)   # a one-line error within seconds, not a hang
-        from agents.training import check_dependencies, train
+        from agents.training.trainer import check_dependencies, train
 
         check_dependencies(settings)
         start = time.time()

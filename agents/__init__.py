@@ -1,7 +1,51 @@
-"""Controllers and tools for the SaddleTrap task levels, one job per module (lower first):
-`agents.rollout` (running seeded episodes), `agents.controllers` (constant speeds, zero,
-random), `agents.best_constant` (the searched best constant, cached), `agents.mpc` (the
-model-predictive baseline), `agents.policies` (baselines by name, model files and their
-sidecars), `agents.cli_args` (the shared command-line pieces), `agents.evaluation` (the
-``saddle-eval`` command) and `agents.training` (behind ``train.py``). `agents.baselines` is a
-deprecated re-export of the old names."""
+"""Controllers for the SaddleTrap task levels, and the tools that train, evaluate and benchmark
+them. One package per job; each imports only from the ones before it:
+
+1. `agents.seeds`, `agents.paths`, `agents.cli_args`: the seed ranges, where the files are,
+   and what every command line shares;
+2. `agents.control`: controllers with Stable-Baselines3's ``predict`` (constant speeds,
+   the searched best constant, ``mpc``, the clairvoyant reference) and the seeded rollouts
+   they are measured with;
+3. `agents.evaluation`: policies by name or file, model files read as data, and
+   ``saddle-eval``;
+4. `agents.training`: the seam behind ``train.py``, its recipes and its back ends
+   (`agents.training.backends`: SB3, SBX, RLlib);
+5. `agents.benchmark`: the benchmark (``python -m agents.benchmark``), its report, the
+   leaderboard, headroom, time to target, the training profile and shipping an agent.
+
+``tests/test_imports.py`` holds the order. A module's old flat name (``agents.mpc``) fails
+with a message naming its new place.
+"""
+
+from saddle_env import _moved
+
+_moved.announce({
+    "agents.baselines": "agents.control (controllers, best_constant, mpc) and agents.evaluation.policies",
+    "agents.controllers": "agents.control.controllers",
+    "agents.rollout": "agents.control.rollout",
+    "agents.best_constant": "agents.control.best_constant",
+    "agents.mpc": "agents.control.mpc",
+    "agents.clairvoyant": "agents.control.clairvoyant",
+    "agents.policies": "agents.evaluation.policies",
+    "agents.model_files": "agents.evaluation.model_files",
+    "agents.literal_kwargs": "agents.evaluation.literal_kwargs",
+    "agents.rllib_policy": "agents.evaluation.rllib_policy",
+    "agents.runs": "agents.training.runs",
+    "agents.recipes": "agents.training.recipes",
+    "agents.schedules": "agents.training.schedules",
+    "agents.shaping": "agents.training.shaping",
+    "agents.warm_start": "agents.training.warm_start",
+    "agents.imitation": "agents.training.imitation",
+    "agents.compile_ahead": "agents.training.compile_ahead",
+    "agents.run_report": "agents.training.run_report",
+    "agents.sb3_backend": "agents.training.backends.sb3",
+    "agents.sbx_backend": "agents.training.backends.sbx",
+    "agents.rllib_backend": "agents.training.backends.rllib",
+    "agents.benchmark_report": "agents.benchmark.report",
+    "agents.leaderboard": "agents.benchmark.leaderboard",
+    "agents.headroom": "agents.benchmark.headroom",
+    "agents.time_to_target": "agents.benchmark.time_to_target",
+    "agents.profile_training": "agents.benchmark.profile_training",
+    "agents.rllib_benchmark": "agents.benchmark.rllib_throughput",
+    "agents.ship": "agents.benchmark.ship",
+})

@@ -9,7 +9,7 @@ training or model selection.
 | ``VALIDATION_SEED + s ..`` | model selection during training run s |
 | ``TEST_SEED ..`` | the leaderboard's frozen test set, nothing else |
 | ``COMPARE_SEED ..`` | the comparison ``train.py`` prints at the end of a run |
-| ``IMITATION_SEED + s·k ..`` | run s's imitation warm start (k = its episodes, `agents.imitation`) |
+| ``IMITATION_SEED + s·k ..`` | run s's imitation warm start (k = its episodes, `agents.training.imitation`) |
 | ``DESIGN_SEED ..`` | measurements made to design a task level (the numbers in a level's |
 | | ``why_hard``; 200 episodes each) |
 """

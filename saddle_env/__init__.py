@@ -1,16 +1,36 @@
 """saddle-env: a rigid ball on a rotating saddle — physics, simulator and Gymnasium environment."""
 
-from . import _cache, _notice
+from . import _moved
+from .compilation import cache as _cache
+from .compilation import notice as _notice
+from .compilation import threads as _threads  # noqa: F401  (numba's threading layer, set before any parallel step)
 
-_cache.refresh()  # before any compiled function is loaded (see saddle_env/_cache.py)
-_notice.install()  # a compile that takes more than a moment says so (saddle_env/_notice.py)
+# The compile machinery's commands moved into `saddle_env.compilation`; the old names say where.
+_moved.announce({
+    "saddle_env.compile_profile": "saddle_env.compilation.profile",
+    "saddle_env.precompile": "saddle_env.compilation.precompile",
+    "saddle_env.aot_build": "saddle_env.compilation.aot_build",
+    "saddle_env.analysis": "saddle_env.reproduce.precession",
+})
+
+_cache.refresh()  # before any compiled function is loaded (see saddle_env/compilation/cache.py)
+_notice.install()  # a compile that takes more than a moment says so (saddle_env/compilation/notice.py)
 
 from .integrators import METHODS, Method  # noqa: E402
 from .omega import OmegaProfile  # noqa: E402
 from .prediction import Prediction, predict_batch  # noqa: E402
 from .scene import CONTACT_MODELS, Scene  # noqa: E402
-from .simulate import (DEFAULT_METHOD, DEFAULT_RTOL, BatchResult, Event,  # noqa: E402
-                       SimulationError, Trajectory, initial_state, simulate, simulate_batch)
+from .simulate import (  # noqa: E402
+    DEFAULT_METHOD,
+    DEFAULT_RTOL,
+    BatchResult,
+    Event,
+    SimulationError,
+    Trajectory,
+    initial_state,
+    simulate,
+    simulate_batch,
+)
 
 __all__ = ["CONTACT_MODELS", "DEFAULT_METHOD", "DEFAULT_RTOL", "LEVELS", "METHODS",
            "BatchResult", "Event", "Method", "OmegaProfile", "Prediction", "Scene",

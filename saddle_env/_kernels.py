@@ -32,120 +32,37 @@ Notation (derivations in docs/physics.md):
 from __future__ import annotations
 
 import math
-import os
-import types
 from collections import namedtuple
 
-import numba as nb
 import numpy as np
 
-from . import _aot
-
-# Threads for numba's parallel loop (the vector environment's step). Measured
-# on a shared 2-core machine, 1024-ball vector env, one run per row:
-#   layer                          idle           beside one CPU-bound process
-#   OpenMP, libgomp default spin   2.5-2.9 M/s    0.5-0.6 M/s (spinning threads steal the core)
-#   workqueue (never spins)        1.3 M/s        1.1 M/s     (waking threads costs ~0.2 ms)
-#   OpenMP, GOMP_SPINCOUNT=1000    2.1 M/s        1.1 M/s
-# so OpenMP with a short spin is preferred; numba falls back to TBB or workqueue where no
-# OpenMP runtime loads. A user's NUMBA_THREADING_LAYER, GOMP_SPINCOUNT or OMP_WAIT_POLICY
-# wins. (GNU OpenMP is not fork-safe: fork after a parallel step and use it in the child
-# fails loudly in numba; spawn/forkserver, SB3's default, are fine.)
-if "NUMBA_THREADING_LAYER" not in os.environ:
-    nb.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
-    if "GOMP_SPINCOUNT" not in os.environ and "OMP_WAIT_POLICY" not in os.environ:
-        os.environ["GOMP_SPINCOUNT"] = "1000"
-
-# GNU OpenMP cannot be used again in a child forked after the parent used it (numba
-# terminates the child), so the vector environment asks `threads_usable()` and steps on one
-# thread when it says no.
-_in_forked_child = False
-
-
-def _mark_forked_child() -> None:
-    global _in_forked_child
-    _in_forked_child = True
-
-
-os.register_at_fork(after_in_child=_mark_forked_child)
-
-
-def threads_usable() -> bool:
-    """False in a forked child whose parent already ran numba's OpenMP threads."""
-    if not _in_forked_child:
-        return True
-    try:
-        return nb.threading_layer() != "omp"
-    except ValueError:  # no parallel region has run in this process (or its parent) yet
-        return True
-
-
-# Threads for the batch kernels that run long per call (`prediction.integrate_segments`,
-# `integrators.integrate_batch`): plain Python threads, each calling a one-thread compiled
-# kernel on its own range of rows, with the GIL released inside (``nogil``). Unlike numba's
-# ``prange``, a kernel called this way is an ordinary compiled function, so the install's
-# ahead-of-time build can hold it (`aot_build`) and a first call compiles nothing; and
-# Python threads survive a fork (the pool is made again in the child). Waking a thread
-# costs tens of microseconds, nothing next to these calls' milliseconds; the vector
-# environment's step, a fraction of a millisecond, keeps numba's OpenMP threads.
-_pool: tuple[int, int, object] | None = None   # (its process id, its threads, the executor)
-
-
-# Below this much simulated time in a call (all balls together) the batch kernels run on the
-# calling thread alone: waking a pool thread costs tens of microseconds, and a look-ahead of
-# `mpc` (a few hundred runs of a few tenths of a second, ~0.2 ms) ran 10-40 % slower split
-# over two threads (measured 2026-11-26; numba's OpenMP threads, which spin briefly instead
-# of sleeping, had cost it less). 10 simulated seconds are about 1-2 ms of DOP853 at the
-# default tolerance.
-THREADS_FROM_SIMULATED_S = 10.0
-
-
-def thread_count() -> int:
-    """How many threads the batch kernels use: numba's setting (``NUMBA_NUM_THREADS``, by
-    default the machine's cores), read without starting numba's own threads."""
-    return max(1, int(nb.config.NUMBA_NUM_THREADS))
-
-
-def _executor(workers: int):
-    """A pool of at least ``workers`` threads, made on first use and again in a forked child
-    (which has the parent's executor object but none of its threads)."""
-    global _pool
-    from concurrent.futures import ThreadPoolExecutor
-    if _pool is None or _pool[0] != os.getpid() or _pool[1] < workers:
-        if _pool is not None and _pool[0] == os.getpid():
-            _pool[2].shutdown(wait=False)   # its threads end once idle
-        _pool = (os.getpid(), workers,
-                 ThreadPoolExecutor(workers, thread_name_prefix="saddle_env"))
-    return _pool[2]
-
-
-def in_threads(kernel, n: int, *args, simulated_s: float = math.inf,
-               threads: int | None = None) -> list:
-    """``kernel(lo, hi, *args)`` over contiguous ranges that split rows ``0..n-1`` among up
-    to ``threads`` threads (default `thread_count`; one below `THREADS_FROM_SIMULATED_S` of
-    ``simulated_s``, the call's simulated time over all rows), this one included; returns
-    the calls' results in the order of their ranges when all are done, and raises the first
-    error any of them raised. ``kernel`` must release the GIL (compiled with ``nogil=True``)
-    for the ranges to run at once."""
-    if threads is None:
-        threads = 1 if simulated_s < THREADS_FROM_SIMULATED_S else thread_count()
-    k = max(1, min(threads, n))
-    if k == 1:
-        return [kernel(0, n, *args)]
-    bounds = [c * n // k for c in range(k + 1)]
-    pool = _executor(k - 1)
-    others = [pool.submit(kernel, bounds[c], bounds[c + 1], *args) for c in range(1, k)]
-    try:
-        first = kernel(bounds[0], bounds[1], *args)
-    finally:
-        for fut in others:   # wait for every range before the caller reuses the arrays
-            fut.exception()
-    return [first] + [fut.result() for fut in others]
-
-
-from .scene import (COULOMB, ION_PAUL, ION_RRF, P_A, P_ALPHA, P_B, P_DRAG_LINEAR,
-                    P_DRAG_QUADRATIC, P_DRILL, P_G, P_MU, P_MU_STATIC, P_R, P_RESIST, P_SPIN_BAND,
-                    ROLLING, SLIPPING)
+from .compilation.jit import inline, jit
+from .compilation.specialise import (  # the compile-time flags the kernels test (see there)
+    COULOMB_ON,
+    ION_ON,
+    ROLLING_ON,
+    SLIPPING_ON,
+    specialisable,
+)
+from .scene import (
+    COULOMB,
+    ION_PAUL,
+    ION_RRF,
+    P_A,
+    P_ALPHA,
+    P_B,
+    P_DRAG_LINEAR,
+    P_DRAG_QUADRATIC,
+    P_DRILL,
+    P_G,
+    P_MU,
+    P_MU_STATIC,
+    P_R,
+    P_RESIST,
+    P_SPIN_BAND,
+    ROLLING,
+    SLIPPING,
+)
 
 STATE_WIDTH = 9
 # The longest state without its work slot (coulomb): the padded width of the public batch
@@ -174,232 +91,6 @@ DRIVE_WIDTH = 8
 # Layout of the per-row observables written by `observables`.
 OBS_VX, OBS_VY, OBS_N, OBS_H, OBS_CX, OBS_CY, OBS_CZ, OBS_OMEGA = range(8)
 OBS_WIDTH = 8
-
-def one_signature(dispatcher):
-    """Type a compiled function's arguments as their plain types when compiled code calls it.
-
-    numba compiles a function once per distinct argument types, and a constant passed from
-    compiled code is its own type (``Literal[int](4)`` for COULOMB, ``Literal[bool](True)``):
-    `rhs` was compiled six times over for literal and plain models and ``want_normal`` flags,
-    `integrate_h` twice, `_event_value` eight times, and each copy pulls in the code below it
-    (measured, docs/coldstart.md). None of these functions needs a constant argument (LLVM
-    still folds a constant at an inlined call), so calls from compiled code are typed
-    without the literals, one specialisation each."""
-    typed = dispatcher.get_call_template
-
-    def get_call_template(args, kws):
-        return typed(tuple(nb.types.unliteral(a) for a in args),
-                     {k: nb.types.unliteral(v) for k, v in kws.items()})
-
-    dispatcher.get_call_template = get_call_template
-    return dispatcher
-
-
-_jit = nb.njit(cache=True, fastmath=False, error_model="numpy")
-# For the per-ball rates: inlined into every caller so a loop over balls can be vectorised.
-_inline = nb.njit(cache=True, fastmath=False, error_model="numpy", forceinline=True)
-
-
-def jit(f):
-    """The kernels' compiler: numba without fast-math, numpy's error model (1/0 = inf), cached
-    on disk, one specialisation per function (`one_signature`)."""
-    return one_signature(_jit(f))
-
-
-_ir_inline = nb.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
-
-
-def ir_inline(f):
-    """`jit`, with the function's code typed into each compiled caller rather than compiled
-    on its own (numba inlines it before typing). For thin layers between a compiled entry
-    point and the integrator: numba links a callee's whole code into each caller's and
-    optimises and generates machine code for it again there, so every separately compiled
-    layer above `integrators.integrate_h` paid for the integrator once more (the
-    environment's step had four: docs/coldstart.md). Not for large helpers with several
-    call sites: numba types each inlined copy again, and its type inference grows faster
-    than the code (measured: inlining the integrator's helpers made compiling slower)."""
-    return one_signature(_ir_inline(f))
-
-
-def jit_per_constant(f):
-    """`jit` that keeps numba's compile per constant argument, for a copy loop whose length
-    is a constant at each call (`envs._step._load`, `_store`: `ROW_WIDTH` or
-    `STATE_WIDTH`): compiled per constant, the loop has a fixed length the compiler unrolls.
-    Typed plain (`one_signature`), the 1024-ball vector env stepped 15 % slower (measured)."""
-    d = _jit(f)
-    d._per_constant = True
-    return d
-
-
-def inline(f):
-    """`jit`, always inlined by LLVM into its callers."""
-    return one_signature(_inline(f))
-
-
-# -- compiling only what a scene uses ------------------------------------------------------
-# The kernels test these compile-time flags beside the run-time model
-# (``if COULOMB_ON and model == COULOMB``). numba prunes a branch on a global constant before
-# typing, so a copy compiled with a flag False never types, lowers or optimises that code,
-# nor compiles the functions only that code calls. The functions as written have every flag
-# True (the full kernels); `specialise` makes the copies for a scene's contact models. A copy
-# meets a model it was not compiled for with NaN rates (`rhs`), which the loop reports as a
-# failure: callers ask for a copy covering every model they step (the environment falls back
-# to the full kernels when a reset brings a model its copy lacks).
-ROLLING_ON = SLIPPING_ON = COULOMB_ON = ION_ON = RESIST_ON = True
-_FLAG_OF_MODEL = {ROLLING: "ROLLING_ON", SLIPPING: "SLIPPING_ON", COULOMB: "COULOMB_ON",
-                  ION_RRF: "ION_ON", ION_PAUL: "ION_ON"}
-_FLAGS = ("ROLLING_ON", "SLIPPING_ON", "COULOMB_ON", "ION_ON", "RESIST_ON")
-
-# Set to 1 in the environment: every caller runs the full kernels (every contact model), no
-# per-scene copies. For a process that meets many sets of contact models (the test suite
-# compiles the full kernels once instead of a copy of the loop for each set it uses).
-FULL_KERNELS_ENV = "SADDLE_ENV_FULL_KERNELS"
-
-# Modules whose compiled functions `specialise` copies, in import order (lower modules first).
-_SPECIALISABLE: list[types.ModuleType] = []
-class _Variant:
-    """One flag set's copies (by the original's id) and, per registered module name, the
-    namespace of that module with its copies."""
-
-    def __init__(self):
-        self.copies: dict[int, object] = {}
-        self.spaces: dict[str, types.SimpleNamespace] = {}
-        # per module name: its namespace with the ahead-of-time entry points (`_aot`) in
-        # place of their JIT copies, for Python callers (the copies' own globals keep the JIT)
-        self.public: dict[str, types.SimpleNamespace] = {}
-
-
-_variants: dict[tuple[str, ...], _Variant] = {}
-_jit_of: dict[int, object] = {}  # id of an ahead-of-time entry point (`_aot`) → its JIT copy
-
-
-def specialisable(module_name: str) -> None:
-    """Register a module (called at the end of its import) whose compiled functions
-    `specialise` copies."""
-    import sys
-    _SPECIALISABLE.append(sys.modules[module_name])
-
-
-def variant_flags(models, resist: bool) -> tuple[str, ...]:
-    """The flags a copy for the model codes ``models`` (with rolling resistance where
-    ``resist``) turns on, in a fixed order."""
-    on = {_FLAG_OF_MODEL[int(m)] for m in models}
-    if resist:
-        on.add("RESIST_ON")
-    return tuple(f for f in _FLAGS if f in on)
-
-
-def _is_compiled(v) -> bool:
-    return isinstance(v, nb.core.dispatcher.Dispatcher)
-
-
-def python_entry(dispatcher):
-    """Mark a compiled function that Python calls through `specialise`'s namespace (an entry
-    point such as the environment's step): its copies keep numba's wrapper for Python
-    callers. Returns the function."""
-    dispatcher._python_entry = True
-    return dispatcher
-
-
-class _CompiledCallersOnly(nb.core.registry.CPUDispatcher):
-    """A copy built without numba's wrapper for Python callers (`_copy_of`): a call from
-    Python would jump through the missing wrapper and crash the interpreter, so it raises."""
-
-    def __call__(self, *args, **kwargs):
-        raise TypeError(f"{self.py_func.__qualname__} is a per-scene copy that only compiled "
-                        f"code calls (it has no wrapper for Python callers): call "
-                        f"{self.py_func.__name__} from its module, or a `python_entry` copy")
-
-
-def _copy_of(dispatcher, space: dict, tag: str):
-    """A copy of a compiled function whose globals are ``space``, compiled as the original
-    (same options, same typing rule), cached on disk under its own name. Only compiled code
-    calls a copy unless it is a `python_entry`, so the others are built without numba's
-    wrappers for Python and C callers: those wrappers were a fixed cost of about a tenth of
-    each function's compile, 1.2 s of a rolling level's 11 s first step (docs/coldstart.md)."""
-    f = dispatcher.py_func
-    twin = types.FunctionType(f.__code__, space, f.__name__, f.__defaults__, f.__closure__)
-    twin.__qualname__ = f"{f.__qualname__}__{tag}"
-    twin.__doc__ = f.__doc__
-    options = {k: v for k, v in dispatcher.targetoptions.items() if k != "nopython"}
-    if not getattr(dispatcher, "_python_entry", False):
-        options.update(no_cpython_wrapper=True, no_cfunc_wrapper=True)
-    copy = nb.njit(cache=True, **options)(twin)
-    if options.get("no_cpython_wrapper"):
-        copy.__class__ = _CompiledCallersOnly
-    if getattr(dispatcher, "_per_constant", False):
-        copy._per_constant = True
-        return copy
-    return one_signature(copy)
-
-
-def specialise(models, resist: bool, module: types.ModuleType):
-    """``module`` as compiled for the contact models ``models`` (model codes) alone and, with
-    ``resist``, rolling resistance: a namespace of the module's names in which every compiled
-    function of the registered modules is a copy whose globals are its module's with the
-    other flags False and the compiled functions replaced by their copies, so a whole chain
-    below an entry point is specialised together. (Functions that test no flag are copied
-    too, so that no copy needs numba's wrappers for Python callers: `_copy_of`.) Made once per flag set and process (a module registered later is added when
-    first asked for); compiled (or loaded from the on-disk cache) on first call, as any
-    kernel. Where an ahead-of-time build of the same sources has this flag set's entry points
-    (`_aot`: a first env step's and a first simulate's), the namespace has those in place of
-    the JIT copies: nothing compiles. With every flag on, or with `FULL_KERNELS_ENV` set to
-    1, the module itself."""
-    flags = variant_flags(models, resist)
-    if flags == _FLAGS or os.environ.get(FULL_KERNELS_ENV, "0") not in ("", "0"):
-        return module
-    variant = _variants.setdefault(flags, _Variant())
-    if module.__name__ not in variant.spaces:
-        tag = "_".join(f[:-3].lower() for f in flags) or "none"
-        values = {f: f in flags for f in _FLAGS}
-        for mod in _SPECIALISABLE:  # lower modules first: their copies exist
-            if mod.__name__ in variant.spaces:
-                continue
-            space = dict(vars(mod))
-            space.update(values)
-            for v in vars(mod).values():
-                if (_is_compiled(v) and id(v) not in variant.copies
-                        and v.py_func.__globals__ is vars(mod)):
-                    variant.copies[id(v)] = _copy_of(v, space, tag)
-            for k, v in list(space.items()):  # this module's and lower modules' functions
-                if _is_compiled(v) and id(v) in variant.copies:
-                    space[k] = variant.copies[id(v)]
-            variant.spaces[mod.__name__] = types.SimpleNamespace(**space)
-    if module.__name__ not in variant.public:
-        ahead = _aot.compiled(flags, module.__name__)
-        space = variant.spaces[module.__name__]
-        for name, fn in ahead.items():
-            _jit_of[id(fn)] = getattr(space, name)
-        variant.public[module.__name__] = \
-            types.SimpleNamespace(**{**vars(space), **ahead}) if ahead else space
-    return variant.public[module.__name__]
-
-
-def checked(space: types.SimpleNamespace, name: str, args: tuple):
-    """``space``'s entry point ``name`` (from `specialise`) for a call with ``args``: the
-    ahead-of-time one if it was compiled for exactly these argument types, else its JIT copy
-    (which compiles for them). A caller whose argument types are fixed keeps the answer."""
-    fn = getattr(space, name)
-    if id(fn) in _jit_of and not _aot.matches(fn, args):
-        return _jit_of[id(fn)]
-    return fn
-
-
-_entries: dict[tuple[int, str], object] = {}  # (id of a `specialise` namespace, name) → checked
-
-
-def entry(models, resist: bool, module: types.ModuleType, name: str, args: tuple):
-    """``module``'s entry point ``name`` compiled for the contact models ``models`` alone
-    (`specialise`), checked once per namespace against the types of ``args`` (`checked`).
-    For callers that build every argument themselves (float64 and int64 arrays, records of
-    floats and ints), whose types therefore never change from call to call."""
-    space = specialise(models, resist, module)
-    key = (id(space), name)  # namespaces live as long as the process
-    fn = _entries.get(key)
-    if fn is None:
-        fn = _entries[key] = checked(space, name, args)
-    return fn
-
 
 @jit
 def omega_at(prof, t):

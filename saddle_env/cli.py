@@ -12,8 +12,14 @@ from typing import NoReturn
 from .integrators import METHODS
 from .omega import OmegaProfile
 from .scene import CONTACT_MODELS, Scene
-from .simulate import (DEFAULT_METHOD, DEFAULT_RTOL, SimulationError, Trajectory, initial_state,
-                       simulate)
+from .simulate import (
+    DEFAULT_METHOD,
+    DEFAULT_RTOL,
+    SimulationError,
+    Trajectory,
+    initial_state,
+    simulate,
+)
 
 COLUMNS = ("t", "x", "y", "vx", "vy", "N_over_mg", "h")
 

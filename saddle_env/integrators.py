@@ -31,10 +31,26 @@ from pathlib import Path
 import numba as nb
 import numpy as np
 
-from ._kernels import (COULOMB_ON, ONSET, PHASE_SLOT, RESIST_ON, ROW_WIDTH, SLIP, STATE_WIDTH,
-                       STICK, coulomb_contact, integrated_size, ir_inline, jit, python_entry, rhs,
-                       rolling_spin, rolling_velocity, specialisable, spin_held,
-                       stick_margin, stop_rolling, stop_slip, work_slot)
+from ._kernels import (
+    ONSET,
+    PHASE_SLOT,
+    ROW_WIDTH,
+    SLIP,
+    STATE_WIDTH,
+    STICK,
+    coulomb_contact,
+    integrated_size,
+    rhs,
+    rolling_spin,
+    rolling_velocity,
+    spin_held,
+    stick_margin,
+    stop_rolling,
+    stop_slip,
+    work_slot,
+)
+from .compilation.jit import ir_inline, jit, python_entry
+from .compilation.specialise import COULOMB_ON, RESIST_ON, specialisable
 from .scene import COULOMB, P_A, P_B, P_G, P_R, P_RESIST, P_RIM, P_SPIN_BAND, ROLLING
 
 # Event flags (a bit mask) and the status codes `integrate` returns.

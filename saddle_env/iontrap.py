@@ -39,9 +39,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _kernels as K
-from .integrators import EVENT_ESCAPE, EVENT_KINDS, STATUS_FAILED, STATUS_MAX_STEPS, workspace
-from .linear import (ABCD, abcd, eigenfrequencies, eigenfrequencies_of, is_stable_abcd,
-                     linear_trajectory)
+from .integrators import EVENT_KINDS, STATUS_FAILED, STATUS_MAX_STEPS, workspace
+from .linear import (
+    ABCD,
+    abcd,
+    eigenfrequencies,
+    eigenfrequencies_of,
+    is_stable_abcd,
+    linear_trajectory,
+)
 from .omega import OmegaProfile
 from .runner import integrator_loop
 from .scene import ION_PAUL, ION_RRF, N_PARAMS, P_RIM, Scene, _finite_number

@@ -22,7 +22,6 @@ import numpy as np
 
 from .scene import Scene, _finite_number
 
-
 # Beyond this the coefficients (∝ Ω²) leave floating point range in the quartic.
 MAX_RATE = 1e12
 

@@ -22,10 +22,24 @@ from collections import namedtuple
 
 import numpy as np
 
-from ._kernels import DRIVE_WIDTH, ROW_WIDTH, frame_terms, jit, rolling_rates, sized, slipping_rates
+from ._kernels import DRIVE_WIDTH, ROW_WIDTH, frame_terms, rolling_rates, sized, slipping_rates
+from .compilation.jit import jit
 from .integrators import ERR_EMBEDDED, EVENT_DETACH, EVENT_ESCAPE, step_factor
-from .scene import (N_PARAMS, P_A, P_ALPHA, P_B, P_DRAG_LINEAR, P_DRAG_QUADRATIC, P_DRILL, P_G, P_R,
-                    P_RESIST, P_RIM, P_SPIN_BAND, ROLLING)
+from .scene import (
+    N_PARAMS,
+    P_A,
+    P_ALPHA,
+    P_B,
+    P_DRAG_LINEAR,
+    P_DRAG_QUADRATIC,
+    P_DRILL,
+    P_G,
+    P_R,
+    P_RESIST,
+    P_RIM,
+    P_SPIN_BAND,
+    ROLLING,
+)
 
 LANES = 64  # balls per block: the stage arrays of a block stay in the L1 cache
 # The state slots a block steps: a rolling ball's five (a slipping ball's four) and the work

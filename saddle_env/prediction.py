@@ -24,6 +24,9 @@ import numpy as np
 
 from . import _kernels as K
 from ._kernels import rhs
+from .compilation.jit import python_entry
+from .compilation.specialise import entry, specialisable
+from .compilation.threads import in_threads
 from .integrators import integrate_h, state_scale, workspace
 from .runner import DEFAULT_EVENTS, Settings, default_max_step, padded_width
 from .scene import N_PARAMS, P_RESIST
@@ -58,7 +61,7 @@ def samples_in(duration, sample):
     return max(1, int(math.ceil(duration / sample - 1e-9)))
 
 
-@K.python_entry
+@python_entry
 @nb.njit(cache=True, nogil=True)
 def integrate_segments(lo, hi, models, P, scales, Y, drives, durations, sample, tab, ctl, t_out,
                        Y_out, N_out, status):
@@ -159,9 +162,9 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
             float(sample), settings.method.tableau, settings.control(max_step), t, state, normal,
             status)
     # compiled for the contact models (and rolling resistance) of these runs alone
-    kernel = K.entry(np.unique(codes), bool((P[:, P_RESIST] != 0.0).any()),
+    kernel = entry(np.unique(codes), bool((P[:, P_RESIST] != 0.0).any()),
                      sys.modules[__name__], "integrate_segments", (0, n, *args))
-    K.in_threads(kernel, n, *args, simulated_s=float(np.maximum(durations, 0.0).sum()))
+    in_threads(kernel, n, *args, simulated_s=float(np.maximum(durations, 0.0).sum()))
     width = padded_width(codes)
     return Prediction(t, np.ascontiguousarray(state[..., :width]), normal, status,
                       np.ascontiguousarray(Y[:, :width]))
@@ -174,6 +177,6 @@ def _speed_bound(drives: np.ndarray, durations: np.ndarray) -> float:
     return float(np.max(np.maximum(np.abs(w0), np.abs(w1)) + np.abs(drives[..., K.DRIVE_AMP])))
 
 
-K.specialisable(__name__)
+specialisable(__name__)
 
 __all__ = ["Prediction", "predict_batch"]

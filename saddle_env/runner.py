@@ -20,9 +20,24 @@ import numpy as np
 
 from . import _kernels as K
 from . import integrators
-from .integrators import (EVENT_DETACH, EVENT_ESCAPE, EVENT_KINDS, LOG_PHASE, LOG_T, METHODS,
-                          STATUS_FAILED, STATUS_MAX_STEPS, Method, StepControl, state_scale,
-                          step_control, transition_log, workspace)
+from .compilation.specialise import entry
+from .compilation.threads import in_threads
+from .integrators import (
+    EVENT_DETACH,
+    EVENT_ESCAPE,
+    EVENT_KINDS,
+    LOG_PHASE,
+    LOG_T,
+    METHODS,
+    STATUS_FAILED,
+    STATUS_MAX_STEPS,
+    Method,
+    StepControl,
+    state_scale,
+    step_control,
+    transition_log,
+    workspace,
+)
 from .omega import OmegaProfile
 from .scene import COULOMB, P_RESIST, Scene, _finite_number
 
@@ -138,7 +153,7 @@ def integrator_loop(model: int, resist: bool, args: tuple):
     """The integrator's loop compiled for this contact model (or ion trap) alone
     (`_kernels.entry`), for ``args``: its callers (`run`, `iontrap.simulate_ion`) build
     every argument themselves, so their types do not change from call to call."""
-    return K.entry((model,), resist, integrators, "integrate_h", args)
+    return entry((model,), resist, integrators, "integrate_h", args)
 
 
 def _check_state(scene: Scene, state: object, name: str = "state") -> np.ndarray:
@@ -582,9 +597,9 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
     args = (models, P, drives, Y, 0.0, t_out, m.tableau, settings.control(math.inf), scales,
             max_step_arr, np.ones(n, dtype=bool), Y_out, status, t_final, stats)
     # compiled for these balls' contact models alone, as `simulate` is for its one
-    batch = K.entry(np.unique(models), bool((P[:, P_RESIST] != 0.0).any()), integrators,
+    batch = entry(np.unique(models), bool((P[:, P_RESIST] != 0.0).any()), integrators,
                     "integrate_batch", (0, n, *args))
-    K.in_threads(batch, n, *args, simulated_s=n * float(t_out[-1]))
+    in_threads(batch, n, *args, simulated_s=n * float(t_out[-1]))
     work = np.array([Y_out[i, :, sc.state_size] for i, sc in enumerate(scene_list)])
     width = padded_width(models)
     return BatchResult(t_out, Y_out[..., :width], stats[:, 3].copy(), status, t_final,

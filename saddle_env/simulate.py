@@ -19,10 +19,22 @@ import numpy as np
 from . import runner
 from .accuracy import Choice, check_fixed_step, check_tol, choose
 from .omega import OmegaProfile
-from .runner import (DEFAULT_EVENTS, DEFAULT_FIXED_DT, DEFAULT_METHOD, DEFAULT_RTOL,  # noqa: F401
-                     EVENT_NAMES, MAX_OUTPUTS, RTOL_MIN, BatchResult, Event, Settings,
-                     SimulationError, Start, Stats, Trajectory, check_fixed_step_fits,
-                     check_rtol, default_max_step, drive_row, initial_state)
+from .runner import (
+    DEFAULT_EVENTS,
+    DEFAULT_METHOD,
+    DEFAULT_RTOL,
+    BatchResult,
+    Event,
+    Settings,
+    SimulationError,
+    Stats,
+    Trajectory,
+    check_fixed_step_fits,
+    check_rtol,
+    default_max_step,
+    drive_row,
+    initial_state,
+)
 from .scene import Scene
 
 

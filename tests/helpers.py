@@ -5,13 +5,14 @@ from __future__ import annotations
 import numpy as np
 
 from saddle_env import _kernels as K
+from saddle_env.compilation.specialise import _jit_of
 from saddle_env.scene import Scene
 
 
 def jit_copy(fn):
     """The numba JIT copy behind an entry point of `_kernels.specialise`'s namespace: the
     function itself, or the JIT copy an installed ahead-of-time build stands in for."""
-    return K._jit_of.get(id(fn), fn)
+    return _jit_of.get(id(fn), fn)
 
 
 def padded(state: np.ndarray) -> np.ndarray:

@@ -1,5 +1,5 @@
-"""Baselines (agents.controllers, agents.best_constant, agents.mpc, agents.policies) and the
-evaluation tool (agents.evaluation, saddle-eval)."""
+"""Baselines (agents.control.controllers, agents.control.best_constant, agents.control.mpc, agents.evaluation.policies) and the
+evaluation tool (agents.evaluation.evaluate, saddle-eval)."""
 
 import json
 import math
@@ -8,12 +8,12 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from agents import best_constant as BC
-from agents import controllers as C
-from agents import evaluation as E
-from agents import mpc as M
-from agents import policies as P
-from agents import rollout as R
+from agents.control import best_constant as BC
+from agents.control import controllers as C
+from agents.control import mpc as M
+from agents.control import rollout as R
+from agents.evaluation import evaluate as E
+from agents.evaluation import policies as P
 from saddle_env.envs import PAPER_BALL_RADII, EnvConfig
 from saddle_env.linear import critical_omega
 

@@ -1,4 +1,4 @@
-"""The ahead-of-time compiled kernels (saddle_env._aot, saddle_env.aot_build): a build is used
+"""The ahead-of-time compiled kernels (saddle_env.compilation.aot, saddle_env.compilation.aot_build): a build is used
 only for the sources and platform it was built from and for exactly its argument types, and
 (slow) a real build starts a fresh process's first step of every level and first simulate
 without compiling, bit for bit the JIT's, and retires itself when a source changes."""
@@ -15,10 +15,11 @@ import pytest
 from helpers import compiled_in_fresh_process, gone_within
 
 import saddle_env
-from saddle_env import _aot
 from saddle_env import _kernels as K
 from saddle_env import integrators as I
-from saddle_env import precompile as pc
+from saddle_env.compilation import aot as _aot
+from saddle_env.compilation import precompile as pc
+from saddle_env.compilation.specialise import FULL_KERNELS_ENV, checked, specialise
 from saddle_env.scene import ROLLING
 
 
@@ -108,17 +109,17 @@ def test_an_entry_point_is_used_for_its_own_argument_types_only(fake_build, monk
     """`_kernels.checked`: an ahead-of-time entry point unboxes its arguments as the types
     it was built for without looking; other types go to the JIT copy."""
     fake_build()
-    monkeypatch.delenv(K.FULL_KERNELS_ENV, raising=False)
+    monkeypatch.delenv(FULL_KERNELS_ENV, raising=False)
     monkeypatch.setattr(K, "_variants", {})           # a first specialisation in this process
-    space = K.specialise((ROLLING,), False, I)
+    space = specialise((ROLLING,), False, I)
     assert space.integrate_h() == "ahead"
-    assert K.checked(space, "integrate_h", (0, np.zeros(3)))() == "ahead"
+    assert checked(space, "integrate_h", (0, np.zeros(3)))() == "ahead"
     for other in ((0, np.zeros(3, dtype=np.float32)), (0, np.zeros((3, 1))), (0.0, np.zeros(3)),
                   (0, np.zeros(6)[::2])):
-        jit = K.checked(space, "integrate_h", other)
+        jit = checked(space, "integrate_h", other)
         assert jit is not space.integrate_h and jit.py_func.__name__ == "integrate_h"
     # what is not compiled ahead is the JIT copy, unchecked
-    assert K.checked(space, "rhs", ()) is space.rhs
+    assert checked(space, "rhs", ()) is space.rhs
 
 
 def test_aot_takes_no_targets(capsys):
@@ -228,7 +229,7 @@ def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(t
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(tmp_path)}
     env.pop("SADDLE_ENV_FULL_KERNELS", None)            # the per-scene copies, as users run
     env.pop(_aot.AOT_ENV, None)
-    done = subprocess.run([sys.executable, "-m", "saddle_env.precompile", "--aot"],
+    done = subprocess.run([sys.executable, "-m", "saddle_env.compilation.precompile", "--aot"],
                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=1200)
     assert done.returncode == 0, done.stderr
     manifest = json.loads((tmp_path / "saddle_env" / "_aot" / _aot.MANIFEST).read_text())

@@ -11,8 +11,8 @@ import pytest
 pytest.importorskip("rliable")
 pytest.importorskip("sb3_contrib")
 
-from agents import benchmark as B  # noqa: E402
-from agents.benchmark_report import references  # noqa: E402
+from agents.benchmark import run as B  # noqa: E402
+from agents.benchmark.report import references  # noqa: E402
 
 GUSTY, STORM = "SaddleTrap-Gusty-v0", "SaddleTrap-Storm-v0"
 
@@ -42,11 +42,11 @@ def test_a_real_cell_writes_its_result_and_a_rerun_skips_it(tmp_path, monkeypatc
 def test_the_fast_recipe_row_trains_through_train_and_evaluates_the_selected_network(
         tmp_path, monkeypatch):
     """ppo-fast runs the Capture recipe (warm start, wrappers, normalisation, selection) on
-    another level through agents.training.train, and the test set sees its network. Its run
-    folder is temporary, or kept where agents.time_to_target --reuse reads it untrained."""
+    another level through agents.training.trainer.train, and the test set sees its network. Its run
+    folder is temporary, or kept where agents.benchmark.time_to_target --reuse reads it untrained."""
     import tempfile
 
-    from agents import time_to_target
+    from agents.benchmark import time_to_target
 
     assert B.ALGOS["ppo-fast"].recipe_of == "SaddleTrap-Capture-v0"
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
@@ -60,7 +60,7 @@ def test_the_fast_recipe_row_trains_through_train_and_evaluates_the_selected_net
     kept = tmp_path / "kept"
     again = B.run_cell(GUSTY, "ppo-fast", 1, budget=100, episodes=3, keep_runs=str(kept))
     assert again["episode_times"] == result["episode_times"]    # the same run, kept
-    monkeypatch.setattr("agents.training.train", lambda *a, **k: pytest.fail("trained"))
+    monkeypatch.setattr("agents.training.trainer.train", lambda *a, **k: pytest.fail("trained"))
     summary = time_to_target.run(GUSTY, [1], None, kept / GUSTY, label="ppo-fast",
                                  final_episodes=0, log=lambda *_: None, reuse=True,
                                  recipe_of="SaddleTrap-Capture-v0")
@@ -124,7 +124,7 @@ def test_a_killed_suite_resumes_where_it_stopped(tmp_path, monkeypatch):
 
 
 def test_the_report_is_generated_from_the_result_files(tmp_path, monkeypatch, capsys):
-    import agents.benchmark_report as R
+    import agents.benchmark.report as R
 
     monkeypatch.setattr(R, "REPS", 300)   # fewer bootstrap draws: the same code, faster
     results = tmp_path / "results"
@@ -188,7 +188,7 @@ def test_the_recurrent_adapter_acts_as_sb3s_own_recurrent_loop():
     import torch
     from sb3_contrib import RecurrentPPO
 
-    from agents.evaluation import evaluate
+    from agents.evaluation.evaluate import evaluate
     from saddle_env.envs import get_level
 
     torch.manual_seed(0)

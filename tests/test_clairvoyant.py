@@ -1,4 +1,4 @@
-"""The clairvoyant reference (`agents.clairvoyant`): its knowledge of the future pays on a
+"""The clairvoyant reference (`agents.control.clairvoyant`): its knowledge of the future pays on a
 gust `mpc` cannot foresee, it never keeps a ball shorter than `mpc` on the same episode,
 it is deterministic and independent of batching, and it runs under ``saddle-eval``."""
 
@@ -7,13 +7,13 @@ import json
 import numpy as np
 import pytest
 
-from agents.best_constant import best_constant
-from agents.clairvoyant import BallState, ClairvoyantController
-from agents.evaluation import main as saddle_eval
-from agents.headroom import evaluate_clairvoyant
-from agents.mpc import ModelPredictiveController
-from agents.policies import BASELINES, load_policy
-from agents.rollout import policy_actor, run_episodes
+from agents.benchmark.headroom import evaluate_clairvoyant
+from agents.control.best_constant import best_constant
+from agents.control.clairvoyant import BallState, ClairvoyantController
+from agents.control.mpc import ModelPredictiveController
+from agents.control.rollout import policy_actor, run_episodes
+from agents.evaluation.evaluate import main as saddle_eval
+from agents.evaluation.policies import BASELINES, load_policy
 from saddle_env.envs import EnvConfig, get_level
 
 GUSTY = "SaddleTrap-Gusty-v0"
@@ -74,7 +74,7 @@ def test_never_shorter_than_the_shipped_agent(gusty):
     """The level's shipped agent is an incumbent too: its episode, run on the copy in a batch
     of CHUNK balls as saddle-eval runs model files, is what saddle-eval measures, and the
     clairvoyant keeps every ball at least that long."""
-    from agents.clairvoyant import shipped_agents
+    from agents.control.clairvoyant import shipped_agents
 
     (path,) = shipped_agents(gusty)
     seeds = [9_000_000, GUST_SEED]
@@ -145,7 +145,7 @@ def test_saddle_eval_runs_the_clairvoyant(capsys):
 def test_a_batch_the_integrator_cannot_follow_changes_nothing(gusty, monkeypatch):
     """A candidate batch that fails to integrate is skipped, not fatal, and the plan still
     keeps the ball at least as long as mpc."""
-    import agents.clairvoyant as C
+    import agents.control.clairvoyant as C
     from saddle_env.simulate import SimulationError
 
     real, calls = C.run_plans, []

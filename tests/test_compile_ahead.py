@@ -1,4 +1,4 @@
-"""agents.compile_ahead: started only where it cannot race the run, stopped when the run
+"""agents.training.compile_ahead: started only where it cannot race the run, stopped when the run
 stops, waited for before the comparison; (slow) after it a fresh process's comparison
 steps compile nothing."""
 
@@ -7,11 +7,10 @@ import subprocess
 import sys
 
 import pytest
-
 from helpers import compiled_in_fresh_process, gone_within
 
-from agents import compile_ahead as ca
-from agents.runs import TrainSettings
+from agents.training import compile_ahead as ca
+from agents.training.runs import TrainSettings
 
 
 def _settings(**kw):
@@ -24,12 +23,12 @@ def test_started_for_a_registered_level_with_its_best_constant_cached(monkeypatc
     monkeypatch.setattr(ca.subprocess, "Popen", lambda args, **kw: started.append(args) or "p")
     monkeypatch.setenv(ca.OFF_ENV, "1")
     assert ca.start(_settings()) == "p"
-    assert started[0][1:] == ["-m", "agents.compile_ahead", "SaddleTrap-Gusty-v0", "200", "500"]
+    assert started[0][1:] == ["-m", "agents.training.compile_ahead", "SaddleTrap-Gusty-v0", "200", "500"]
     # nothing to compile for, or a race on the best-const cache: not started
     assert ca.start(_settings(compare_episodes=0)) is None
     assert ca.start(_settings(env_kwargs={"air_force": 0.2})) is None
     assert ca.start(_settings(backend="rllib", num_env_runners=0)) is None
-    monkeypatch.setattr("agents.best_constant.cached_best_constant", lambda *a, **k: None)
+    monkeypatch.setattr("agents.control.best_constant.cached_best_constant", lambda *a, **k: None)
     assert ca.start(_settings()) is None
     monkeypatch.setenv(ca.OFF_ENV, "0")
     assert len(started) == 1
@@ -53,7 +52,7 @@ def test_a_comparison_after_it_compiles_nothing(tmp_path):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
     env.pop("SADDLE_ENV_FULL_KERNELS", None)           # the per-scene copies, as users run
     level = "SaddleTrap-Capture-v0"
-    done = subprocess.run([sys.executable, "-m", "agents.compile_ahead", level, "200", "500"],
+    done = subprocess.run([sys.executable, "-m", "agents.training.compile_ahead", level, "200", "500"],
                           env=env, capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr
     code = ("from agents import compile_ahead\n"
@@ -69,7 +68,7 @@ def test_it_exits_when_the_run_that_started_it_is_killed(tmp_path):
 
     pid_file = tmp_path / "child.pid"
     child = ("import os, time, sys\n"
-             "from agents.compile_ahead import _exit_with_parent\n"
+             "from agents.training.compile_ahead import _exit_with_parent\n"
              "_exit_with_parent()\n"
              f"open({str(pid_file)!r}, 'w').write(str(os.getpid()))\n"
              "time.sleep(60)\n")

@@ -90,11 +90,11 @@ def _tool(argv: list[str]) -> tuple[str, list[str]]:
             return "pytest", argv[3:]
         if argv[1:3] == ["-m", "saddle_env.envs.benchmark"]:
             return "env-benchmark", argv[3:]
-        if argv[1:3] == ["-m", "agents.rllib_benchmark"]:
+        if argv[1:3] == ["-m", "agents.benchmark.rllib_throughput"]:
             return "rllib-benchmark", argv[3:]
-        if argv[1:3] == ["-m", "agents.benchmark"]:
+        if argv[1:3] == ["-m", "agents.benchmark.run"]:
             return "benchmark", argv[3:]
-        if argv[1:3] == ["-m", "saddle_env.compile_profile"]:
+        if argv[1:3] == ["-m", "saddle_env.compilation.profile"]:
             return "compile-profile", argv[3:]
     if argv[0] == "ray" and argv[1:2] in (["start"], ["stop"], ["status"]):
         return "ray", argv[1:]          # Ray's own CLI (docs/scaling.md): not run by the tests
@@ -118,7 +118,7 @@ def _parser(tool: str) -> argparse.ArgumentParser | None:
     if tool == "saddle-sim":
         from saddle_env.cli import build_parser
     elif tool == "saddle-eval":
-        from agents.evaluation import build_parser
+        from agents.evaluation.evaluate import build_parser
     elif tool == "saddle-bench":
         from saddle_env.bench import build_parser
     elif tool == "saddle-reproduce":
@@ -130,11 +130,11 @@ def _parser(tool: str) -> argparse.ArgumentParser | None:
         finally:
             sys.path.remove(str(ROOT))
     elif tool == "rllib-benchmark":
-        from agents.rllib_benchmark import build_parser
+        from agents.benchmark.rllib_throughput import build_parser
     elif tool == "benchmark":
-        from agents.benchmark import build_parser
+        from agents.benchmark.run import build_parser
     elif tool == "compile-profile":
-        from saddle_env.compile_profile import build_parser
+        from saddle_env.compilation.profile import build_parser
     else:
         return None
     return build_parser()
@@ -366,7 +366,7 @@ def _main(tool: str):
     if tool == "saddle-sim":
         from saddle_env.cli import main
     elif tool == "saddle-eval":
-        from agents.evaluation import main
+        from agents.evaluation.evaluate import main
     elif tool == "saddle-bench":
         from saddle_env.bench import main
     elif tool == "saddle-reproduce":
@@ -374,9 +374,9 @@ def _main(tool: str):
     elif tool == "env-benchmark":
         from saddle_env.envs.benchmark import main
     elif tool == "rllib-benchmark":
-        from agents.rllib_benchmark import main
+        from agents.benchmark.rllib_throughput import main
     elif tool == "compile-profile":
-        from saddle_env.compile_profile import main
+        from saddle_env.compilation.profile import main
     else:
         sys.path.insert(0, str(ROOT))
         try:
@@ -393,7 +393,7 @@ def _keep_caches_out_of_the_repository(tmp: Path, monkeypatch) -> None:
     import shutil
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp / "cache"))
-    for name in ("agents.baselines", "agents.best_constant"):
+    for name in ("agents.baselines", "agents.control.best_constant"):
         try:
             module = importlib.import_module(name)
         except ImportError:

@@ -9,6 +9,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import saddle_env as se
+from saddle_env.compilation.specialise import FULL_KERNELS_ENV
 from saddle_env.envs import LEVEL_IDS, PAPER_BALL_RADII, SaddleTrapEnv
 from saddle_env.envs.vector import SaddleTrapVectorEnv
 
@@ -454,13 +455,12 @@ def _assert_identical(own: list[tuple], full: list[tuple]) -> None:
 def test_each_levels_own_compiled_step_matches_the_full_kernels(env_id, monkeypatch):
     """A level compiles its step for the contact models it draws (`_kernels.specialise`);
     seeded episodes through that copy are the full kernels' to the last bit."""
-    from saddle_env import _kernels as K
     from saddle_env.envs import _step
 
-    monkeypatch.delenv(K.FULL_KERNELS_ENV)           # the copies (the suite's default)
+    monkeypatch.delenv(FULL_KERNELS_ENV)           # the copies (the suite's default)
     engine, own = _seeded_steps(env_id)
     assert engine._S is not _step                    # a copy, without the other models
-    monkeypatch.setenv(K.FULL_KERNELS_ENV, "1")
+    monkeypatch.setenv(FULL_KERNELS_ENV, "1")
     engine, full = _seeded_steps(env_id)
     assert engine._S is _step
     _assert_identical(own, full)
@@ -469,12 +469,11 @@ def test_each_levels_own_compiled_step_matches_the_full_kernels(env_id, monkeypa
 def test_a_reset_that_brings_another_contact_model_widens_the_compiled_step(monkeypatch):
     """A rolling level's copy has no slipping code: a reset with ``contact="slipping"``
     recompiles the step for both models, and the episodes are the full kernels'."""
-    from saddle_env import _kernels as K
     from saddle_env.scene import ROLLING, SLIPPING
 
-    monkeypatch.delenv(K.FULL_KERNELS_ENV)
+    monkeypatch.delenv(FULL_KERNELS_ENV)
     options = {"contact": "slipping"}
     engine, own = _seeded_steps("SaddleTrap-v0", options)
     assert engine._uses == ({ROLLING, SLIPPING}, False)    # no resistance was drawn
-    monkeypatch.setenv(K.FULL_KERNELS_ENV, "1")
+    monkeypatch.setenv(FULL_KERNELS_ENV, "1")
     _assert_identical(own, _seeded_steps("SaddleTrap-v0", options)[1])

@@ -21,9 +21,9 @@ import pytest
 sb3 = pytest.importorskip("stable_baselines3")
 torch = pytest.importorskip("torch")
 
-from agents import evaluation as E  # noqa: E402
-from agents import policies as P  # noqa: E402
-from agents.model_files import ArchiveLimits, UntrustedFileError, read_archive  # noqa: E402
+from agents.evaluation import evaluate as E  # noqa: E402
+from agents.evaluation import policies as P  # noqa: E402
+from agents.evaluation.model_files import ArchiveLimits, UntrustedFileError, read_archive  # noqa: E402
 from saddle_env.envs import EnvConfig  # noqa: E402
 from saddle_env.envs.observation import observation_space  # noqa: E402
 
@@ -272,11 +272,11 @@ def test_hyperparameter_strings_are_parsed_not_run(tmp_path, canary, capsys, tex
 # -- train.py --resume -----------------------------------------------------------------------
 def _run_folder(tmp_path, algo="sac"):
     """A run folder as train.py leaves it, with one checkpoint (made without training)."""
-    from agents.recipes import load_hyperparams
-    from agents.runs import TrainSettings
-    from agents.sb3_backend import _new_model, _save_checkpoint
     from dataclasses import asdict
 
+    from agents.training.backends.sb3 import _new_model, _save_checkpoint
+    from agents.training.recipes import load_hyperparams
+    from agents.training.runs import TrainSettings
     from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
 
     hyper_file = tmp_path / f"{algo}.yml"
@@ -318,9 +318,9 @@ def test_resume_reads_checkpoints_as_data_and_refuses_pickles(tmp_path, canary, 
 
 
 def test_resume_as_data_restores_weights_optimiser_and_buffer(tmp_path):
-    from agents.recipes import load_hyperparams
-    from agents.runs import TrainSettings
-    from agents.sb3_backend import _resume
+    from agents.training.backends.sb3 import _resume
+    from agents.training.recipes import load_hyperparams
+    from agents.training.runs import TrainSettings
     from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
 
     ckpt = _run_folder(tmp_path)
@@ -339,7 +339,7 @@ def test_resume_as_data_restores_weights_optimiser_and_buffer(tmp_path):
 # -- the leaderboard -------------------------------------------------------------------------
 def test_the_leaderboard_ranks_others_agents_as_data_and_skips_what_needs_trust(
         model_zip, tmp_path, canary, capsys):
-    from agents import leaderboard as lb
+    from agents.benchmark import leaderboard as lb
 
     models = tmp_path / "submitted"
     models.mkdir()
@@ -369,7 +369,7 @@ def test_the_leaderboard_ranks_others_agents_as_data_and_skips_what_needs_trust(
 def test_shipped_models_load_as_data_and_act_as_sb3_loads_them():
     """Every shipped agent loads without --trust-model, and its actions are bit-identical to
     those of SB3's own (unpickling) loader."""
-    from agents.evaluation import trained_env
+    from agents.evaluation.evaluate import trained_env
 
     shipped = sorted((ROOT / "agents" / "models").glob("*.zip"))
     assert shipped
@@ -386,7 +386,7 @@ def test_shipped_models_load_as_data_and_act_as_sb3_loads_them():
 
 # -- RLlib checkpoints (the [rllib] extra's environment) -------------------------------------
 def _rllib_checkpoint(folder: Path, module: object, weights: bytes) -> Path:
-    from agents.rllib_policy import CHECKPOINT_MARKER, SIDECAR, WEIGHTS_FILE
+    from agents.evaluation.rllib_policy import CHECKPOINT_MARKER, SIDECAR, WEIGHTS_FILE
 
     folder.mkdir()
     (folder / CHECKPOINT_MARKER).write_text("{}")
@@ -399,7 +399,7 @@ def _rllib_checkpoint(folder: Path, module: object, weights: bytes) -> Path:
 
 def test_rllib_checkpoints_are_read_as_data(tmp_path, canary, capsys):
     pytest.importorskip("ray")
-    from agents.rllib_policy import load_policy
+    from agents.evaluation.rllib_policy import load_policy
 
     buf = io.BytesIO()
     torch.save({"w": Payload(canary)}, buf)

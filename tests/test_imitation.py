@@ -6,7 +6,7 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from agents import imitation as im  # noqa: E402
+from agents.training import imitation as im  # noqa: E402
 from saddle_env.envs import level_config  # noqa: E402
 
 
@@ -37,7 +37,7 @@ def test_settings_are_checked():
 
 
 def test_imitation_without_mpc_warm_start_is_an_error(tmp_path):
-    from agents.recipes import load_hyperparams
+    from agents.training.recipes import load_hyperparams
 
     f = tmp_path / "ppo.yml"
     f.write_text("SaddleTrap-Storm-v0:\n  warm_start: best-const\n  imitation: {rounds: 2}\n")
@@ -46,7 +46,7 @@ def test_imitation_without_mpc_warm_start_is_an_error(tmp_path):
 
 
 def test_the_watching_expert_predicts_the_step_the_motor_took():
-    from agents.mpc import ModelPredictiveController
+    from agents.control.mpc import ModelPredictiveController
     from saddle_env.envs.vector import SaddleTrapVectorEnv
 
     config = level_config("SaddleTrap-Storm-v0")
@@ -66,7 +66,7 @@ def test_a_short_imitation_brings_the_network_to_mpc():
     import torch
     from stable_baselines3 import PPO
 
-    from agents.mpc import ModelPredictiveController
+    from agents.control.mpc import ModelPredictiveController
     from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
 
     torch.manual_seed(0)

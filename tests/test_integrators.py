@@ -7,6 +7,7 @@ import pytest
 from helpers import jit_copy
 
 from saddle_env import METHODS, Scene, initial_state, simulate
+from saddle_env.compilation.specialise import FULL_KERNELS_ENV, specialise
 from saddle_env.integrators import EVENT_TIME_TOL
 
 
@@ -139,7 +140,7 @@ def test_a_copy_compiled_for_one_contact_model_steps_it_identically(monkeypatch)
     from saddle_env import integrators as I
     from saddle_env.scene import ROLLING, SLIPPING
 
-    monkeypatch.delenv(K.FULL_KERNELS_ENV)          # the copies (the suite's default)
+    monkeypatch.delenv(FULL_KERNELS_ENV)          # the copies (the suite's default)
     scene = Scene(a=0.159, R=0.02, contact="rolling")
     p = scene.params()
     tab = METHODS["dopri5"].tableau
@@ -147,9 +148,9 @@ def test_a_copy_compiled_for_one_contact_model_steps_it_identically(monkeypatch)
     drive = np.zeros(K.DRIVE_WIDTH)
     drive[K.DRIVE_W0] = 30.0
     t_out = np.linspace(0.0, 0.5, 6)
-    rolling = K.specialise((ROLLING,), False, I)
+    rolling = specialise((ROLLING,), False, I)
     assert rolling is not I and rolling.integrate_h is not I.integrate_h
-    assert K.specialise((ROLLING,), False, I) is rolling  # made once
+    assert specialise((ROLLING,), False, I) is rolling  # made once
     # only compiled code calls a copy that is not an entry point: no wrapper for Python
     assert rolling.rhs.targetoptions.get("no_cpython_wrapper") is True
     assert rolling._error_norm.targetoptions.get("no_cpython_wrapper") is True  # tests no flag
@@ -179,5 +180,5 @@ def test_a_copy_compiled_for_one_contact_model_steps_it_identically(monkeypatch)
                               I.state_scale(q, SLIPPING), np.zeros((len(t_out), K.STATE_WIDTH)),
                               np.zeros(4, dtype=np.int64), 0.0, I.workspace(tab))
     assert res.status == I.STATUS_FAILED
-    monkeypatch.setenv(K.FULL_KERNELS_ENV, "1")      # the switch: the full kernels, no copy
-    assert K.specialise((ROLLING,), False, I) is I
+    monkeypatch.setenv(FULL_KERNELS_ENV, "1")      # the switch: the full kernels, no copy
+    assert specialise((ROLLING,), False, I) is I

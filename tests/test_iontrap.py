@@ -11,10 +11,22 @@ import pytest
 
 from saddle_env import METHODS, Scene
 from saddle_env import _kernels as K
-from saddle_env.iontrap import (Q_MAX, PaulTrap, RRFTrap, _q_max, ball_to_ion,
-                                eigenfrequency_mismatch, floquet_multipliers, lab_rest_state,
-                                linear_ball_vs_ion, mathieu_first_region, max_rel_diff,
-                                paper_analogy_ion, simulate_ion)
+from saddle_env.compilation.specialise import FULL_KERNELS_ENV, specialise
+from saddle_env.iontrap import (
+    Q_MAX,
+    PaulTrap,
+    RRFTrap,
+    _q_max,
+    ball_to_ion,
+    eigenfrequency_mismatch,
+    floquet_multipliers,
+    lab_rest_state,
+    linear_ball_vs_ion,
+    mathieu_first_region,
+    max_rel_diff,
+    paper_analogy_ion,
+    simulate_ion,
+)
 from saddle_env.linear import critical_omega, eigenfrequencies
 from saddle_env.omega import OmegaProfile
 from saddle_env.simulate import SimulationError, drive_row
@@ -144,7 +156,7 @@ def test_an_ion_runs_on_the_ion_traps_own_compiled_loop_as_on_the_full_kernels(m
 
     runs = {}
     for full in ("0", "1"):
-        monkeypatch.setenv(K.FULL_KERNELS_ENV, full)
+        monkeypatch.setenv(FULL_KERNELS_ENV, full)
         runs[full] = [simulate_ion(trap, [1e-3, -5e-4, 2e-3, 0.0], 2.0, dt_out=0.05)
                       for trap in (RRFTrap(omega=20.0, kappa=KAPPA, omega_B=3.0, kappa_t=-5.0),
                                    PaulTrap(omega=40.0),
@@ -153,8 +165,8 @@ def test_an_ion_runs_on_the_ion_traps_own_compiled_loop_as_on_the_full_kernels(m
     for own, full in zip(runs["0"], runs["1"]):
         np.testing.assert_array_equal(own.state, full.state)
         assert own.event == full.event
-    monkeypatch.setenv(K.FULL_KERNELS_ENV, "0")
-    assert K.specialise((RRFTrap().model_code,), False, integrators) is not integrators
+    monkeypatch.setenv(FULL_KERNELS_ENV, "0")
+    assert specialise((RRFTrap().model_code,), False, integrators) is not integrators
 
 
 def test_escape_at_r0_and_unstable_runaway():

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from agents import leaderboard as lb
+from agents.benchmark import leaderboard as lb
 from saddle_env.envs import LEVELS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_levels_page_is_generated_from_the_registry():
     text = lb.levels_markdown()
     assert (ROOT / "docs" / "levels.md").read_text() == text, \
-        "docs/levels.md is stale: run python -m agents.leaderboard --levels-doc"
+        "docs/levels.md is stale: run python -m agents.benchmark.leaderboard --levels-doc"
     for level in LEVELS:
         assert f"## {level.id}" in text and level.why_hard in text
 
@@ -141,7 +141,7 @@ def test_updating_one_level_keeps_the_others_on_the_board(tmp_path, monkeypatch)
 def test_a_shipped_model_is_named_by_its_path_in_the_repository(tmp_path):
     """The results name a model file inside the repository from its root, not from one
     machine's folders; a baseline or a file elsewhere stays as given."""
-    from agents.leaderboard import MODELS_DIR, shown_spec
+    from agents.benchmark.leaderboard import MODELS_DIR, shown_spec
 
     assert shown_spec(str(MODELS_DIR / "ppo_gusty.zip")) == "agents/models/ppo_gusty.zip"
     assert shown_spec("mpc") == "mpc"

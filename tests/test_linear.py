@@ -4,11 +4,17 @@ import math
 
 import numpy as np
 import pytest
-
 from helpers import fd_linearisation
+
 from saddle_env import Scene
-from saddle_env.linear import (abcd, critical_omega, eigenfrequencies, is_stable,
-                               mass_point_band, stable_band)
+from saddle_env.linear import (
+    abcd,
+    critical_omega,
+    eigenfrequencies,
+    is_stable,
+    mass_point_band,
+    stable_band,
+)
 
 SCENES = [dict(contact="rolling"), dict(contact="rolling", R=0.033, alpha=2 / 3),
           dict(contact="slipping", R=0.03), dict(contact="point"),

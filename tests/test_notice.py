@@ -1,5 +1,5 @@
 """A compile of saddle_env's code that takes more than a moment says so, once
-(saddle_env/_notice.py)."""
+(saddle_env/compilation/notice.py)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import logging
 import time
 from types import SimpleNamespace
 
-from saddle_env import _notice
+from saddle_env.compilation import notice as _notice
 
 
 def _event(module, name="step_serial"):

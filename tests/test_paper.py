@@ -9,11 +9,11 @@ import math
 
 import numpy as np
 import pytest
-
 from helpers import centre_state
+
 from saddle_env import Scene, initial_state, simulate
-from saddle_env.analysis import linear_precession_rate, precession_angle
 from saddle_env.linear import critical_omega, linear_trajectory
+from saddle_env.reproduce.precession import linear_precession_rate, precession_angle
 
 
 def _nonlinear_vs_linear_gap(release, start="lab-rest"):

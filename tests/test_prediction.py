@@ -8,8 +8,10 @@ angle; events stop a run where `simulate` stops.
 import numpy as np
 import pytest
 
-from saddle_env import _kernels as K
 from saddle_env import OmegaProfile, Scene, initial_state, simulate
+from saddle_env import _kernels as K
+from saddle_env.compilation.specialise import FULL_KERNELS_ENV, entry, specialise
+from saddle_env.compilation.threads import in_threads
 from saddle_env.integrators import STATUS_DETACH, STATUS_DONE, STATUS_ESCAPE
 from saddle_env.prediction import predict_batch
 from saddle_env.simulate import drive_row
@@ -88,7 +90,7 @@ def test_the_kernel_is_called_with_the_same_types_however_the_models_are_given(m
     models, P, Y0, drives, durations = _cases_batch()
     keep = [0, 0, 0]      # three runs of one model
     seen = []
-    real = K.entry
+    real = entry
 
     def spy(codes, resist, module, name, args):
         seen.append(tuple(numba.typeof(a) for a in args))
@@ -195,11 +197,11 @@ def test_a_batch_compiled_for_its_own_contact_models_predicts_identically(monkey
         return predict_batch(models[:k], P[:k], Y0[:k], drives[:k], durations[:k], 0.05,
                              rtol=RTOL, max_step=MAX_STEP)
 
-    monkeypatch.delenv(K.FULL_KERNELS_ENV)           # the copies (the suite's default)
+    monkeypatch.delenv(FULL_KERNELS_ENV)           # the copies (the suite's default)
     own = [predict(1), predict(2)]
     module = sys.modules["saddle_env.prediction"]
-    assert K.specialise(models[:1], False, module) is not module
-    monkeypatch.setenv(K.FULL_KERNELS_ENV, "1")
+    assert specialise(models[:1], False, module) is not module
+    monkeypatch.setenv(FULL_KERNELS_ENV, "1")
     for k, pred in zip((1, 2), own):
         full = predict(k)
         for name in ("t", "state", "normal", "status", "final_state"):
@@ -236,7 +238,7 @@ def test_threads_cover_every_row_once_and_pass_on_an_error():
         out[lo:hi] += 1
 
     out = np.zeros(10, dtype=np.int64)
-    K.in_threads(record, 10, out, threads=3)
+    in_threads(record, 10, out, threads=3)
     assert sorted(seen) == [(0, 3), (3, 6), (6, 10)] and np.all(out == 1)
 
     def fail_late(lo, hi, out):
@@ -245,5 +247,5 @@ def test_threads_cover_every_row_once_and_pass_on_an_error():
         out[lo:hi] += 1
 
     with pytest.raises(ValueError, match="range 5-10"):
-        K.in_threads(fail_late, 10, out, threads=2)
+        in_threads(fail_late, 10, out, threads=2)
     assert np.all(out[:5] == 2)

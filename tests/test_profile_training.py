@@ -1,11 +1,11 @@
-"""agents.profile_training: the timers see each piece of an SB3 run (a tiny SAC run: the
+"""agents.benchmark.profile_training: the timers see each piece of an SB3 run (a tiny SAC run: the
 off-policy path) and the shares add up to the wall time."""
 
 import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from agents import profile_training as P  # noqa: E402
+from agents.benchmark import profile_training as P  # noqa: E402
 
 
 def test_a_tiny_sac_run_is_split_into_its_pieces(tmp_path):

@@ -50,8 +50,8 @@ def _free_port() -> int:
 
 # -- without ray ---------------------------------------------------------------------------
 def test_importing_the_project_never_imports_ray():
-    code = ("import sys, saddle_env, agents, agents.training, agents.evaluation, "
-            "agents.policies, agents.rllib_backend, agents.rllib_policy\n"
+    code = ("import sys, saddle_env, agents, agents.training.trainer, agents.evaluation.evaluate, "
+            "agents.evaluation.policies, agents.training.backends.rllib, agents.evaluation.rllib_policy\n"
             "import gymnasium as gym\n"
             "gym.make_vec('SaddleTrap-v0', num_envs=2).reset(seed=0)\n"
             "assert 'ray' not in sys.modules, sorted(m for m in sys.modules if 'ray' in m)\n")
@@ -59,7 +59,7 @@ def test_importing_the_project_never_imports_ray():
 
 
 def test_env_runners_step_disjoint_seeds_through_the_native_vector_env():
-    from agents.rllib_backend import RunnerVectorEnv, make_env
+    from agents.training.backends.rllib import RunnerVectorEnv, make_env
     from saddle_env.envs.vector import SaddleTrapVectorEnv
 
     cfg = {"env_id": "SaddleTrap-v0", "env_kwargs": {}, "max_episode_steps": 500, "seed": 7}
@@ -156,7 +156,7 @@ def test_rllib_run_checkpoints_resumes_and_is_evaluated(tmp_path):
 
     # read as data (weights file + sidecar config), the network acts exactly as RLlib's own
     # (unpickled) copy of it
-    from agents.rllib_policy import load_policy
+    from agents.evaluation.rllib_policy import load_policy
     from saddle_env.envs import EnvConfig
     from saddle_env.envs.observation import observation_space
     space = observation_space(EnvConfig())
@@ -167,7 +167,7 @@ def test_rllib_run_checkpoints_resumes_and_is_evaluated(tmp_path):
 
     # saddle-eval runs the policy network alone, deterministic, on the seeded episodes
     def evaluate():
-        out = _run("-m", "agents.evaluation", "--policy", str(final), "--policy", "zero",
+        out = _run("-m", "agents.evaluation.evaluate", "--policy", str(final), "--policy", "zero",
                    "--episodes", "4", "--max-episode-steps", "50", "--json", "--no-progress")
         return json.loads(out.stdout)
 
@@ -176,7 +176,7 @@ def test_rllib_run_checkpoints_resumes_and_is_evaluated(tmp_path):
     assert [p["kind"] for p in table["policies"]] == ["RLlib PPO", "baseline"]
     assert table == evaluate()                  # deterministic
     # a run folder stands for its latest checkpoint
-    by_run = _run("-m", "agents.evaluation", "--policy", str(run), "--episodes", "4",
+    by_run = _run("-m", "agents.evaluation.evaluate", "--policy", str(run), "--episodes", "4",
                   "--max-episode-steps", "50", "--json", "--no-progress")
     assert json.loads(by_run.stdout)["policies"][0]["trapping_time"] == \
         table["policies"][0]["trapping_time"]
@@ -193,11 +193,11 @@ def test_sac_runs_on_rllib(tmp_path):
          "--total-timesteps", "600", "--log-dir", str(tmp_path), "--run-name", "sac",
          "--no-progress-bar", "--compare-episodes", "0")
     final = tmp_path / "sac" / "final"
-    out = _run("-m", "agents.evaluation", "--policy", str(final), "--episodes", "2",
+    out = _run("-m", "agents.evaluation.evaluate", "--policy", str(final), "--episodes", "2",
                "--max-episode-steps", "20", "--json", "--no-progress")
     assert json.loads(out.stdout)["policies"][0]["kind"] == "RLlib SAC"
     # rebuilt as data (target networks left out), it acts as RLlib's own unpickled module
-    from agents.rllib_policy import load_policy
+    from agents.evaluation.rllib_policy import load_policy
     from saddle_env.envs import EnvConfig
     from saddle_env.envs.observation import observation_space
     space = observation_space(EnvConfig())
@@ -210,7 +210,7 @@ def test_sac_runs_on_rllib(tmp_path):
 @pytest.mark.slow
 def test_the_profile_times_rllibs_pieces(tmp_path):
     pytest.importorskip("ray")
-    from agents.profile_training import profile_training
+    from agents.benchmark.profile_training import profile_training
 
     hyper = tmp_path / "ppo.yml"
     hyper.write_text("SaddleTrap-v0:\n  n_envs: 4\n  n_steps: 64\n  batch_size: 64\n"
@@ -265,9 +265,9 @@ def test_a_killed_env_runner_is_replaced_and_training_goes_on(tmp_path):
     pytest.importorskip("ray")
     import ray
 
-    from agents import rllib_backend as rb
-    from agents.recipes import load_hyperparams
-    from agents.runs import TrainSettings
+    from agents.training.backends import rllib as rb
+    from agents.training.recipes import load_hyperparams
+    from agents.training.runs import TrainSettings
 
     hyper = tmp_path / "small.yml"
     hyper.write_text(SMALL)

@@ -1,4 +1,4 @@
-"""The SBX back end (agents.sbx_backend): its network copied into SB3's acts identically, its
+"""The SBX back end (agents.training.backends.sbx): its network copied into SB3's acts identically, its
 learner state round-trips as data, and train.py --backend sbx trains, checkpoints on
 SIGTERM, resumes and writes model files that load as SB3's."""
 
@@ -13,9 +13,10 @@ import pytest
 pytest.importorskip("stable_baselines3")
 pytest.importorskip("sbx")
 
-from agents import sbx_backend  # noqa: E402
-from agents.runs import TrainSettings  # noqa: E402
 from helpers import sigterm_after_first_checkpoint  # noqa: E402
+
+from agents.training.backends import sbx as sbx_backend  # noqa: E402
+from agents.training.runs import TrainSettings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = {"n_envs": 4, "n_steps": 32, "batch_size": 64, "n_epochs": 2, "gamma": 0.99,
@@ -23,7 +24,7 @@ SMALL = {"n_envs": 4, "n_steps": 32, "batch_size": 64, "n_epochs": 2, "gamma": 0
 
 
 def _learner(seed=0, hyper=SMALL):
-    from agents.sb3_backend import make_vec_env, wrap_env
+    from agents.training.backends.sb3 import make_vec_env, wrap_env
 
     settings = TrainSettings(backend="sbx", env_id="SaddleTrap-v0", seed=seed).validate()
     env = wrap_env(make_vec_env(4, seed, {}, 50, "SaddleTrap-v0"), {}, 1)
@@ -79,7 +80,7 @@ def test_the_twin_acts_as_the_sbx_network_and_a_warm_start_comes_back():
     assert float(twin.policy.log_std.detach()[0]) == pytest.approx(
         float(np.asarray(model.policy.actor_state.params["params"]["log_std"])[0]))
     # the reverse: a warm start written into the twin's action head reaches the flax network
-    from agents.warm_start import apply_warm_start
+    from agents.training.warm_start import apply_warm_start
 
     apply_warm_start(twin, 0.3)
     sbx_backend.copy_from_twin(twin, model)
@@ -155,8 +156,8 @@ def test_train_py_backend_sbx_checkpoints_on_sigterm_and_resumes_as_data(tmp_pat
                               "--total-timesteps", str(done + 256), "--no-progress-bar"],
                              capture_output=True, text=True, timeout=300)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
-    from agents.model_files import read_archive
-    from agents.policies import load_policy
+    from agents.evaluation.model_files import read_archive
+    from agents.evaluation.policies import load_policy
 
     steps = read_archive(run / "final_model.zip").data["num_timesteps"]
     assert done + 256 <= steps <= done + 256 + 128      # whole rollouts of 4 x 32
@@ -177,7 +178,7 @@ def test_the_sbx_recipes_are_the_fast_recipe_but_for_the_budget_and_rollout_shap
     n_envs x n_steps samples is shaped (Storm's: more balls, fewer steps), never its size;
     Capture's also decays the fast recipe's learning rate to 0 and selects its model on
     more validation episodes."""
-    from agents.recipes import load_hyperparams
+    from agents.training.recipes import load_hyperparams
     from saddle_env.envs import LEVEL_IDS
 
     fast = load_hyperparams("ppo", "SaddleTrap-Capture-v0")

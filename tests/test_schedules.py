@@ -1,11 +1,11 @@
-"""Recipe schedules (agents.schedules): ``lin_<x>`` decays to 0 over the run, and a
+"""Recipe schedules (agents.training.schedules): ``lin_<x>`` decays to 0 over the run, and a
 training run with one ends with PPO's step at (nearly) 0."""
 
 import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from agents.schedules import parse_schedule, with_schedules  # noqa: E402
+from agents.training.schedules import parse_schedule, with_schedules  # noqa: E402
 
 
 def test_lin_decays_from_its_number_to_zero_and_numbers_pass_through():
@@ -26,7 +26,7 @@ def test_anything_else_is_an_error(bad):
 
 
 def test_a_run_with_a_linear_step_ends_near_zero(tmp_path):
-    from agents.training import TrainSettings, train
+    from agents.training.trainer import TrainSettings, train
 
     hyper = tmp_path / "ppo.yml"
     hyper.write_text("SaddleTrap-v0:\n  n_envs: 4\n  n_steps: 32\n  batch_size: 64\n"

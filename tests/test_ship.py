@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from agents.ship import ship
+from agents.benchmark.ship import ship
 
 
 def _run(folder, seed, score, env_id="SaddleTrap-Gusty-v0", lr=3e-4):
@@ -110,8 +110,8 @@ def test_each_shipped_agent_names_the_recipe_it_was_trained_with():
     import shlex
     from pathlib import Path
 
-    from agents.recipes import load_hyperparams
-    from agents.training import backend
+    from agents.training.recipes import load_hyperparams
+    from agents.training.trainer import backend
     from train import build_parser, settings_from_args
     root = Path(__file__).resolve().parents[1]
     checked = 0

@@ -13,8 +13,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import least_squares
 
-from saddle_env import (OmegaProfile, Scene, SimulationError, initial_state, simulate,
-                        simulate_batch)
+from saddle_env import OmegaProfile, Scene, SimulationError, initial_state, simulate, simulate_batch
 from saddle_env.accuracy import AccuracyWarning, jacobi_drift
 
 # ----------------------------------------------------------------------------------------

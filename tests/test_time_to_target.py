@@ -1,4 +1,4 @@
-"""agents.time_to_target (tiny budgets: the machinery, not learning) and the training
+"""agents.benchmark.time_to_target (tiny budgets: the machinery, not learning) and the training
 pieces it reads: the wall-clock evaluation log and short training episodes."""
 
 import csv
@@ -8,7 +8,7 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from agents import time_to_target as ttt  # noqa: E402
+from agents.benchmark import time_to_target as ttt  # noqa: E402
 
 
 def test_first_time_and_median_time():
@@ -60,7 +60,7 @@ def test_the_runner_trains_the_algorithm_asked_for(tmp_path, monkeypatch):
             "timesteps,wall_seconds,mean_return,mean_trapping_time\n100,1.5,10.0,0.4\n")
         return run
 
-    monkeypatch.setattr("agents.training.train", fake_train)
+    monkeypatch.setattr("agents.training.trainer.train", fake_train)
     ttt.main(["--env", "SaddleTrap-v0", "--algo", "sac", "--seeds", "3", "--label", "s",
               "--eval-episodes", "2", "--final-episodes", "0", "--max-episode-steps", "20",
               "--out", str(tmp_path)])
@@ -72,7 +72,7 @@ def test_the_runner_trains_the_algorithm_asked_for(tmp_path, monkeypatch):
 
 
 def test_train_episode_steps_is_checked():
-    from agents.recipes import train_episode_steps
+    from agents.training.recipes import train_episode_steps
 
     assert train_episode_steps({}, 500) == 500
     assert train_episode_steps({"train_episode_steps": 150}, 500) == 150
@@ -84,8 +84,8 @@ def test_train_episode_steps_is_checked():
 def test_distance_shaping_changes_training_rewards_only():
     import numpy as np
 
-    from agents.shaping import check_shaping, shape
-    from agents.sb3_backend import make_vec_env
+    from agents.training.backends.sb3 import make_vec_env
+    from agents.training.shaping import check_shaping, shape
     from saddle_env.envs import EnvConfig
 
     config = EnvConfig()
@@ -120,12 +120,12 @@ def test_reuse_reads_a_finished_run_instead_of_training_it_again(tmp_path, monke
               max_episode_steps=20)
     first = ttt.run("SaddleTrap-v0", [0], str(hyper), out, label="tiny", log=lambda *_: None,
                     **kw)
-    import agents.training
+    import agents.training.trainer
 
     def no_training(*_, **__):
         raise AssertionError("trained again")
 
-    monkeypatch.setattr(agents.training, "train", no_training)
+    monkeypatch.setattr(agents.training.trainer, "train", no_training)
     said = []
     again = ttt.run("SaddleTrap-v0", [0], str(hyper), out, label="tiny", log=said.append,
                     reuse=True, **kw)

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 import saddle_env as se
-from agents import best_constant as BC
-from agents import evaluation as E
-from agents import policies as P
 from agents.cli_args import parse_env_kwargs
+from agents.control import best_constant as BC
+from agents.evaluation import evaluate as E
+from agents.evaluation import policies as P
 from saddle_env.envs import LEVEL_IDS, LEVELS, get_level
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -42,7 +42,7 @@ def test_env_kwargs_grammar(items, expected):
 
 
 def test_both_tools_share_the_parser():
-    import agents.training as T
+    import agents.training.trainer as T
     import train
 
     assert T.parse_env_kwargs is E.parse_env_kwargs is parse_env_kwargs
@@ -119,7 +119,7 @@ def _ppo_on(env_id, tmp_path, frame_stack=1, normalize=False, name="model"):
     path = tmp_path / f"{name}.zip"
     model.save(path)
     if normalize:
-        from agents.model_files import save_normalizer
+        from agents.evaluation.model_files import save_normalizer
 
         save_normalizer(model.get_vec_normalize_env(), P.vecnormalize_path(path))
     path.with_suffix(".json").write_text(json.dumps(
@@ -172,7 +172,7 @@ def test_the_progress_bar_ends_at_the_steps_taken():
     takes 384, and the bar's total says so instead of ending at 384/300."""
     sb3 = pytest.importorskip("stable_baselines3")
     pytest.importorskip("rich")
-    from agents.sb3_backend import progress_callback as _progress_callback
+    from agents.training.backends.sb3 import progress_callback as _progress_callback
     from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
 
     model = sb3.PPO("MlpPolicy", SaddleTrapSB3VecEnv(num_envs=2), seed=0, n_steps=64,
@@ -207,7 +207,7 @@ EXTRAS = ["tqdm", "tqdm.auto", "yaml", "matplotlib", "matplotlib.pyplot", "stabl
 
 
 def test_help_works_with_the_core_install_only():
-    for code in ("from agents.evaluation import main; main(['--help'])",
+    for code in ("from agents.evaluation.evaluate import main; main(['--help'])",
                  "import runpy; sys.argv = ['train.py', '--help']; "
                  "runpy.run_path('train.py', run_name='__main__')"):
         proc = _without(EXTRAS, code)
@@ -220,12 +220,12 @@ def test_a_missing_extra_is_one_line_naming_it(tmp_path):
                              "runpy.run_path('train.py', run_name='__main__')")
     assert train.returncode == 2 and "Traceback" not in train.stderr
     assert train.stderr.strip().count("\n") == 0 and '.[train]' in train.stderr
-    plots = _without(EXTRAS, "from agents.evaluation import main; "
+    plots = _without(EXTRAS, "from agents.evaluation.evaluate import main; "
                              "main(['--policy', 'const-1.2', '--episodes', '1'])", cwd=tmp_path)
     assert plots.returncode == 2 and '.[plot]' in plots.stderr and "--no-plots" in plots.stderr
     assert "Traceback" not in plots.stderr
     # --json needs no plots; without tqdm there is no bar, and one line says why
-    ok = _without(EXTRAS, "from agents.evaluation import main; main(['--policy', 'const-1.2', "
+    ok = _without(EXTRAS, "from agents.evaluation.evaluate import main; main(['--policy', 'const-1.2', "
                           "'--episodes', '1', '--max-episode-steps', '5', '--json'])",
                   cwd=tmp_path)
     assert ok.returncode == 0, ok.stderr[-1500:]
@@ -233,7 +233,7 @@ def test_a_missing_extra_is_one_line_naming_it(tmp_path):
     assert ok.stderr.strip().count("\n") == 0 and "tqdm" in ok.stderr and '.[plot]' in ok.stderr
     assert list(tmp_path.iterdir()) == []
     (tmp_path / "m.zip").write_bytes(b"PK")
-    model = _without(EXTRAS, "from agents.evaluation import main; "
+    model = _without(EXTRAS, "from agents.evaluation.evaluate import main; "
                              f"main(['--policy', {str(tmp_path / 'm.zip')!r}, '--json'])")
     assert model.returncode == 2 and '.[train]' in model.stderr
     assert "Traceback" not in model.stderr

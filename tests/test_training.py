@@ -13,8 +13,9 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from agents.training import parse_env_kwargs, parse_policy_kwargs  # noqa: E402
 from helpers import sigterm_after_first_checkpoint  # noqa: E402
+
+from agents.training.trainer import parse_env_kwargs, parse_policy_kwargs  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 # The calm level and no closing comparison: the tests check the machinery, not learning
@@ -40,9 +41,9 @@ def test_ppo_trains_saves_loads_and_evaluates(tmp_path):
     assert list(run.glob("events.out.tfevents*")), "no TensorBoard log"
     sidecar = json.loads((run / "final_model.json").read_text())
     assert sidecar["env_kwargs"] == {"R": 0.033, "omega0_range": [18, 22]}
+    import gymnasium as gym
     from stable_baselines3 import PPO
 
-    import gymnasium as gym
     import saddle_env  # noqa: F401
     model = PPO.load(run / "final_model.zip", device="cpu")
     assert model.num_timesteps >= 2048
@@ -77,7 +78,7 @@ def test_sigterm_saves_a_checkpoint_and_resume_continues(tmp_path):
                              capture_output=True, text=True, timeout=300)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     # resumed as data (no --trust-model): the step counter carried on
-    from agents.model_files import read_archive
+    from agents.evaluation.model_files import read_archive
     steps = read_archive(run / "final_model.zip").data["num_timesteps"]
     assert done_steps + 600 <= steps <= done_steps + 700
 
@@ -93,7 +94,7 @@ def _small_sac(tmp_path):
 def test_sigterm_raises_stop_or_only_sets_the_flag_when_deferred():
     import os
 
-    from agents.runs import Stop, sigterm_stops
+    from agents.training.runs import Stop, sigterm_stops
     before = signal.getsignal(signal.SIGTERM)
     with pytest.raises(Stop), sigterm_stops() as requested:
         os.kill(os.getpid(), signal.SIGTERM)
@@ -113,8 +114,8 @@ def test_a_stop_during_a_save_comes_after_the_files_are_whole(tmp_path, monkeypa
     then crashed the run instead of checkpointing), and is raised as itself after it."""
     import os
 
-    from agents import sb3_backend
-    from agents.runs import Stop, sigterm_stops, stops_held
+    from agents.training.backends import sb3 as sb3_backend
+    from agents.training.runs import Stop, sigterm_stops, stops_held
     written = []
 
     class Model:
@@ -164,7 +165,7 @@ def test_bad_arguments_exit_2(tmp_path, args, message):
 
 
 def test_recipe_of_must_name_a_level():
-    from agents.runs import TrainSettings
+    from agents.training.runs import TrainSettings
 
     with pytest.raises(ValueError, match="--recipe-of must be a level id"):
         TrainSettings(recipe_of="SaddleTrap-Nowhere-v0").validate()
@@ -200,7 +201,7 @@ def test_every_setting_is_declared_once_and_every_flag_reaches_it():
     unlike its default puts that value, and only that one, in its field."""
     from dataclasses import asdict, fields
 
-    from agents.runs import TrainSettings
+    from agents.training.runs import TrainSettings
 
     cli = _train_py()
     parser = cli.build_parser()
@@ -240,8 +241,8 @@ def test_a_recipe_sets_the_model_selection_and_the_command_line_wins():
     """``eval_freq`` and ``eval_episodes`` in a recipe set the model selection's evaluations
     (Capture's SBX entry: 256 episodes every 499,200 steps); the flags win; without either,
     20 evaluations of DEFAULT_EVAL_EPISODES episodes. Neither reaches the algorithm."""
-    from agents.recipes import ZOO_ONLY_KEYS
-    from agents.runs import DEFAULT_EVAL_EPISODES, TrainSettings
+    from agents.training.recipes import ZOO_ONLY_KEYS
+    from agents.training.runs import DEFAULT_EVAL_EPISODES, TrainSettings
 
     recipe = {"n_envs": 256, "n_timesteps": 6e6, "eval_freq": 499200, "eval_episodes": 256}
     settings = TrainSettings(backend="sbx")
@@ -262,7 +263,8 @@ def test_the_seam_runs_any_back_end_and_closes_a_finished_run(tmp_path, monkeypa
     and draws the curve and compares only when the run finished."""
     import types
 
-    from agents import runs, training
+    from agents.training import runs
+    from agents.training import trainer as training
 
     calls = []
     fake = types.SimpleNamespace(
@@ -300,7 +302,7 @@ def test_shipped_models_load_and_act_in_the_task_they_were_trained_on():
     import gymnasium as gym
 
     import saddle_env  # noqa: F401
-    from agents.policies import load_policy
+    from agents.evaluation.policies import load_policy
     from saddle_env.envs import level_config
     models = sorted((ROOT / "agents" / "models").glob("*.zip"))
     assert {m.stem for m in models} >= {"ppo_default", "sac_default", "ppo_gusty",
@@ -333,7 +335,7 @@ def test_a_finished_run_compares_the_agent_with_best_const_and_mpc(tmp_path):
 
 
 def test_the_main_job_trains_on_a_level_where_learning_shows():
-    from agents.training import MAIN_JOB_ENV_ID, TrainSettings, load_hyperparams
+    from agents.training.trainer import MAIN_JOB_ENV_ID, TrainSettings, load_hyperparams
 
     assert TrainSettings().env_id == MAIN_JOB_ENV_ID != "SaddleTrap-v0"
     hyper = load_hyperparams("ppo", MAIN_JOB_ENV_ID)

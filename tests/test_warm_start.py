@@ -5,14 +5,14 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from agents import warm_start as ws  # noqa: E402
+from agents.training import warm_start as ws  # noqa: E402
 from saddle_env.envs import level_config  # noqa: E402
 
 
 def test_untrained_policy_starts_at_the_best_constant_speed(monkeypatch):
     from stable_baselines3 import PPO
 
-    from agents import best_constant
+    from agents.control import best_constant
     from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
 
     config = level_config("SaddleTrap-Capture-v0")
@@ -55,7 +55,7 @@ def test_every_level_has_its_best_constant_cached_in_the_repository():
     """No user (nor the main job's warm start) pays the search for a registered level."""
     import json
 
-    from agents import best_constant as bc
+    from agents.control import best_constant as bc
     from saddle_env.envs import LEVELS
 
     cached = json.loads(bc.CACHE_FILE.read_text())
@@ -66,7 +66,7 @@ def test_every_level_has_its_best_constant_cached_in_the_repository():
 
 
 def test_the_cache_key_ignores_options_at_their_defaults():
-    from agents import best_constant as bc
+    from agents.control import best_constant as bc
     from saddle_env.envs import EnvConfig
 
     def key(**kw):
@@ -78,7 +78,7 @@ def test_the_cache_key_ignores_options_at_their_defaults():
 
 
 def test_new_searches_go_to_the_cache_the_environment_names(tmp_path, monkeypatch):
-    from agents import best_constant as bc
+    from agents.control import best_constant as bc
     from saddle_env.envs import EnvConfig
 
     shipped = bc.CACHE_FILE.read_bytes()

@@ -36,7 +36,7 @@ def _small_kernels() -> None:
     import gymnasium as gym
 
     import saddle_env as se
-    from agents.mpc import ModelPredictiveController
+    from agents.control.mpc import ModelPredictiveController
     from saddle_env.envs import EnvConfig
 
     env = gym.make("SaddleTrap-v0")
@@ -63,9 +63,9 @@ def _rolling_and_coulomb_env() -> None:
 
 def _rolling_resistance() -> None:
     """Rolling resistance on rolling and Coulomb balls (test_coulomb.py)."""
-    import saddle_env as se
-
     import gymnasium as gym
+
+    import saddle_env as se
 
     for contact in ("rolling", "coulomb"):
         kw = {"mu": 0.05, "mu_static": 0.06} if contact == "coulomb" else {}

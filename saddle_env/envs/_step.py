@@ -48,14 +48,39 @@ from collections import namedtuple
 import numba as nb
 import numpy as np
 
-from .._kernels import (COULOMB_ON, DRIVE_AMP, DRIVE_FREQ, DRIVE_FX, DRIVE_FY, DRIVE_PHASE,
-                        DRIVE_RATE, DRIVE_THETA0, DRIVE_W0, DRIVE_WIDTH, ROLLING_ON, ROW_WIDTH,
-                        SLIPPING_ON, STATE_WIDTH, angle_at, contact_velocity, geometry, ir_inline,
-                        jit, jit_per_constant, lab_rest_velocity, python_entry, rhs,
-                        specialisable, state_from_velocity)
+from .._kernels import (
+    DRIVE_AMP,
+    DRIVE_FREQ,
+    DRIVE_FX,
+    DRIVE_FY,
+    DRIVE_PHASE,
+    DRIVE_RATE,
+    DRIVE_THETA0,
+    DRIVE_W0,
+    DRIVE_WIDTH,
+    ROW_WIDTH,
+    STATE_WIDTH,
+    angle_at,
+    contact_velocity,
+    geometry,
+    lab_rest_velocity,
+    rhs,
+    state_from_velocity,
+)
+from ..compilation.jit import ir_inline, jit, jit_per_constant, python_entry
+from ..compilation.specialise import COULOMB_ON, ROLLING_ON, SLIPPING_ON, specialisable
 from ..integrators import EVENT_DETACH, STATUS_DETACH, StepControl, Tableau, integrate_h, reaches
-from ..lockstep import (BLOCK_WIDTH, LANES, PARAM_WIDTH, accepted, block_size, carve_block,
-                        next_step, rk_step_block, take)
+from ..lockstep import (
+    BLOCK_WIDTH,
+    LANES,
+    PARAM_WIDTH,
+    accepted,
+    block_size,
+    carve_block,
+    next_step,
+    rk_step_block,
+    take,
+)
 from ..scene import COULOMB, P_A, P_B, P_G, P_R, P_RESIST, P_RIM, ROLLING, SLIPPING
 from .observation import OBS_MAX, OMEGA_HIGH, OMEGA_LOW, POS_BOUND, VEL_BOUND
 

@@ -15,6 +15,8 @@ import numba
 import numpy as np
 
 from .. import _kernels as K
+from ..compilation.specialise import checked, specialise
+from ..compilation.threads import threads_usable
 from ..integrators import (
     EVENT_DETACH,
     EVENT_ESCAPE,
@@ -84,7 +86,7 @@ class TrapEngine:
         # resistance if it has any (`_kernels.specialise`: a rolling scene does not compile the
         # coulomb machinery); a reset that brings something else widens it.
         self._uses = contact_uses(config)
-        self._S = K.specialise(*self._uses, S)
+        self._S = specialise(*self._uses, S)
         self._entries: dict[str, object] = {}  # `_entry`
         self._scene_cache: dict[tuple, tuple[Scene, np.ndarray, np.ndarray]] = {}
         self._noise_scale = self._build_noise_scale(config)
@@ -101,7 +103,7 @@ class TrapEngine:
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
-        self._S = K.specialise(*self._uses, S)
+        self._S = specialise(*self._uses, S)
         self._entries = {}
 
     def _entry(self, name: str, args: tuple):
@@ -112,7 +114,7 @@ class TrapEngine:
         float64 and bool vectors (`_per_ball`)."""
         fn = self._entries.get(name)
         if fn is None:
-            fn = self._entries[name] = K.checked(self._S, name, args)
+            fn = self._entries[name] = checked(self._S, name, args)
         return fn
 
     @property
@@ -234,7 +236,7 @@ class TrapEngine:
         resisted = resist or bool((self.P[idx, P_RESIST] != 0.0).any())
         if not drawn <= models or resisted != resist:   # widen only by what was drawn
             self._uses = (models | drawn, resisted)
-            self._S = K.specialise(*self._uses, S)
+            self._S = specialise(*self._uses, S)
             self._entries = {}
         args = (idx, self.models, self.P, self.Y, self.balls, self.cfg, x, y, vx, vy, lab_rest,
                 spin, self.noise, self.frame, self.out)
@@ -320,7 +322,7 @@ class TrapEngine:
             self._draw_noise(rngs, active)
         args = (self.models, self.P, self.scales, self.Y, self.balls, self.cfg, actions, active,
                 *self._record_fields, self.noise, self.frame, self.out)
-        if self.parallel and K.threads_usable():
+        if self.parallel and threads_usable():
             chunks = self._chunks()
             if self._chunk_scratch[0].shape[0] != chunks:  # the thread count was changed
                 self._chunk_scratch = self._new_scratch(chunks)

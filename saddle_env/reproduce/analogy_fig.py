@@ -19,9 +19,18 @@ import math
 
 import numpy as np
 
-from ..iontrap import (Q_MAX, PaulTrap, RRFTrap, ball_to_ion, eigenfrequency_mismatch,
-                       floquet_multipliers, lab_rest_state, max_rel_diff, paper_analogy_ion,
-                       simulate_ion)
+from ..iontrap import (
+    Q_MAX,
+    PaulTrap,
+    RRFTrap,
+    ball_to_ion,
+    eigenfrequency_mismatch,
+    floquet_multipliers,
+    lab_rest_state,
+    max_rel_diff,
+    paper_analogy_ion,
+    simulate_ion,
+)
 from ..linear import critical_omega, eigenfrequencies, linear_trajectory
 from ..scene import Scene
 from ..simulate import initial_state, simulate

@@ -19,12 +19,12 @@ import math
 import numpy as np
 
 from .. import _kernels as K
-from ..analysis import linear_precession_rate, orientation_series, precession_angle
 from ..linear import critical_omega, eigenfrequencies, linear_trajectory
 from ..scene import P_A, P_B, P_R, Scene
 from ..simulate import Trajectory, initial_state, simulate
 from . import paper_eom
 from .context import Context
+from .precession import linear_precession_rate, orientation_series, precession_angle
 from .theory_figs import A_PAPER, PAPER_BALLS
 
 G = 9.8
@@ -129,7 +129,7 @@ def fig_trajectories(ctx: Context) -> None:
         "release_m": rel, "angle_deg": angles, "excess_over_linear_deg": excess,
         "linear_limit_deg": np.full(len(rel), limit), "formula_deg": np.full(len(rel), formula)},
         [(f"Precession angle in {T_prec} s of the mass point at Omega = {W}, released at "
-         "x = y = release_m, lab-rest; measured by saddle_env.analysis.precession_angle"),
+         "x = y = release_m, lab-rest; measured by saddle_env.reproduce.precession.precession_angle"),
          f"excess ~ release^{power:.2f}"])
 
     fig, ax = plt.subplots(2, 3, figsize=(14, 8.4))
@@ -181,7 +181,7 @@ def fig_trajectories(ctx: Context) -> None:
             "value": float(angles[0]), "unit": "deg", "convention": "lab-rest",
             "note": "mass point, a = 0.159 m, Omega = 30, released at x = y = 0.1 cm placed at "
                     "rest in the laboratory, precession of the lab-frame orbit in 33.5 s "
-                    "(saddle_env.analysis.precession_angle)"},
+                    "(saddle_env.reproduce.precession.precession_angle)"},
         "precession_deg_formula": {
             "value": formula, "unit": "deg", "convention": "none (small-amplitude formula)",
             "note": "g^2/(2 a^2 Omega^3) * 33.5 s, the paper's 135.03 deg"},

@@ -1,0 +1,362 @@
+"""The leaderboard: every baseline and every shipped agent on every task level, on a frozen
+test set of seeded episodes, written as ``docs/leaderboard.md`` (+ JSON and survival-curve
+PNGs) by one command::
+
+    python -m agents.benchmark.leaderboard                 # 1,000 episodes per level (about 30 min)
+    python -m agents.benchmark.leaderboard --episodes 50 --out /tmp/lb --levels SaddleTrap-Gusty-v0
+
+The test seeds (``TEST_SEED`` onwards) are used by nothing else: training runs use seeds
+0-99 (each run's balls are seeded from its own seed), the best-constant search 12,345
+onwards, model selection during training ``VALIDATION_SEED`` onwards. Results are written
+policy by policy as they finish (``leaderboard.json``, with every episode's trapping time),
+so an interrupted run keeps what finished and ``--resume`` does only the rest; a shipped
+model is keyed by a digest of its file, so a retrained one is evaluated afresh.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import signal
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agents.benchmark.report import clairvoyant_reference
+from agents.evaluation.model_files import TRUST_FLAG
+from agents.paths import DOCS_DIR, MODELS_DIR, REPO_ROOT
+from agents.seeds import SEARCH_SEED, TEST_SEED, VALIDATION_SEED
+from saddle_env.envs import LEVELS, get_level
+from saddle_env.files import write_text_atomically
+
+TEST_EPISODES = 1000           # 200-episode sets move the kept fraction by about 7 points
+BASELINE_POLICIES = ("zero", "random", "const-1.0", "const-1.2", "const-1.5", "best-const",
+                     "mpc")
+DOCS = DOCS_DIR
+
+
+def shipped_agents(env_id: str, models_dir: Path = MODELS_DIR) -> list[Path]:
+    """The shipped model files trained on level ``env_id`` (their sidecar's ``env_id``, with
+    no option overridden)."""
+    out = []
+    for path in sorted(models_dir.glob("*.zip")):
+        try:
+            side = json.loads(path.with_suffix(".json").read_text())
+        except (OSError, ValueError):
+            continue
+        if isinstance(side, dict) and side.get("env_id") == env_id and not side.get("env_kwargs"):
+            out.append(path)
+    return out
+
+
+def policy_specs(env_id: str, models_dir: Path = MODELS_DIR) -> list[str]:
+    """What the leaderboard runs on ``env_id``: every baseline, then the agents in
+    ``models_dir`` (the shipped ones by default)."""
+    return list(BASELINE_POLICIES) + [str(p) for p in shipped_agents(env_id, models_dir)]
+
+
+def shown_spec(spec: str) -> str:
+    """How a policy is named in the results: a file inside this repository by its path from
+    the repository's root (the results do not carry one machine's folders), anything else
+    as given."""
+    path = Path(spec)
+    if path.is_absolute():
+        try:
+            return str(path.resolve().relative_to(REPO_ROOT))
+        except ValueError:
+            pass
+    return spec
+
+
+def policy_key(spec: str) -> str:
+    """A baseline's name, or a model file's name with a digest of its bytes (a retrained
+    model is a new entry, not a stale one)."""
+    path = Path(spec)
+    if spec.endswith(".zip") and path.is_file():
+        return f"{path.name}@{hashlib.sha256(path.read_bytes()).hexdigest()[:12]}"
+    return spec
+
+
+def evaluate_policy(env_id: str, spec: str, episodes: int, seed: int, progress: bool = True,
+                    trust: bool = False) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """(table row, per-episode results) of one policy on level ``env_id``'s test episodes
+    (model files read as data unless ``trust``, see `agents.evaluation.policies.load_policy`)."""
+    from agents.evaluation.evaluate import evaluate
+
+    level = get_level(env_id)
+    table, details = evaluate([spec], level.config(), episodes, seed,
+                              max_episode_steps=level.max_episode_steps, progress=progress,
+                              examples=0, env_id=env_id, trust=trust)
+    return table["policies"][0], details[table["policies"][0]["policy"]]
+
+
+def survival_plot(env_id: str, details: dict[str, Any], horizon: float, path: Path) -> None:
+    """Fraction of balls still trapped against time, one curve per policy (``details``:
+    label -> {"time": trapping times [s], "kept": whether kept})."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    grid = np.linspace(0.0, horizon, 501)
+    for label, res in details.items():
+        t = np.sort(np.asarray(res["time"], dtype=float))
+        alive = 1.0 - np.searchsorted(t, grid, side="right") / len(t)
+        alive[-1] = float(np.mean(res["kept"]))
+        ax.step(grid, alive, where="post", label=Path(label).stem if label.endswith(".zip")
+                else label, lw=1.8 if label.endswith(".zip") or label == "mpc" else 1.0)
+    ax.set(xlabel="t [s]", ylabel="fraction of balls still trapped", ylim=(-0.02, 1.02),
+           title=f"{env_id}: survival ({len(t)} test episodes per policy)")
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _cell(d: dict[str, float], fmt: str, scale: float = 1.0) -> str:
+    return f"{d['mean'] * scale:{fmt}} [{d['low'] * scale:{fmt}}, {d['high'] * scale:{fmt}}]"
+
+
+def level_markdown(table: dict[str, Any], figure: str | None) -> str:
+    level = get_level(table["env_id"])
+    lines = [f"## {level.id}", "", level.summary[0].upper() + level.summary[1:] + ".", ""]
+    clair = clairvoyant_reference(level.id)
+    random_t = next((r["trapping_time"]["mean"] for r in table["policies"]
+                     if r["policy"] == "random"), None)
+
+    def score(row: dict[str, Any]) -> str:
+        """0 for uniform random actions, 1 for the clairvoyant (docs/benchmark.md)."""
+        if clair is None or random_t is None or clair["clairvoyant"] <= random_t:
+            return "—"
+        return f"{(row['trapping_time']['mean'] - random_t) / (clair['clairvoyant'] - random_t):.2f}"
+
+    lines += ["| policy | trapping time [s] | score | kept [%] | detach [%] | escape [%] | "
+              "mean distance [mm] | effort (action²) |", "|" + "---|" * 8]
+    for row in sorted(table["policies"], key=lambda r: -r["trapping_time"]["mean"]):
+        name = row["policy"]
+        if name.endswith(".zip"):
+            name = f"**{Path(name).stem}** ({row['kind']})"
+        elif "omega" in row:
+            name += f", Ω = {row['omega']:.2f}"
+        lines.append(f"| {name} | {_cell(row['trapping_time'], '.2f')} | {score(row)} | "
+                     f"{_cell(row['kept'], '.1f', 100)} | {_cell(row['detach'], '.1f', 100)} | "
+                     f"{_cell(row['escape'], '.1f', 100)} | "
+                     f"{_cell(row['mean_distance_mm'], '.2f')} | {_cell(row['effort'], '.3f')} |")
+    lines += ["", f"{table['episodes']} episodes per policy, seeds {table['seed']}–"
+              f"{table['seed'] + table['episodes'] - 1}, {table['episode_length_s']:g} s each."]
+    if clair is not None:
+        lines += ["", f"Upper reference: the clairvoyant controller keeps the ball "
+                  f"{clair['clairvoyant']:.2f} s [{clair['clairvoyant_ci']['low']:.2f}, "
+                  f"{clair['clairvoyant_ci']['high']:.2f}] on the first {clair['episodes']:,} "
+                  f"of these episodes; {100 * clair['doomed']:.1f} % "
+                  f"[{100 * clair['doomed_ci']['low']:.1f}, {100 * clair['doomed_ci']['high']:.1f}] "
+                  f"of its starts are doomed (lost even by it). *Score*: (T − T_random) / "
+                  f"(T_clairvoyant − T_random) ([benchmark.md](benchmark.md))."]
+    if figure:
+        lines += ["", f"![{level.id} survival]({figure})"]
+    return "\n".join(lines) + "\n"
+
+
+def write_markdown(results: dict[str, Any], path: Path, figures: dict[str, str],
+                   command: str) -> None:
+    head = [
+        "# Leaderboard",
+        "",
+        f"Generated by `{command}` on {results['date']} "
+        f"({results['machine']}); do not edit by hand.",
+        "",
+        "Every policy runs the same frozen test episodes of each level (episode i is "
+        "`reset(seed=seed + i)`); trapping time is the time until the ball detaches or "
+        "leaves the rim, the episode length if it is kept. Mean [95 % interval]: percentile "
+        "bootstrap for times, distances and effort, Wilson for rates. `zero` always sends "
+        "action 0, `random` uniform actions; `const-K` holds K·Ω_crt of the nominal ball, "
+        "`best-const` the best constant speed of the level (searched on 64 seeded episodes), "
+        "`mpc` is the model-predictive controller. Agents (bold) are the network alone, "
+        "deterministic.",
+        "",
+        "Seeds (agents/seeds.py): test episodes from "
+        f"{results['seed']:,} (used by nothing else); training runs seed 0-99; model "
+        f"selection during training on validation episodes from {VALIDATION_SEED:,}; "
+        f"best-const search {SEARCH_SEED:,}–{SEARCH_SEED + 63:,}.",
+        "",
+    ]
+    body = [level_markdown(results["levels"][lid], figures.get(lid))
+            for lid in results["order"] if lid in results["levels"]]
+    write_text_atomically(path, "\n".join(head) + "\n" + "\n".join(body))
+
+
+def levels_markdown() -> str:
+    """``docs/levels.md``: every registered level, what it models, why it is hard, and its
+    options, from the registry itself (`saddle_env.LEVELS`)."""
+    lines = ["# Task levels", "",
+             "Generated from `saddle_env.LEVELS` by `python -m agents.benchmark.leaderboard --levels-doc`; "
+             "do not edit by hand. Each id is a fixed set of options: `gym.make(ID)` and "
+             "`gym.make_vec(ID, num_envs=n)` need no keywords, and keywords still override one "
+             "option (`gym.make(\"SaddleTrap-Gusty-v0\", air_force=0.1)`). A change of "
+             "meaning gets a new version, never a silent edit. How every baseline and agent "
+             "does on each: [leaderboard.md](leaderboard.md).", "",
+             "**Reward threshold.** Each level's `gym.spec(ID).reward_threshold`, Gymnasium's "
+             "\"solved\" marker (read by tools such as SB3's `StopTrainingOnRewardThreshold`), "
+             "is the mean return of `mpc` on the level's frozen test set (1,000 episodes, "
+             "[leaderboard.md](leaderboard.md)), rounded down to 0.1: an agent that reaches it "
+             "traps as long as the model-predictive controller. A return is the sum over the "
+             "episode's control steps of the per-step reward (the fraction of the step the ball "
+             "stayed trapped, less 10 in the step it is lost; [environment.md](environment.md#reward)), so 500 is "
+             "a ball kept for the full 10 s. The "
+             "tests check each threshold against the committed leaderboard.", "",
+             "| id | summary | episode | reward threshold |", "|---|---|---|---|"]
+    for level in LEVELS:
+        lines.append(f"| `{level.id}` | {level.summary} | {level.max_episode_steps} steps | "
+                     f"{level.reward_threshold} |")
+    for level in LEVELS:
+        opts = ", ".join(f"`{k}={v!r}`" for k, v in level.options.items()) or \
+            "none: every option at its default"
+        lines += ["", f"## {level.id}", "", f"**What it models.** {level.models}", "",
+                  f"**Why it is hard.** {level.why_hard}", "", f"**Options.** {opts}."]
+    return "\n".join(lines) + "\n"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m agents.benchmark.leaderboard",
+        description="Evaluate every baseline and shipped agent on every task level on a frozen "
+                    "test set; write docs/leaderboard.md, leaderboard.json and survival PNGs.")
+    p.add_argument("--episodes", type=int, default=TEST_EPISODES,
+                   help=f"test episodes per policy and level (default {TEST_EPISODES})")
+    p.add_argument("--seed", type=int, default=TEST_SEED,
+                   help=f"first test seed (default {TEST_SEED})")
+    p.add_argument("--levels", nargs="+", default=None, metavar="ID",
+                   help="level ids (default: every registered level)")
+    p.add_argument("--out", default=str(DOCS), metavar="DIR",
+                   help="where leaderboard.md, leaderboard.json and figures/ go (default docs/)")
+    p.add_argument("--resume", action="store_true",
+                   help="keep the results already in DIR/leaderboard.json with the same "
+                        "episodes and seed (per level and policy)")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--models", default=str(MODELS_DIR), metavar="DIR",
+                   help="the agents to rank: every .zip in DIR whose JSON sidecar names the "
+                        "level (default: the shipped agents). Read as data, never unpickled")
+    p.add_argument(TRUST_FLAG, action="store_true",
+                   help="also load agents whose reading needs unpickling, which runs code they "
+                        "carry: only for files you trust (docs/security.md)")
+    p.add_argument("--levels-doc", action="store_true",
+                   help="only (re)write DIR/levels.md from the registry, evaluating nothing")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.episodes < 1:
+        parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    ids = args.levels or [level.id for level in LEVELS]
+    for lid in ids:
+        try:
+            get_level(lid)
+        except ValueError as exc:
+            parser.error(f"--levels: {exc}")
+    out = Path(args.out)
+    if args.levels_doc:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "levels.md").write_text(levels_markdown())
+        print(f"wrote {out / 'levels.md'}")
+        return 0
+    figs = out / "figures"
+    figs.mkdir(parents=True, exist_ok=True)
+    json_path = out / "leaderboard.json"
+    import platform
+
+    results: dict[str, Any] = {"episodes": args.episodes, "seed": args.seed, "order": ids,
+                               "date": time.strftime("%Y-%m-%d"),
+                               "machine": f"{platform.machine()}, {_cores()} cores",
+                               "levels": {}, "episode_results": {}}
+    done: dict[str, dict[str, Any]] = {}   # level -> policy key -> (row, episodes)
+    if args.resume and json_path.is_file():
+        old = json.loads(json_path.read_text())
+        if old.get("episodes") == args.episodes and old.get("seed") == args.seed:
+            for lid, table in old.get("levels", {}).items():
+                eps = old.get("episode_results", {}).get(lid, {})
+                done[lid] = {row["key"]: (row, eps[row["key"]]) for row in table["policies"]
+                             if row.get("key") in eps}
+                # Kept as they were until this run reaches the level again; a level this
+                # run does not evaluate (``--levels`` names others) stays on the board.
+                results["levels"][lid] = table
+                results["episode_results"][lid] = eps
+    # The board lists its levels in the registry's order, whichever were updated.
+    results["order"] = [level.id for level in LEVELS
+                        if level.id in ids or level.id in results["levels"]]
+    command = "python -m agents.benchmark.leaderboard" + (
+        "" if argv is None and len(sys.argv) <= 1 else " " + " ".join(argv or sys.argv[1:]))
+    figures: dict[str, str] = {lid: f"figures/leaderboard_{lid}.png" for lid in results["levels"]
+                               if lid not in ids and (figs / f"leaderboard_{lid}.png").is_file()}
+
+    def stop(signum, frame):  # SIGTERM: finish like Ctrl-C, keeping what finished
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, stop)
+    import torch
+
+    torch.set_num_threads(1)  # the same actions on any machine
+    computed = 0
+    try:
+        for lid in ids:
+            level = get_level(lid)
+            table = {"env_id": lid, "episodes": args.episodes, "seed": args.seed,
+                     "episode_length_s": round(level.max_episode_steps
+                                               * level.config().control_period, 9),
+                     "policies": []}
+            # Only the rows this run lists: a retrained agent's old file (another key) and
+            # a policy no longer ranked leave with their episodes.
+            episodes: dict[str, Any] = {}
+            results["episode_results"][lid] = episodes
+            results["levels"][lid] = table
+            for spec in policy_specs(lid, Path(args.models)):
+                key = policy_key(spec)
+                if key in done.get(lid, {}):
+                    row, eps = done[lid][key]
+                else:
+                    print(f"{lid}: {spec}, {args.episodes} episodes", file=sys.stderr, flush=True)
+                    try:
+                        row, res = evaluate_policy(lid, spec, args.episodes, args.seed,
+                                                   progress=not args.no_progress,
+                                                   trust=args.trust_model)
+                    except ValueError as exc:   # one bad submission does not stop the board
+                        print(f"{lid}: skipped {spec}: {exc}", file=sys.stderr, flush=True)
+                        continue
+                    row = {**row, "policy": shown_spec(spec), "key": key}
+                    eps = {"time": np.round(np.asarray(res["time"], float), 6).tolist(),
+                           "kept": np.asarray(res["kept"], bool).tolist()}
+                    computed += 1
+                table["policies"].append(row)
+                episodes[key] = eps
+                # as it comes, whole: a stop mid-write keeps the previous file for --resume
+                write_text_atomically(json_path, json.dumps(results, indent=1) + "\n")
+            fig = figs / f"leaderboard_{lid}.png"
+            survival_plot(lid, {row["policy"]: episodes[row["key"]] for row in table["policies"]},
+                          table["episode_length_s"], fig)
+            figures[lid] = f"figures/{fig.name}"
+            write_markdown(results, out / "leaderboard.md", figures, command)
+    except KeyboardInterrupt:
+        print(f"interrupted: {json_path} keeps every policy that finished; --resume goes on",
+              file=sys.stderr)
+        return 130
+    write_markdown(results, out / "leaderboard.md", figures, command)
+    print(f"wrote {out / 'leaderboard.md'}, {json_path} and {len(figures)} figure(s) "
+          f"({computed} policy-level evaluation(s) run)")
+    return 0
+
+
+def _cores() -> int:
+    import os
+
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

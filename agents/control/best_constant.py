@@ -1,0 +1,165 @@
+"""The ``best-const`` baseline: the constant saddle speed with the longest mean trapping time
+on seeded episodes of a config's own start distribution, found by a grid search and cached.
+
+The cache (``agents/best_const.json``, or ``~/.cache/saddle-env/best_const.json`` if the
+package folder is not writable) is keyed by a hash of every option that changes a
+constant-speed run, plus the search's episodes, seed and episode length: each task level
+(`saddle_env.LEVELS`) and each set of overrides gets its own entry.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agents.control.controllers import ConstantSpeed, critical_speed
+from agents.control.rollout import run_episodes
+from agents.seeds import SEARCH_SEED
+from saddle_env.envs import DEFAULT_EPISODE_STEPS, EnvConfig
+from saddle_env.files import write_text_atomically
+from saddle_env.linear import critical_omega
+
+CACHE_FILE = Path(__file__).with_name("best_const.json")
+USER_CACHE_FILE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / \
+    "saddle-env" / "best_const.json"
+CACHE_ENV_VAR = "SADDLE_ENV_BEST_CONST_CACHE"   # a file: where new searches are written
+SEARCH_EPISODES = 64
+SEARCH_STEP = 1.0         # coarse grid [rad/s], then refined by SEARCH_STEP / 4 around the best
+TIME_TIE = 0.01           # mean trapping times within this fraction of the episode tie
+# Options that do not change a constant-speed run (the search always runs in target mode).
+_NOT_IN_KEY = ("action_mode", "loss_penalty", "distance_cost", "effort_cost")
+
+
+def _search_key(config: EnvConfig, episodes: int, seed: int, max_episode_steps: int) -> str:
+    # Only the options away from their defaults: a new option (at its default) leaves every
+    # cached search valid instead of silently orphaning it.
+    default = EnvConfig()
+    d = {k: v for k, v in config.as_dict().items()
+         if k not in _NOT_IN_KEY and v != getattr(default, k)}
+    if config.position_noise == config.velocity_noise == config.omega_noise == 0:
+        d.pop("obs_frame", None)  # the frame matters only through the noise draws
+    d.update(episodes=episodes, seed=seed, steps=max_episode_steps, grid=SEARCH_STEP)
+    text = json.dumps(d, sort_keys=True, default=list)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def search_best_constant(config: EnvConfig, episodes: int = SEARCH_EPISODES,
+                         seed: int = SEARCH_SEED, max_episode_steps: int = DEFAULT_EPISODE_STEPS,
+                         progress: bool = False) -> dict[str, Any]:
+    """Search Ω for the longest mean trapping time on ``episodes`` seeded episodes.
+
+    Every speed runs on the same episodes (seeds ``seed .. seed + episodes − 1``) of the
+    config's own start distribution (randomised balls and disturbances included): a grid
+    of step ``SEARCH_STEP`` from 0.9·Ω_crt (of the smallest Ω_crt) to ``omega_max``, then
+    a grid four times finer around the best. Speeds whose mean trapping time lies within
+    ``TIME_TIE`` of the episode length of the best tie; among them the one with the
+    smallest mean distance from the centre wins.
+
+    Returns a dict: ``omega`` [rad/s], ``k`` (= omega / Ω_crt of the nominal ball),
+    ``mean_time`` [s], ``kept`` (fraction kept for the whole episode), ``mean_r`` [m] and
+    ``grid`` (every speed tried with its scores).
+    """
+    c = EnvConfig.from_kwargs(**dict(config.as_dict(), action_mode="target"))
+    lows = [critical_omega(s) for s in c.extreme_scenes()]
+    lo = 0.9 * min(w for w in lows if math.isfinite(w)) if any(map(math.isfinite, lows)) else 1.0
+    seeds = np.arange(episodes) + seed
+    results: dict[float, dict[str, float]] = {}
+
+    def run(speeds: np.ndarray) -> None:
+        speeds = np.array([w for w in np.round(speeds, 6) if w not in results and 0 <= w <= c.omega_max])
+        if len(speeds) == 0:
+            return
+        action = np.repeat(2.0 * speeds / c.omega_max - 1.0, episodes)
+
+        def act(obs: np.ndarray, idx: np.ndarray) -> np.ndarray:
+            return action[idx]
+
+        res = run_episodes(c, act, np.tile(seeds, len(speeds)), max_episode_steps=max_episode_steps,
+                           row_independent=True, progress=progress)
+        for j, w in enumerate(speeds):
+            sl = slice(j * episodes, (j + 1) * episodes)
+            results[float(w)] = {"mean_time": float(res["time"][sl].mean()),
+                                 "kept": float(res["kept"][sl].mean()),
+                                 "mean_r": float(res["mean_r"][sl].mean())}
+
+    def best() -> float:
+        top = max(v["mean_time"] for v in results.values())
+        tied = [w for w, v in results.items()
+                if v["mean_time"] >= top - TIME_TIE * max_episode_steps * c.control_period]
+        return min(tied, key=lambda w: (results[w]["mean_r"], w))
+
+    run(np.append(np.arange(math.floor(lo), c.omega_max, SEARCH_STEP), c.omega_max))
+    w0 = best()
+    run(w0 + SEARCH_STEP / 4 * np.array([-3, -2, -1, 1, 2, 3]))
+    w = best()
+    wc = critical_speed(config)
+    return {"omega": w, "k": w / wc, **results[w], "episodes": episodes, "seed": seed,
+            "grid": [{"omega": k, **v} for k, v in sorted(results.items())]}
+
+
+def _read_cache(path: Path) -> dict[str, Any]:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def cached_best_constant(config: EnvConfig, episodes: int = SEARCH_EPISODES,
+                         seed: int = SEARCH_SEED, max_episode_steps: int = DEFAULT_EPISODE_STEPS
+                         ) -> dict[str, Any] | None:
+    """`best_constant`'s cached result, or None where it would have to search."""
+    key = _search_key(config, episodes, seed, max_episode_steps)
+    override = os.environ.get(CACHE_ENV_VAR)
+    for path in (CACHE_FILE, USER_CACHE_FILE, *((Path(override),) if override else ())):
+        hit = _read_cache(path).get(key)
+        if hit is not None:
+            return hit
+    return None
+
+
+def best_constant(config: EnvConfig, episodes: int = SEARCH_EPISODES, seed: int = SEARCH_SEED,
+                  max_episode_steps: int = DEFAULT_EPISODE_STEPS, recompute: bool = False) -> dict[str, Any]:
+    """`search_best_constant`, cached by config in ``agents/best_const.json`` (or, if that
+    is not writable, in ``~/.cache/saddle-env/best_const.json``; new searches go only to the
+    file named by ``$SADDLE_ENV_BEST_CONST_CACHE`` when it is set)."""
+    if not recompute:
+        hit = cached_best_constant(config, episodes, seed, max_episode_steps)
+        if hit is not None:
+            return hit
+    key = _search_key(config, episodes, seed, max_episode_steps)
+    result = search_best_constant(config, episodes, seed, max_episode_steps)
+    entry = {k: v for k, v in result.items() if k != "grid"}
+    default = EnvConfig()
+    entry["config"] = {k: v for k, v in config.as_dict().items()
+                       if k not in _NOT_IN_KEY and v != getattr(default, k)}
+    entry = json.loads(json.dumps(entry))  # as it reads back from the cache
+    # SADDLE_ENV_BEST_CONST_CACHE names the one file new searches go to (the test suite
+    # points it at a temporary file, so that tests never edit the shipped cache).
+    override = os.environ.get(CACHE_ENV_VAR)
+    for path in (Path(override),) if override else (CACHE_FILE, USER_CACHE_FILE):
+        try:
+            data = _read_cache(path)
+            data[key] = entry
+            write_text_atomically(path, json.dumps(data, indent=1, sort_keys=True) + "\n")
+            break
+        except OSError:
+            continue
+    return entry
+
+
+def best_const(config: EnvConfig,
+               max_episode_steps: int = DEFAULT_EPISODE_STEPS) -> ConstantSpeed:
+    """The ``best-const`` baseline (searches on first use; see `best_constant`), for episodes
+    of ``max_episode_steps`` control steps (a level's own length)."""
+    omega = best_constant(config, max_episode_steps=max_episode_steps)["omega"]
+    return ConstantSpeed(config, omega, "best-const")
+
+
+__all__ = ["CACHE_ENV_VAR", "CACHE_FILE", "SEARCH_EPISODES", "SEARCH_SEED", "USER_CACHE_FILE", "best_const",
+           "best_constant", "cached_best_constant", "search_best_constant"]

@@ -1,0 +1,270 @@
+"""Build the ahead-of-time compiled kernels: the compiled code of a first `env.step` (the
+single env's and the vector env's below 2 x LANES balls, training's 64), its `reset`, a
+first `simulate`, `simulate_batch` and `predict_batch` (a model-predictive controller's
+look-ahead), as a C extension module per set of contact models, so that a fresh process
+starts without numba's 10-20 s of compiling (docs/coldstart.md).
+
+What is built is numba's own compile of the kernels, not a second implementation: for each
+set of contact models a registered level, a one-model environment or `simulate`, or the ion
+trap's `simulate_ion` uses (`planned_builds`), this process runs
+those first calls once with the JIT (`_kernels.specialise`'s copies), then links the
+compiled code below each entry point into an extension module with `numba.pycc`, for this
+machine's CPU as the JIT would, whose entry points take exactly the argument types the JIT
+was called with and release the GIL (the batch kernels run on several threads:
+`_kernels.in_threads`). `saddle_env.compilation.aot` loads the modules when they were built from the
+sources in place (a digest of them is in the manifest), on the same platform and CPU, and
+otherwise leaves every call to the JIT. The vector env's threaded step (from 2 x LANES
+balls) is not built: it uses numba's `prange`, which pycc cannot build.
+
+Run by the package's install (setup.py; an install never fails for it) and by
+``python -m saddle_env.compilation.precompile --aot``.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import tempfile
+import time
+import types
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+from datetime import datetime, timezone
+from multiprocessing import get_context
+from pathlib import Path
+
+from . import aot as _aot
+from .specialise import specialise, variant_flags
+
+
+# The exported entry points call the JIT copies through these thin functions rather than
+# being the kernels' own functions: pycc compiles what it exports with numba's default
+# error model (Python's: 1/0 raises), while the functions below them keep the kernels' own
+# options (numpy's: 1/0 = inf); the call itself costs nothing once LLVM inlines it.
+def _place(idx, models, P, Y, balls, cfg, x, y, vx, vy, lab_rest, spin_normal, noise, obs, out):
+    place(idx, models, P, Y, balls, cfg, x, y, vx, vy, lab_rest,  # noqa: F821 (set per build)
+          spin_normal, noise, obs, out)
+
+
+def _step_scalar(models, P, scales, Y, balls, cfg, actions, active, tab_fields, ctl_fields,
+                 noise, obs, out, buf, ibuf):
+    return step_scalar(models, P, scales, Y, balls, cfg, actions, active,  # noqa: F821
+                       tab_fields, ctl_fields, noise, obs, out, buf, ibuf)
+
+
+def _step_serial(models, P, scales, Y, balls, cfg, actions, active, tab_fields, ctl_fields,
+                 noise, obs, out, buf, ibuf):
+    return step_serial(models, P, scales, Y, balls, cfg, actions, active,  # noqa: F821
+                       tab_fields, ctl_fields, noise, obs, out, buf, ibuf)
+
+
+def _integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_start, work):
+    return integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale,  # noqa: F821
+                       Y_out, stats, h_start, work)
+
+
+def _integrate_batch(lo, hi, models, P, profiles, Y, t0, t_out, tab, ctl, scales, max_step,
+                     active, Y_out, status, t_final, stats):
+    integrate_batch(lo, hi, models, P, profiles, Y, t0, t_out, tab, ctl,  # noqa: F821
+                    scales, max_step, active, Y_out, status, t_final, stats)
+
+
+def _integrate_segments(lo, hi, models, P, scales, Y, drives, durations, sample, tab, ctl,
+                        t_out, Y_out, N_out, status):
+    integrate_segments(lo, hi, models, P, scales, Y, drives, durations,  # noqa: F821
+                       sample, tab, ctl, t_out, Y_out, N_out, status)
+
+
+# module whose JIT copy an export calls → {export name: its thin caller}
+_EXPORTS = {
+    "saddle_env.envs._step": {"place": _place, "step_scalar": _step_scalar,
+                              "step_serial": _step_serial},
+    "saddle_env.integrators": {"integrate_h": _integrate_h, "integrate_batch": _integrate_batch},
+    "saddle_env.prediction": {"integrate_segments": _integrate_segments},
+}
+
+
+def _release_gil_in_exports() -> None:
+    """Make pycc's wrappers release the GIL around the compiled code, as the JIT's do for a
+    ``nogil`` function: the batch kernels run on several Python threads at once
+    (`_kernels.in_threads`). pycc compiles every export with one set of compiler flags and
+    offers no option for it, so its flags class is given the setting (in this build's worker
+    process only). Releasing and taking back the GIL costs well under a microsecond a call."""
+    from numba.core.compiler import Flags
+    from numba.pycc import compiler
+
+    class _NoGilFlags(Flags):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.release_gil = True
+
+    compiler.Flags = _NoGilFlags
+
+
+def planned_builds() -> dict[tuple[str, ...], dict[str, object]]:
+    """Each module to build, by its `_kernels.variant_flags`: the contact models, the
+    resistance flag, the environment whose first step uses them (``[id, options]``: a
+    registered level, or ``SaddleTrap-v0`` given one contact model where no level has it
+    alone), a contact model whose `simulate` does (None if none), whether a batch mixes
+    them (a level that draws several models: `simulate_batch` and `predict_batch` over its
+    balls), and whether they are the ion trap's (`iontrap.simulate_ion`)."""
+    from ..envs.engine import contact_uses
+    from ..envs.levels import LEVELS
+    from ..scene import CONTACT_MODELS, ION_PAUL, ION_RRF
+
+    plan: dict[tuple[str, ...], dict[str, object]] = {}
+
+    def module_for(models, resist: bool) -> dict[str, object]:
+        return plan.setdefault(variant_flags(models, resist),
+                               {"models": sorted(models), "resist": resist, "env": None,
+                                "contact": None, "mix": False, "ion": False})
+
+    for level in LEVELS:
+        models, resist = contact_uses(level.config())
+        entry = module_for(models, resist)
+        entry["env"] = entry["env"] or [level.id, {}]
+        entry["mix"] = entry["mix"] or len(models) > 1
+    for contact in CONTACT_MODELS:
+        entry = module_for((_example_scene(contact).model_code,), False)
+        entry["contact"] = entry["contact"] or contact
+        # an environment of this one model (``gym.make("SaddleTrap-v0", contact=...)``)
+        entry["env"] = entry["env"] or [LEVELS[0].id, _one_model_options(contact)]
+    module_for((ION_RRF, ION_PAUL), False)["ion"] = True   # `iontrap.simulate_ion`
+    return plan
+
+
+def _one_model_options(contact: str) -> dict[str, object]:
+    """Environment options that draw only balls of the contact model ``contact``."""
+    return {"contact": contact, "mu": 0.3} if contact == "coulomb" else {"contact": contact}
+
+
+def _example_scene(contact: str):
+    """A scene with the contact model ``contact`` (coulomb's needs a friction coefficient)."""
+    from ..scene import Scene
+    return Scene(contact=contact, mu=0.3) if contact == "coulomb" else Scene(contact=contact)
+
+
+def _module_name(flags: tuple[str, ...]) -> str:
+    return "k_" + ("_".join(f[:-3].lower() for f in flags) or "none")
+
+
+def _build_one(flags: tuple[str, ...], spec: dict[str, object], out_dir: str) -> dict:
+    """Compile one module in this (worker) process; return its manifest entry."""
+    os.environ[_aot.AOT_ENV] = "0"  # the JIT's copies are what gets built
+    # the compile notice is for a user waiting on a first call, not for this build
+    logging.getLogger("saddle_env").setLevel(logging.ERROR)
+    from numba.pycc import CC
+
+    from .. import integrators, prediction
+    from ..envs import _step
+    from ..scene import CONTACT_MODELS
+
+    t0 = time.perf_counter()
+    exports: dict[str, list[str]] = {}
+    argtypes: dict[str, list[str]] = {}
+    cc = CC(_module_name(flags))
+    cc.output_dir = out_dir
+    cc.verbose = False
+    # pycc compiles for a CPU model's nominal instruction set, the JIT for the features this
+    # host reports (a virtual machine may hide some of its model's): build with the JIT's
+    # choice of both, so the modules run wherever the JIT's code runs (`_aot.machine`)
+    from numba.core.codegen import AOTCPUCodegen
+    host = _aot.machine()
+    AOTCPUCodegen._customize_tm_features = lambda self: host["features"]
+    cc.target_cpu = host["cpu"]
+    _release_gil_in_exports()
+    modules = {"saddle_env.envs._step": _step, "saddle_env.integrators": integrators,
+               "saddle_env.prediction": prediction}
+    if spec["env"] is not None:
+        import gymnasium as gym
+
+        from .profile import first_step
+        env_id, options = spec["env"]
+        first_step(gym.make(env_id, **options))
+        # the vector env below 2 x LANES balls (training's 64): SIMD blocks in one thread
+        first_step(gym.make_vec(env_id, num_envs=_step.MIN_BLOCK, **options))
+        exports["saddle_env.envs._step"] = ["place", "step_scalar", "step_serial"]
+    if spec["contact"] is not None or spec["mix"]:
+        import numpy as np
+
+        from ..prediction import predict_batch
+        from ..runner import initial_state
+        from ..simulate import simulate, simulate_batch
+        # one ball of each model (a mix's batch has rows of several)
+        by_code: dict[int, object] = {}
+        for contact in CONTACT_MODELS:
+            scene = _example_scene(contact)
+            if scene.model_code in spec["models"]:
+                by_code.setdefault(scene.model_code, scene)
+        scenes = list(by_code.values())
+        width = max(sc.state_size for sc in scenes)
+        starts = np.array([np.pad(s, (0, width - len(s))) for s in
+                           (initial_state(sc, 0.001, 0.001, omega=30.0) for sc in scenes)])
+        if spec["contact"] is not None:
+            simulate(scenes[0], starts[0, :scenes[0].state_size], 0.01, omega=30.0)
+            exports["saddle_env.integrators"] = ["integrate_h"]
+        simulate_batch(scenes * 2, np.concatenate([starts, starts]), 0.01, omega=30.0)
+        exports.setdefault("saddle_env.integrators", []).append("integrate_batch")
+        # a look-ahead, as a model-predictive controller makes it (agents.control.mpc): the argument
+        # types are predict_batch's own, whatever the values
+        rows = np.array([sc.model_code for sc in scenes] * 2)
+        P = np.array([sc.params() for sc in scenes] * 2)
+        drives = np.zeros((len(rows), 2, 8))
+        drives[:, :, 0] = 30.0
+        predict_batch(rows, P, np.concatenate([starts, starts]), drives,
+                      np.full((len(rows), 2), 0.01), 0.005)
+        exports["saddle_env.prediction"] = ["integrate_segments"]
+    if spec["ion"]:
+        import numpy as np
+
+        from ..iontrap import RRFTrap, simulate_ion
+        simulate_ion(RRFTrap(omega=20.0, kappa=1.0), np.array([1e-3, 0.0, 0.0, 0.0]), 0.01)
+        exports["saddle_env.integrators"] = ["integrate_h"]
+    for mod_name, names in exports.items():
+        space = specialise(frozenset(spec["models"]), bool(spec["resist"]), modules[mod_name])
+        for name in names:
+            dispatcher = getattr(space, name)
+            if len(dispatcher.signatures) != 1:
+                raise RuntimeError(f"{mod_name}.{name}: {len(dispatcher.signatures)} compiled "
+                                   "signatures, expected exactly the first call's one")
+            caller = _EXPORTS[mod_name][name]
+            thin = types.FunctionType(caller.__code__, {name: dispatcher}, caller.__name__)
+            signature = dispatcher.signatures[0]
+            cc.export(name, signature)(thin)
+            argtypes[f"{mod_name}.{name}"] = [str(t) for t in signature]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # numba.pycc's deprecation notice
+        cc.compile()
+    return {"name": cc.name, "file": cc.output_file, "flags": list(flags), "exports": exports,
+            "argtypes": argtypes,
+            "seconds": round(time.perf_counter() - t0, 1)}
+
+
+def build(jobs: int, log=print) -> dict:
+    """Build every planned module into this package's ``_aot`` folder in up to ``jobs``
+    worker processes, from the sources in place (a source tree, or an install's build
+    folder), and write its manifest last, so a build stopped half-way is never used.
+    Returns the manifest."""
+    out_dir = _aot.AOT_DIR
+    out_dir.mkdir(parents=True, exist_ok=True)
+    plan = planned_builds()
+    jobs = max(1, min(jobs, len(plan)))
+    t0 = time.perf_counter()
+    (out_dir / _aot.MANIFEST).unlink(missing_ok=True)  # retired until the new one is whole
+    with tempfile.TemporaryDirectory(dir=out_dir) as tmp, \
+            ProcessPoolExecutor(jobs, mp_context=get_context("spawn")) as pool:
+        futures = {flags: pool.submit(_build_one, flags, spec, tmp)
+                   for flags, spec in plan.items()}
+        modules = []
+        for fut in futures.values():
+            entry = fut.result()
+            os.replace(Path(tmp) / entry["file"], out_dir / entry["file"])
+            log(f"  {entry['name']}: {', '.join(n for names in entry['exports'].values() for n in names)}"
+                f" ({entry['seconds']:.1f} s)")
+            modules.append(entry)
+    manifest = {"digest": _aot.source_digest(), "platform": _aot.platform_tag(),
+                **_aot.machine(),
+                "built": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                "seconds": round(time.perf_counter() - t0, 1), "modules": modules}
+    (out_dir / _aot.MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n")
+    return manifest

@@ -1,0 +1,169 @@
+"""Keep numba's on-disk cache honest, one source file at a time.
+
+numba checks a cached function against its *own* source file only (numba 0.68: a hash of
+the file's content; earlier versions its time stamp and size). Our compiled functions call
+functions of other files, and numba links the callees' code into each caller's cached
+object: after an edit of `_kernels.py` alone the cached callers in `integrators`,
+`lockstep`, `envs._step` and `agents` would keep running the old physics. They also freeze
+module constants (`scene.P_A`, ...) as they compile.
+
+So on import, every module of the package (and every module of `agents` that compiles
+code) gets a digest of its own source and of every module it imports from these trees,
+directly or not. A module whose digest changed since the stamp was written has its cache
+files removed; the others keep theirs. An upgrade, or a ``git pull``, that changes one
+kernel file then recompiles what depends on it and nothing else: a change to
+`envs/_step.py` recompiles only the environment's step, one to `_kernels.py` everything
+compiled, since everything calls it (tests/test_cache.py).
+
+Trees that cannot be written (numba then caches elsewhere, and an upgrade rewrites every
+file, which numba notices by itself) are skipped.
+"""
+
+from __future__ import annotations
+
+import ast
+import hashlib
+import json
+from pathlib import Path
+
+_PACKAGE = Path(__file__).resolve().parents[1]  # saddle_env/
+# Packages whose compiled functions call into saddle_env's kernels.
+_TREES = [_PACKAGE, _PACKAGE.parent / "agents"]
+_STAMP = _PACKAGE / "__pycache__" / "numba-sources.json"
+# The stamp's key for the import graph it was computed from (`_graph`); every other key is a
+# module's digest (a stamp written before the graph was kept has no such key).
+_GRAPH_KEY = "(import graph)"
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(_PACKAGE.parent).with_suffix("")
+    parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+    return ".".join(parts)
+
+
+def _sources() -> dict[str, Path]:
+    """Module name -> file, for every module of the trees."""
+    out = {}
+    for tree in _TREES:
+        if tree.is_dir():
+            for p in tree.rglob("*.py"):
+                if "__pycache__" not in p.parts:
+                    out[_module_name(p)] = p
+    return out
+
+
+def _imports(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
+    """The modules of the trees that ``name`` imports, absolute or relative. (Python also
+    runs the packages' ``__init__`` on the way; they hold no compiled code and are not
+    counted, or every module would depend on everything ``saddle_env/__init__`` imports.)"""
+    is_pkg = path.name == "__init__.py"
+    package = name if is_pkg else name.rpartition(".")[0]
+    found = set()
+    try:
+        tree = ast.parse(path.read_bytes())
+    except (SyntaxError, ValueError):
+        return found
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found.update(a.name for a in node.names if a.name in modules)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[:len(base) - (node.level - 1)]
+                root = ".".join(base + ([node.module] if node.module else []))
+            else:
+                root = node.module or ""
+            for a in node.names:
+                # ``from pkg import mod`` is the submodule; ``from pkg import name`` the
+                # package's ``__init__`` (which re-exports from its own imports)
+                sub = f"{root}.{a.name}"
+                if sub in modules:
+                    found.add(sub)
+                elif root in modules:
+                    found.add(root)
+    found.discard(name)
+    return found
+
+
+def _graph(modules: dict[str, Path], known: dict) -> dict:
+    """Each module's own digest and the modules it imports (`_imports`), parsing only the
+    files whose content changed since ``known`` (the same record from the stamp): parsing
+    every file took about 0.3 s of each ``import saddle_env``, a third of the import. A new
+    or removed module re-parses them all (it can change what an import names)."""
+    names = hashlib.sha256("\n".join(sorted(modules)).encode()).hexdigest()
+    reuse = known.get("modules") == names
+    files = {}
+    for m, p in modules.items():
+        own = hashlib.sha256(p.read_bytes()).hexdigest()
+        seen = known.get("files", {}).get(m) if reuse else None
+        if seen and seen[0] == own:
+            files[m] = seen
+        else:
+            files[m] = [own, sorted(_imports(m, p, modules))]
+    return {"modules": names, "files": files}
+
+
+def digests(graph: dict | None = None) -> dict[str, str]:
+    """Module name -> digest of its source and of every source it depends on (from
+    ``graph``, a `_graph` record; by default made afresh)."""
+    # The graph's own module list: walking the source tree again would repeat `refresh`'s walk.
+    files = (graph or _graph(_sources(), {}))["files"]
+    direct = {m: files[m][1] for m in files}
+    own = {m: files[m][0] for m in files}
+    out = {}
+    for m in files:
+        seen, todo = {m}, [m]
+        while todo:
+            for dep in direct[todo.pop()]:
+                if dep not in seen:
+                    seen.add(dep)
+                    todo.append(dep)
+        h = hashlib.sha256()
+        for dep in sorted(seen):
+            h.update(f"{dep}:{own[dep]}\n".encode())
+        out[m] = h.hexdigest()
+    return out
+
+
+def _cache_files(path: Path) -> list[Path]:
+    """numba's cache files for the functions of one source file
+    (``__pycache__/<stem>.<function>-<line>.py<ver>.nbi`` / ``.nbc``)."""
+    cache = path.parent / "__pycache__"
+    stem = "__init__" if path.name == "__init__.py" else path.stem
+    return [f for pattern in (f"{stem}.*.nbi", f"{stem}.*.nbc") for f in cache.glob(pattern)]
+
+
+def refresh() -> list[str]:
+    """Drop the cache files of every module whose sources changed since the stamp was
+    written; return those modules' names (empty if nothing was dropped)."""
+    try:
+        try:
+            stamp = json.loads(_STAMP.read_text())
+        except (OSError, ValueError):
+            stamp = {}
+        stamp = stamp if isinstance(stamp, dict) else {}
+        known = stamp.get(_GRAPH_KEY, {})
+        before = {m: d for m, d in stamp.items() if m != _GRAPH_KEY}
+        modules = _sources()
+        graph = _graph(modules, known)
+        now = digests(graph)
+        if before == now and known == graph:
+            return []
+        stale = sorted(m for m in now if before.get(m) != now[m])
+        for m in stale:
+            for f in _cache_files(modules[m]):
+                f.unlink(missing_ok=True)
+        _STAMP.parent.mkdir(exist_ok=True)
+        _STAMP.write_text(json.dumps({**now, _GRAPH_KEY: graph}, indent=0, sort_keys=True))
+        return stale
+    except OSError:  # read-only install: numba keeps its cache elsewhere
+        return []
+
+
+def clear() -> None:
+    """Remove the in-tree cache files (what a fresh install starts from)."""
+    for tree in _TREES:
+        if tree.is_dir():
+            for pattern in ("*.nbi", "*.nbc"):
+                for f in tree.rglob(pattern):
+                    f.unlink(missing_ok=True)

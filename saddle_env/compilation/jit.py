@@ -1,0 +1,75 @@
+"""How the kernels are compiled: numba's options (no fast-math, numpy's error model, cached on
+disk), one specialisation per function (`one_signature`), and the decorators the kernel
+modules use (`jit`, `inline`, `ir_inline`, `jit_per_constant`, `python_entry`)."""
+
+from __future__ import annotations
+
+import numba as nb
+
+
+def one_signature(dispatcher):
+    """Type a compiled function's arguments as their plain types when compiled code calls it.
+
+    numba compiles a function once per distinct argument types, and a constant passed from
+    compiled code is its own type (``Literal[int](4)`` for COULOMB, ``Literal[bool](True)``):
+    `rhs` was compiled six times over for literal and plain models and ``want_normal`` flags,
+    `integrate_h` twice, `_event_value` eight times, and each copy pulls in the code below it
+    (measured, docs/coldstart.md). None of these functions needs a constant argument (LLVM
+    still folds a constant at an inlined call), so calls from compiled code are typed
+    without the literals, one specialisation each."""
+    typed = dispatcher.get_call_template
+
+    def get_call_template(args, kws):
+        return typed(tuple(nb.types.unliteral(a) for a in args),
+                     {k: nb.types.unliteral(v) for k, v in kws.items()})
+
+    dispatcher.get_call_template = get_call_template
+    return dispatcher
+
+
+_jit = nb.njit(cache=True, fastmath=False, error_model="numpy")
+# For the per-ball rates: inlined into every caller so a loop over balls can be vectorised.
+_inline = nb.njit(cache=True, fastmath=False, error_model="numpy", forceinline=True)
+
+
+def jit(f):
+    """The kernels' compiler: numba without fast-math, numpy's error model (1/0 = inf), cached
+    on disk, one specialisation per function (`one_signature`)."""
+    return one_signature(_jit(f))
+
+
+_ir_inline = nb.njit(cache=True, fastmath=False, error_model="numpy", inline="always")
+
+
+def ir_inline(f):
+    """`jit`, with the function's code typed into each compiled caller rather than compiled
+    on its own (numba inlines it before typing). For thin layers between a compiled entry
+    point and the integrator: numba links a callee's whole code into each caller's and
+    optimises and generates machine code for it again there, so every separately compiled
+    layer above `integrators.integrate_h` paid for the integrator once more (the
+    environment's step had four: docs/coldstart.md). Not for large helpers with several
+    call sites: numba types each inlined copy again, and its type inference grows faster
+    than the code (measured: inlining the integrator's helpers made compiling slower)."""
+    return one_signature(_ir_inline(f))
+
+
+def jit_per_constant(f):
+    """`jit` that keeps numba's compile per constant argument, for a copy loop whose length
+    is a constant at each call (`envs._step._load`, `_store`: `ROW_WIDTH` or
+    `STATE_WIDTH`): compiled per constant, the loop has a fixed length the compiler unrolls.
+    Typed plain (`one_signature`), the 1024-ball vector env stepped 15 % slower (measured)."""
+    d = _jit(f)
+    d._per_constant = True
+    return d
+
+
+def inline(f):
+    """`jit`, always inlined by LLVM into its callers."""
+    return one_signature(_inline(f))
+
+def python_entry(dispatcher):
+    """Mark a compiled function that Python calls through `specialise`'s namespace (an entry
+    point such as the environment's step): its copies keep numba's wrapper for Python
+    callers. Returns the function."""
+    dispatcher._python_entry = True
+    return dispatcher
