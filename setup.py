@@ -1,6 +1,6 @@
 """The one thing the build does beyond pyproject.toml: compile the kernels of a first
-`env.step` and a first `simulate` ahead of time (`saddle_env.compilation.aot_build`), so that a fresh
-install starts in about a second instead of compiling with numba for 10-20 s
+`env.step` and a first `simulate` ahead of time (`saddle_env.compilation.aot_build`), so that a
+fresh install starts in about a second instead of compiling with numba for 10-20 s
 (docs/coldstart.md).
 
 The build runs in a separate process with a time limit and never fails the install: without

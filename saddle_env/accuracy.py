@@ -14,8 +14,8 @@ which resolve ``tol=`` with it:
    shows which family wins where: rk4 at the cap for millimetres, dopri5 around 1e-5 m,
    dop853 below.
 2. **Pilot.** Every candidate is run over a pilot window (the first 10 % of the run, at
-   most 100 s, but at least one second and four saddle turns, and never beyond the run) and compared with a
-   DOP853 solve at rtol = 1e-13, on the run's own output grid; the measured error is
+   most 100 s, but at least one second and four saddle turns, and never beyond the run) and compared
+   with a DOP853 solve at rtol = 1e-13, on the run's own output grid; the measured error is
    extrapolated to the full run as e ∝ t^p with p measured from the pilot's two halves
    (at least 1: the error of a trapped orbit is mostly phase error, which grows linearly;
    at most 3) and must come out below ``tol / SAFETY``. Within a family the first passing

@@ -581,7 +581,8 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
     ctl : StepControl — fixed step or tolerances, largest step, events, step limit.
     scale : (STATE_WIDTH,) characteristic size of each state component (`state_scale`).
     Y_out : (m, STATE_WIDTH) — written with the state at each output time reached.
-    stats : (4,) int64 — incremented: steps accepted, steps rejected, f evaluations, outputs written.
+    stats : (4,) int64 — incremented: steps accepted, steps rejected, f evaluations,
+        outputs written.
     h_start : float — adaptive only: the starting step if > 0 (a caller continuing a run,
         e.g. the environment's next control step, passes the last ``h_next`` back); 0 lets
         the starting-step heuristic choose.

@@ -521,9 +521,9 @@ class BatchResult:
     Attributes
     ----------
     t : (m,) output times.  state : (n, m, k) states padded to k = 5 (7 when the batch has a
-    coulomb ball); rows after a ball's last output are NaN.  n_out : (n,) outputs reached per ball.  status : (n,) STATUS_* codes.
-    t_final : (n,) time of each final state (event time where one fired).
-    final_state : (n, k) state at t_final.  work : (n, m) work of the dissipative forces
+    coulomb ball); rows after a ball's last output are NaN.  n_out : (n,) outputs reached per
+    ball.  status : (n,) STATUS_* codes.  t_final : (n,) time of each final state (event time
+    where one fired).  final_state : (n, k) state at t_final.  work : (n, m) work of the dissipative forces
     per unit mass [J/kg] since t = 0 (`Trajectory.work`), NaN after a ball's last output.
     """
 

@@ -58,7 +58,8 @@ class Scene:
     R : float
         Ball radius [m], ``0 < R < min(a, b)/2``. Ignored (taken as 0) by ``contact="point"``.
     alpha : float
-        Moment-of-inertia factor, ``I = alpha·m·R²`` (2/5 solid ball, 2/3 thin shell), ``0 < alpha <= 1``.
+        Moment-of-inertia factor, ``I = alpha·m·R²`` (2/5 solid ball, 2/3 thin shell),
+        ``0 < alpha <= 1``.
     g : float
         Gravitational acceleration [m/s²], ``>= 0``.
     contact : {"rolling", "slipping", "point", "coulomb"}

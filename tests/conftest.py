@@ -17,8 +17,8 @@ if "SADDLE_ENV_BEST_CONST_CACHE" not in os.environ:
     os.environ["SADDLE_ENV_BEST_CONST_CACHE"] = os.path.join(_cache_dir, "best_const.json")
 
 # The suite runs what users run: each scene's own compiled copy of the kernels, which the
-# install's ahead-of-time build (saddle_env.compilation.aot) holds for the registered levels and each
-# contact model, so where the build matches the sources (a fresh install, CI) most tests
+# install's ahead-of-time build (saddle_env.compilation.aot) holds for the registered levels and
+# each contact model, so where the build matches the sources (a fresh install, CI) most tests
 # compile nothing and check the build itself; with edited sources the JIT compiles the
 # copies. The tests that compare a copy with the full kernels set SADDLE_ENV_FULL_KERNELS=1
 # themselves (monkeypatch.setenv). Until 2026-11-26 the suite ran the full kernels, which no
@@ -26,7 +26,8 @@ if "SADDLE_ENV_BEST_CONST_CACHE" not in os.environ:
 os.environ.setdefault("SADDLE_ENV_FULL_KERNELS", "0")
 
 # The few training runs with a closing comparison are seconds long: a compile-ahead process
-# beside each (agents/training/compile_ahead.py) would only add its start-up. Its own tests turn it on.
+# beside each (agents/training/compile_ahead.py) would only add its start-up. Its own tests turn it
+# on.
 os.environ.setdefault("SADDLE_ENV_COMPILE_AHEAD", "0")
 
 

@@ -34,7 +34,7 @@ law, w_t the spin relative to the turning saddle without its part along n.
 Only numpy / scipy / sympy are used; nothing is imported from the production package.
 """
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import sympy as sp
@@ -67,7 +67,7 @@ def _body_geometry_sym(x, y, a, b, R):
     return o, n, o + R * n
 
 
-@lru_cache(maxsize=None)
+@cache
 def _slipping_symbolic():
     """Lab-frame Lagrangian -> M(q, ...) q'' = rhs, plus the lab acceleration of c.
 
@@ -118,7 +118,7 @@ def _slipping_symbolic():
     return args, (ax, ay), M, rhs, acc_lab, n_lab, v_sym, J_sym, c_sym
 
 
-@lru_cache(maxsize=None)
+@cache
 def _slipping_functions():
     args, (ax, ay), M, rhs, acc_lab, n_lab, v_sym, J_sym, _ = _slipping_symbolic()
     x, y, vx, vy, th, Om, Omd, a, b, R, g = args
@@ -131,7 +131,7 @@ def _slipping_functions():
     return f_Mrhs, f_acc, f_n, f_vJ
 
 
-@lru_cache(maxsize=None)
+@cache
 def _coulomb_functions():
     """The slipping model's lab-frame Lagrangian terms, plus what friction needs.
 
@@ -153,7 +153,7 @@ def _drag(v, drag):
     return -(k1 + k2 * np.sqrt(v @ v)) * v
 
 
-@lru_cache(maxsize=None)
+@cache
 def _rolling_functions():
     """Lab-frame o, n, c and the partial derivatives the rolling model needs.
 
@@ -173,7 +173,7 @@ def _rolling_functions():
     return sp.lambdify((x, y, th, a, b, R), flat, modules="math", cse=True)
 
 
-@lru_cache(maxsize=None)
+@cache
 def _body_functions():
     """Body-frame c and J = dc/dq and n (for initial conditions and invariants)."""
     x, y = sp.symbols("x y")
@@ -777,10 +777,10 @@ def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, 
     omega, omega_dot: callables t -> float (Omega(t), dOmega/dt).
     q0 = (x0, y0): contact point, body coords [m].
     qdot0 = (vx0, vy0): contact point velocity RELATIVE TO THE ROTATING SADDLE, body coords [m/s].
-    spin_normal (rolling only): initial angular velocity about the normal n, RELATIVE to the saddle [rad/s].
-    For rolling, the initial angular velocity relative to the saddle is w_rel = n x c_rot' / R + spin_normal n,
-    where c_rot' = J q' is the centre velocity relative to the saddle (J = dc/dq); the absolute one is
-    w_rel + Omega(0) k (then rotated by theta0 into lab axes).
+    spin_normal (rolling only): initial angular velocity about the normal n, RELATIVE to the saddle
+    [rad/s]. For rolling, the initial angular velocity relative to the saddle is w_rel = n x c_rot'
+    / R + spin_normal n, where c_rot' = J q' is the centre velocity relative to the saddle (J =
+    dc/dq); the absolute one is w_rel + Omega(0) k (then rotated by theta0 into lab axes).
     t_eval: 1-D array of output times starting at 0.
     drag_linear [1/s], drag_quadratic [1/m]: air drag per unit mass -(k1 + k2 |v|) v on the
     centre, v its velocity in the laboratory.

@@ -1,4 +1,5 @@
-"""Baselines (agents.control.controllers, agents.control.best_constant, agents.control.mpc, agents.evaluation.policies) and the
+"""Baselines (agents.control.controllers, agents.control.best_constant, agents.control.mpc,
+agents.evaluation.policies) and the
 evaluation tool (agents.evaluation.evaluate, saddle-eval)."""
 
 import json

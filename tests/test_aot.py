@@ -1,6 +1,7 @@
-"""The ahead-of-time compiled kernels (saddle_env.compilation.aot, saddle_env.compilation.aot_build): a build is used
-only for the sources and platform it was built from and for exactly its argument types, and
-(slow) a real build starts a fresh process's first step of every level and first simulate
+"""The ahead-of-time compiled kernels (saddle_env.compilation.aot,
+saddle_env.compilation.aot_build): a build is used only for the sources and platform it was built
+from and for exactly its argument types, and (slow) a real build starts a fresh process's first step
+of every level and first simulate
 without compiling, bit for bit the JIT's, and retires itself when a source changes."""
 
 import json
@@ -15,10 +16,10 @@ import pytest
 from helpers import compiled_in_fresh_process, gone_within
 
 import saddle_env
-from saddle_env import _kernels as K
 from saddle_env import integrators as I
 from saddle_env.compilation import aot as _aot
 from saddle_env.compilation import precompile as pc
+from saddle_env.compilation import specialise as S
 from saddle_env.compilation.specialise import FULL_KERNELS_ENV, checked, specialise
 from saddle_env.scene import ROLLING
 
@@ -106,11 +107,11 @@ def test_the_digest_covers_every_source_of_the_package_and_its_environment(tmp_p
 
 
 def test_an_entry_point_is_used_for_its_own_argument_types_only(fake_build, monkeypatch):
-    """`_kernels.checked`: an ahead-of-time entry point unboxes its arguments as the types
+    """`specialise.checked`: an ahead-of-time entry point unboxes its arguments as the types
     it was built for without looking; other types go to the JIT copy."""
     fake_build()
     monkeypatch.delenv(FULL_KERNELS_ENV, raising=False)
-    monkeypatch.setattr(K, "_variants", {})           # a first specialisation in this process
+    monkeypatch.setattr(S, "_variants", {})           # a first specialisation in this process
     space = specialise((ROLLING,), False, I)
     assert space.integrate_h() == "ahead"
     assert checked(space, "integrate_h", (0, np.zeros(3)))() == "ahead"
@@ -315,8 +316,9 @@ def test_the_install_ships_a_new_build_or_none(tmp_path, monkeypatch, outcome):
 def test_a_build_that_overruns_is_stopped_with_its_workers(tmp_path, monkeypatch):
     """The time limit stops the build's whole process group (its worker processes too)."""
     setup = _setup_commands()
-    pkg = tmp_path / "saddle_env"
-    pkg.mkdir()
+    pkg = tmp_path / "saddle_env" / "compilation"
+    pkg.mkdir(parents=True)
+    (pkg.parent / "__init__.py").write_text("")
     (pkg / "__init__.py").write_text("")
     pid_file = tmp_path / "worker.pid"
     (pkg / "precompile.py").write_text(

@@ -1,5 +1,5 @@
-"""saddle_env.compilation.cache drops the numba cache files of exactly the modules whose sources, or the
-sources they import, changed: an upgrade that changes one kernel file recompiles only what
+"""saddle_env.compilation.cache drops the numba cache files of exactly the modules whose sources, or
+the sources they import, changed: an upgrade that changes one kernel file recompiles only what
 depends on it."""
 
 from __future__ import annotations

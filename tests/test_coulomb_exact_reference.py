@@ -134,8 +134,8 @@ def test_coulomb_matches_the_exact_lab_reference(seed, time_varying, static_rati
     _check(*_compare(seed, time_varying, static_ratio))
 
 
-# More scenes (measured at rtol 1e-12, stop gaps as above; 1-4 s each, slow only to keep the default suite's
-# share of this file under ~12 s):
+# More scenes (measured at rtol 1e-12, stop gaps as above; 1-4 s each, slow only to keep the default
+# suite's share of this file under ~12 s):
 #   seed 3 const: 6 tr., x 3.0e-12, v 6.9e-11, N 4.7e-11, starts <= 1.2e-11 s,
 #       stops <= 7.1e-10 s early
 #   seed 5 const: 8 tr., x 1.1e-12, v 1.4e-11, N 4.4e-12, starts <= 2.3e-11 s,

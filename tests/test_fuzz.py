@@ -161,7 +161,7 @@ def _gap(case_id: str) -> str | None:
 
 def _cases():
     out = []
-    for name, (fn, params) in ENTRY_POINTS.items():
+    for name, (_fn, params) in ENTRY_POINTS.items():
         for p in params:
             for label, value in BAD.items():
                 cid = f"{name}-{p}-{label}"

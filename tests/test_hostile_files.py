@@ -141,7 +141,8 @@ def test_a_tensor_file_holding_a_pickle_is_refused(model_zip, tmp_path, canary, 
 
 @pytest.mark.parametrize("name, why", [
     ("../evil.pth", "entry name"), ("/abs.pth", "entry name"), ("dir/policy.pth", "entry name"),
-    ("policy.pth\x00", "entry name|twice"),   # zipfile cuts the name at NUL: a duplicate ("script.py", "unexpected entries"),
+    # zipfile cuts the name at NUL: a duplicate
+    ("policy.pth\x00", "entry name|twice"),
 ])
 def test_entries_with_paths_or_unknown_names_are_refused(model_zip, tmp_path, canary, name, why):
     def add(entries):

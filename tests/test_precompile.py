@@ -1,4 +1,5 @@
-"""saddle_env.compilation.precompile: targets checked before any work, progress and failures reported,
+"""saddle_env.compilation.precompile: targets checked before any work, progress and failures
+reported,
 and (slow) a fresh process's first step after it compiles nothing."""
 
 import os

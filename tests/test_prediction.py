@@ -8,8 +8,9 @@ angle; events stop a run where `simulate` stops.
 import numpy as np
 import pytest
 
-from saddle_env import OmegaProfile, Scene, initial_state, simulate
+from saddle_env import OmegaProfile, Scene, initial_state, prediction, simulate
 from saddle_env import _kernels as K
+from saddle_env.compilation import threads as threads_mod
 from saddle_env.compilation.specialise import FULL_KERNELS_ENV, entry, specialise
 from saddle_env.compilation.threads import in_threads
 from saddle_env.integrators import STATUS_DETACH, STATUS_DONE, STATUS_ESCAPE
@@ -51,7 +52,7 @@ def test_one_segment_is_simulate_bit_for_bit():
     drives = _drives([[(c[2], c[3])] for c in CASES])
     # one duration per run; runs sample on their own grids (T / m each), padded with NaN
     durations = np.array([[c[4]] for c in CASES])
-    for r, (scene, start, prof, force, T, m) in enumerate(CASES):
+    for r, (scene, _, prof, force, T, m) in enumerate(CASES):
         pred = predict_batch(scene.model_code, scene.params()[None], Y0[r:r + 1],
                              drives[r:r + 1], durations[r:r + 1], T / m, rtol=RTOL,
                              max_step=MAX_STEP)
@@ -96,7 +97,7 @@ def test_the_kernel_is_called_with_the_same_types_however_the_models_are_given(m
         seen.append(tuple(numba.typeof(a) for a in args))
         return real(codes, resist, module, name, args)
 
-    monkeypatch.setattr(K, "entry", spy)
+    monkeypatch.setattr(prediction, "entry", spy)
     for given in (int(models[0]), models[keep], models[keep].astype(np.int32),
                   np.broadcast_to(models[:1], (3,))):
         predict_batch(given, P[keep], Y0[keep], drives[keep], durations[keep], 0.05,
@@ -219,10 +220,10 @@ def test_a_batch_over_threads_is_the_batch_on_one_thread_bit_for_bit(monkeypatch
         return predict_batch(models, P, Y0, drives, durations, 0.05, rtol=RTOL,
                              max_step=MAX_STEP)
 
-    monkeypatch.setattr(K, "thread_count", lambda: 1)
+    monkeypatch.setattr(threads_mod, "thread_count", lambda: 1)
     alone = predict()
-    monkeypatch.setattr(K, "thread_count", lambda: threads)
-    monkeypatch.setattr(K, "THREADS_FROM_SIMULATED_S", 0.0)   # split even this small batch
+    monkeypatch.setattr(threads_mod, "thread_count", lambda: threads)
+    monkeypatch.setattr(threads_mod, "THREADS_FROM_SIMULATED_S", 0.0)   # split even this small batch
     split = predict()
     for name in ("t", "state", "normal", "status", "final_state"):
         np.testing.assert_array_equal(getattr(split, name), getattr(alone, name))
@@ -243,7 +244,7 @@ def test_threads_cover_every_row_once_and_pass_on_an_error():
 
     def fail_late(lo, hi, out):
         if lo > 0:
-            raise ValueError("range %d-%d" % (lo, hi))
+            raise ValueError(f"range {lo}-{hi}")
         out[lo:hi] += 1
 
     with pytest.raises(ValueError, match="range 5-10"):

@@ -1,5 +1,5 @@
-"""The SBX back end (agents.training.backends.sbx): its network copied into SB3's acts identically, its
-learner state round-trips as data, and train.py --backend sbx trains, checkpoints on
+"""The SBX back end (agents.training.backends.sbx): its network copied into SB3's acts identically,
+its learner state round-trips as data, and train.py --backend sbx trains, checkpoints on
 SIGTERM, resumes and writes model files that load as SB3's."""
 
 import json

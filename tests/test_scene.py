@@ -1,3 +1,4 @@
+import dataclasses
 import math
 
 import numpy as np
@@ -62,7 +63,7 @@ def test_point_ignores_radius_and_integrates_no_spin():
 def test_frozen_hashable_and_with():
     s = Scene()
     assert hash(s) == hash(Scene())
-    with pytest.raises(Exception):
+    with pytest.raises(dataclasses.FrozenInstanceError):
         s.R = 0.01  # type: ignore[misc]
     assert s.with_(R=0.03).R == 0.03
     with pytest.raises(ValueError, match="unknown Scene parameter"):

@@ -43,7 +43,7 @@ def _small_kernels() -> None:
     obs, _ = env.reset(seed=1)
     ModelPredictiveController(EnvConfig(), omega_ref=20.0).predict(obs)
     sc = se.Scene()
-    se.simulate(sc, se.initial_state(sc, 0.003, 0.002), 0.05, omega=20.0).N_over_mg
+    _ = se.simulate(sc, se.initial_state(sc, 0.003, 0.002), 0.05, omega=20.0).N_over_mg
 
 
 def _threaded_step(level_id: str) -> None:

@@ -2,22 +2,30 @@
 
 Runs a short training (the main job's recipe unless told otherwise, through
 `agents.training.trainer.train`, so with its callbacks, evaluation and model selection) on SB3
-(PPO, SAC, TD3, A2C), SBX (PPO on JAX, `--backend sbx`) or RLlib (PPO, SAC; its env runner in this process,
-``num_env_runners=0``, so that every piece is in reach of the timers) and, with
+(PPO, SAC, TD3, A2C), SBX (PPO on JAX, `--backend sbx`) or RLlib (PPO, SAC; its env runner in this
+process, ``num_env_runners=0``, so that every piece is in reach of the timers) and, with
 ``--imitation``, a few DAgger rounds of the imitation warm start, with timers around the
 pieces of one iteration:
 
-| category | what is timed |
-|---|---|
-| env stepping | the batch env's ``step_wait`` / ``step`` (the compiled physics and its Python shell); RLlib: ``EnvRunner._try_env_step`` |
-| policy forward | the rollout's ``policy(obs)`` and ``predict_values`` (SB3 on-policy), ``_sample_action`` (SB3 off-policy), ``forward_exploration`` (RLlib), the network's actions (imitation) |
-| advantages (GAE) | ``RolloutBuffer.compute_returns_and_advantage``; RLlib: its GAE connector (the value forward included) |
-| gradient updates | the algorithm's ``train`` (SB3: every epoch and minibatch), RLlib's ``TorchLearner._update``, imitation's ``fit`` |
-| evaluation + selection | ``evaluate_policy`` inside the selection callback, and model saves (selected model, checkpoints); RLlib: its checkpoints (it selects on training episodes) |
-| mpc queries | ``ModelPredictiveController.predict`` and ``executed`` (imitation labels) |
-| warm start | the best-constant search or cache read that sets the starting action |
-| start-up | building the environments and the model; RLlib: starting Ray and building the algorithm |
-| other | the rest of the wall time: the rollout loop (tensor conversion, buffer adds, callbacks), RLlib's connectors and metrics |
+The categories, and what each times:
+
+- *env stepping*: the batch env's ``step_wait`` / ``step`` (the compiled physics and its
+  Python shell); RLlib: ``EnvRunner._try_env_step``.
+- *policy forward*: the rollout's ``policy(obs)`` and ``predict_values`` (SB3 on-policy),
+  ``_sample_action`` (SB3 off-policy), ``forward_exploration`` (RLlib), the network's actions
+  (imitation).
+- *advantages (GAE)*: ``RolloutBuffer.compute_returns_and_advantage``; RLlib: its GAE connector
+  (the value forward included).
+- *gradient updates*: the algorithm's ``train`` (SB3: every epoch and minibatch), RLlib's
+  ``TorchLearner._update``, imitation's ``fit``.
+- *evaluation + selection*: ``evaluate_policy`` inside the selection callback, and model saves
+  (selected model, checkpoints); RLlib: its checkpoints (it selects on training episodes).
+- *mpc queries*: ``ModelPredictiveController.predict`` and ``executed`` (imitation labels).
+- *warm start*: the best-constant search or cache read that sets the starting action.
+- *start-up*: building the environments and the model; RLlib: starting Ray and building the
+  algorithm.
+- *other*: the rest of the wall time: the rollout loop (tensor conversion, buffer adds,
+  callbacks), RLlib's connectors and metrics.
 
 A timer inside another timed section does not count: the outer one has it (an evaluation's
 env steps are evaluation). The closing comparison (``compare_episodes``) is left out.
@@ -142,8 +150,8 @@ def _sb3_timers(algo: str) -> Timers:
 
 
 def _sbx_timers() -> Timers:
-    """Timers around SBX's PPO (JAX) in the SB3 back end's loop (`agents.training.backends.sbx`): its
-    rollout's ``predict_all``, its ``train``; saves include copying the flax network into
+    """Timers around SBX's PPO (JAX) in the SB3 back end's loop (`agents.training.backends.sbx`):
+    its rollout's ``predict_all``, its ``train``; saves include copying the flax network into
     the SB3 twin that is written, and checkpoints the learner state."""
     from sbx import PPO
     from sbx.ppo.policies import PPOPolicy

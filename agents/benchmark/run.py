@@ -59,8 +59,9 @@ class Algo:
     kwargs: dict[str, Any] = field(default_factory=dict)
     note: str = ""
     # A project recipe instead of library defaults: the level whose entry in
-    # agents/hyperparams/ppo.yml the row runs on every level, through `agents.training.trainer.train`
-    # (warm start, wrappers, model selection on validation episodes, as `train.py` does).
+    # agents/hyperparams/ppo.yml the row runs on every level, through
+    # `agents.training.trainer.train` (warm start, wrappers, model selection on validation episodes,
+    # as `train.py` does).
     recipe_of: str | None = None
     # The `train.py --backend` a recipe row trains with ("sbx": SBX's PPO). A recipe row
     # always reads ppo.yml (`hyperparams`), whatever the back end's own file: the SBX row

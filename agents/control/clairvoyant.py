@@ -42,8 +42,8 @@ network's output can depend on the batch's shape). Starts the search does not re
 reported as *doomed* for this planner: an upper bound on the share no controller can keep
 (a better search could rescue some).
 
-`agents.benchmark.headroom.evaluate_clairvoyant` runs it on seeded episodes of a level and returns the
-trapping times (with `mpc`'s and the agents', free from step 1), the doomed share with a
+`agents.benchmark.headroom.evaluate_clairvoyant` runs it on seeded episodes of a level and returns
+the trapping times (with `mpc`'s and the agents', free from step 1), the doomed share with a
 Wilson interval and the time per episode. ``saddle-eval --policy clairvoyant`` runs it
 through `agents.control.rollout`, which hands the environment to actors that ask for it
 (``attach``).

@@ -8,15 +8,16 @@ one observation ``(obs_dim,)`` or a batch ``(n, obs_dim)``:
 
 | name | what it does |
 |---|---|
-| ``const-K`` (K = 1.0, 1.1, 1.2, 1.5, 2.0, or any ``const-<number>``) | drive Ω to K·Ω_crt, Ω_crt = sqrt(2g/(a − 2R)) of the rigid ball (`saddle_env.linear.critical_omega`) |
+| ``const-K`` (K = 1.0, 1.1, 1.2, 1.5, 2.0, or any ``const-<number>``) | drive Ω to K·Ω_crt, |
+| | Ω_crt = sqrt(2g/(a − 2R)) of the rigid ball (`saddle_env.linear.critical_omega`) |
 | ``masspoint`` | drive Ω to sqrt(2g/a), the mass-point threshold (too low for a large ball) |
 | ``zero`` | action 0 every step (acceleration mode: hold the starting speed) |
 | ``random`` | uniform random actions in [-1, 1] (reproducible: seeded by the observation) |
 
 A constant-speed controller moves Ω to its target as fast as the motor allows
 (``max_accel``) and holds it there. The searched best constant lives in
-`agents.control.best_constant`, the feedback controller in `agents.control.mpc`, and the registry of names
-with model-file loading in `agents.evaluation.policies`.
+`agents.control.best_constant`, the feedback controller in `agents.control.mpc`, and the registry of
+names with model-file loading in `agents.evaluation.policies`.
 """
 
 from __future__ import annotations

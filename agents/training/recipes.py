@@ -7,9 +7,9 @@ arguments, the zoo keys in `ZOO_ONLY_KEYS` are read here or by the back ends:
 ``n_envs``, ``n_timesteps``, ``policy``, ``noise_type``/``noise_std``, ``normalize``,
 ``frame_stack``, ``warm_start``, ``imitation``, ``train_episode_steps``,
 ``reward_shaping``, and the model selection's ``eval_freq`` and ``eval_episodes`` (the
-command line's ``--eval-freq`` and ``--eval-episodes`` win). ``env_wrapper`` and ``callback`` are rejected (no class is importable
-by name here), and strings such as ``policy_kwargs`` are parsed as data
-(`agents.evaluation.literal_kwargs`), never evaluated.
+command line's ``--eval-freq`` and ``--eval-episodes`` win). ``env_wrapper`` and ``callback`` are
+rejected (no class is importable by name here), and strings such as ``policy_kwargs`` are parsed as
+data (`agents.evaluation.literal_kwargs`), never evaluated.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """A training run's settings, its folder and its interruption: what every training back end
-(`agents.training.backends.sb3`, `agents.training.backends.sbx`, `agents.training.backends.rllib`) takes in, behind the
-one seam `agents.training.trainer.train`.
+(`agents.training.backends.sb3`, `agents.training.backends.sbx`, `agents.training.backends.rllib`)
+takes in, behind the one seam `agents.training.trainer.train`.
 
 `TrainSettings` is the one declaration of a run's settings, for every back end: the command
 line (``train.py``) fills it field by field from its flags, a run saves it as

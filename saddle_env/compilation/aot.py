@@ -1,7 +1,7 @@
 """The ahead-of-time compiled kernels, when there are any that match the sources in place.
 
-The package's install builds them (`saddle_env.compilation.aot_build`): a C extension module per set of
-contact models holding the compiled code of a first `env.step` and a first `simulate`,
+The package's install builds them (`saddle_env.compilation.aot_build`): a C extension module per set
+of contact models holding the compiled code of a first `env.step` and a first `simulate`,
 the same numba compile the JIT would make, built once. Here they are found and checked:
 the manifest they were built with names the digest of the package's sources, and a module
 is used only while the sources still have that digest (an edited or pulled source falls

@@ -16,11 +16,11 @@ A target is what one kind of first call compiles:
 * ``simulate``: `saddle_env.simulate` of a rolling ball (the README's example);
 * ``batch``: `saddle_env.simulate_batch` (the batch integrator over threads).
 
-With ``--aot`` it builds instead what the package's install builds (`saddle_env.compilation.aot_build`):
-the entry points of a first ``env.step`` and a first ``simulate``, compiled ahead of time into
-C extension modules that a fresh process loads without compiling (needs a C compiler). Run
-it after editing the package's sources in a source checkout: a build made from other sources
-is not used.
+With ``--aot`` it builds instead what the package's install builds
+(`saddle_env.compilation.aot_build`): the entry points of a first ``env.step`` and a first
+``simulate``, compiled ahead of time into C extension modules that a fresh process loads without
+compiling (needs a C compiler). Run it after editing the package's sources in a source checkout: a
+build made from other sources is not used.
 
 By default every level and ``simulate``. Targets run in ``--jobs`` worker processes (default:
 the cores this process may use), each worker taking the next target when it is free; the

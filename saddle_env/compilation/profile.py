@@ -328,7 +328,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     # What numba's JIT compiles is measured here: the ahead-of-time build, which a first call
-    # would use instead (`saddle_env.compilation.aot`), stays out (also in the --isolated processes).
+    # would use instead (`saddle_env.compilation.aot`), stays out (also in the --isolated
+    # processes).
     os.environ[_aot.AOT_ENV] = "0"
     names = _scenarios(args.scenarios)
     if args.isolated:

@@ -109,11 +109,12 @@ def specialise(models, resist: bool, module: types.ModuleType):
     function of the registered modules is a copy whose globals are its module's with the
     other flags False and the compiled functions replaced by their copies, so a whole chain
     below an entry point is specialised together. (Functions that test no flag are copied
-    too, so that no copy needs numba's wrappers for Python callers: `_copy_of`.) Made once per flag set and process (a module registered later is added when
-    first asked for); compiled (or loaded from the on-disk cache) on first call, as any
-    kernel. Where an ahead-of-time build of the same sources has this flag set's entry points
-    (`_aot`: a first env step's and a first simulate's), the namespace has those in place of
-    the JIT copies: nothing compiles. With every flag on, or with `FULL_KERNELS_ENV` set to
+    too, so that no copy needs numba's wrappers for Python callers: `_copy_of`.) Made once per flag
+    set and process (a module registered later is added when first asked for); compiled (or loaded
+    from the on-disk cache) on first call, as any kernel. Where an ahead-of-time build of the same
+    sources has this flag set's entry points (`_aot`: a first env step's and a first simulate's),
+    the namespace has those in place of the JIT copies: nothing compiles. With every flag on, or
+    with `FULL_KERNELS_ENV` set to
     1, the module itself."""
     flags = variant_flags(models, resist)
     if flags == _FLAGS or os.environ.get(FULL_KERNELS_ENV, "0") not in ("", "0"):

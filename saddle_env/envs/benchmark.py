@@ -97,7 +97,8 @@ def _sizes(text: str) -> list[int]:
     try:
         sizes = [int(s) for s in text.split(",") if s.strip()]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--sizes must be comma-separated integers, got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"--sizes must be comma-separated integers, got {text!r}") from None
     if not sizes or min(sizes) < 1:
         raise argparse.ArgumentTypeError(f"--sizes must be positive integers, got {text!r}")
     return sizes

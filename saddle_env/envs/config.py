@@ -43,8 +43,8 @@ class EnvConfig:
     """Options of `SaddleTrapEnv` (all are constructor keywords of the environment).
 
     Scene (see `saddle_env.Scene`): ``a, b, R, alpha, g, contact, rim_radius,
-    drilling_friction, drag_linear, drag_quadratic, rolling_resistance, mu, mu_static`` (the friction
-    coefficients apply to ``"coulomb"`` balls and are passed to no other).
+    drilling_friction, drag_linear, drag_quadratic, rolling_resistance, mu, mu_static`` (the
+    friction coefficients apply to ``"coulomb"`` balls and are passed to no other).
 
     Control: ``control_period`` [s] (20 ms); ``max_accel`` [rad/s²], the motor's limit on
     |Ω̇| (20: 0 → 45 s⁻¹ in 2.25 s); ``omega_max`` [rad/s], the motor's top speed (45, about
@@ -246,9 +246,11 @@ class EnvConfig:
         out = []
         for R in (min(radii), max(radii)):
             for a in (min(a_values), max(a_values)):
-                for m, mu in ((m, mu) for m in models for mu in (mus if m == "coulomb" else (None,))):
+                for m, mu in ((model, mu) for model in models
+                              for mu in (mus if model == "coulomb" else (None,))):
+                    friction = {"mu": mu} if mu is not None else {}
                     try:
-                        out.append(self.scene(R=R, a=a, contact=m, **({"mu": mu} if mu is not None else {})))
+                        out.append(self.scene(R=R, a=a, contact=m, **friction))
                     except ValueError as exc:
                         raise ValueError(f"randomised scene R={R}, a={a}, contact={m!r} is "
                                          f"invalid: {exc}") from None

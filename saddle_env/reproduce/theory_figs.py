@@ -346,7 +346,7 @@ def fig_asymmetric(ctx: Context) -> None:
             ax[k].plot(rb, up, "k:", lw=1.2, label="Ω² = g(a+b)²/(4ab(a−b))")
             ax[k].axvline(1 / 3, color="0.5", lw=0.6)
             ax[k].text(0.335, 55, "a = 3b", fontsize=7, rotation=90)
-        for case, (label, c_, R_, r_) in zip(gone, ASYM_CASES):
+        for case, (label, c_, _R, r_) in zip(gone, ASYM_CASES):
             if c_ != contact:
                 continue
             ax[k].plot(np.full((~case).sum(), r_), grid[~case], "g.", ms=4,

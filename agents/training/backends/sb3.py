@@ -19,8 +19,8 @@ evaluation that reached the highest mean return), ``selected_model.zip`` (below)
 the level (``env_id``), the options overriding it (``env_kwargs``), the episode length and
 the wrappers. Ctrl-C or SIGTERM saves a checkpoint (and the replay buffer of off-policy
 algorithms); ``--resume CHECKPOINT.zip`` continues from it. Everything a run writes is read
-back as data (JSON, tensors, npz: `agents.evaluation.model_files`); a checkpoint that needs unpickling
-(SB3's own files, older runs' pickles) is resumed only with ``--trust-model``.
+back as data (JSON, tensors, npz: `agents.evaluation.model_files`); a checkpoint that needs
+unpickling (SB3's own files, older runs' pickles) is resumed only with ``--trust-model``.
 
 **Model selection.** Every ``eval_freq`` steps (default: a twentieth of the budget), and
 once more on the final model, the policy is evaluated on ``eval_episodes`` validation

@@ -10,8 +10,8 @@ back end writes, with one addition:
 * **Every model file is an ordinary SB3 PPO file.** The flax network is copied into an SB3
   PPO policy of the same shape (its *twin*: the same MLP; flax keeps a layer's kernel as
   ``(in, out)``, torch's Linear as ``(out, in)``) before each save, so evaluation, ``ship``,
-  the leaderboard and loading as data (`agents.evaluation.model_files`) are unchanged, and the shipped
-  policy is a torch network like every other.
+  the leaderboard and loading as data (`agents.evaluation.model_files`) are unchanged, and the
+  shipped policy is a torch network like every other.
 * **A checkpoint adds ``<stem>.sbx.npz``**: the learner's whole state (both networks'
   parameters, Adam's moments and step, the random keys, the step counters) as plain arrays,
   so ``--resume`` continues exactly and reads nothing but data (no ``--trust-model``).
