@@ -138,3 +138,74 @@ def test_the_graph_sees_local_and_relative_imports(tmp_path):
 def test_the_graph_has_the_edges_it_should(importer, imported):
     """A checker that saw no imports would pass the first test trivially."""
     assert imported in import_graph(module_files())[importer]
+
+
+# The rooms of `agents`, lowest first: a module may import from its own room and the rooms
+# before it, never from a later one (agents/__init__.py says why each room is where it is).
+AGENT_LAYERS = (("agents", "agents.seeds", "agents.paths", "agents.cli_args"),
+                ("agents.control",), ("agents.evaluation",), ("agents.training",),
+                ("agents.benchmark",))
+
+
+def _layer(module: str) -> int | None:
+    found = None
+    for rank, prefixes in enumerate(AGENT_LAYERS):
+        if any(module == p or (p != "agents" and module.startswith(p + ".")) for p in prefixes):
+            found = rank
+    return found
+
+
+def test_the_agents_rooms_import_one_way():
+    graph = import_graph(module_files())
+    wrong = [f"{a} -> {b}" for a, targets in graph.items() for b in targets
+             if _layer(a) is not None and _layer(b) is not None and _layer(b) > _layer(a)]
+    assert not wrong, "a lower room of agents imports a higher one: " + ", ".join(wrong)
+    physics_to_agents = [f"{a} -> {b}" for a, targets in graph.items() for b in targets
+                         if a.startswith("saddle_env") and b.startswith("agents")]
+    assert not physics_to_agents, ", ".join(physics_to_agents)
+
+
+def test_the_layering_check_sees_an_upward_import():
+    """The check above would pass trivially if `_layer` placed nothing."""
+    assert _layer("agents.control.mpc") < _layer("agents.evaluation.policies") \
+        < _layer("agents.training.backends.sb3") < _layer("agents.benchmark.leaderboard")
+    assert _layer("agents.seeds") == 0 and _layer("agents.control") == 1
+
+
+@pytest.mark.parametrize("folder, most", [("saddle_env", 15), *(
+    (str(p.relative_to(ROOT)), 12) for p in sorted((ROOT / "agents").rglob("*"))
+    if p.is_dir() and (p / "__init__.py").is_file())])
+def test_a_folder_holds_few_modules(folder, most):
+    modules = [p.name for p in (ROOT / folder).glob("*.py")]
+    assert len(modules) <= most, f"{folder} holds {len(modules)} modules: {sorted(modules)}"
+
+
+def test_no_module_is_over_900_lines():
+    long = {str(p.relative_to(ROOT)): n for p in module_files().values()
+            if (n := len(p.read_text(encoding="utf-8").splitlines())) > 900}
+    assert not long, long
+
+
+@pytest.mark.parametrize("old, new", [("agents.leaderboard", "agents.benchmark.leaderboard"),
+                                      ("agents.mpc", "agents.control.mpc"),
+                                      ("saddle_env.precompile",
+                                       "saddle_env.compilation.precompile")])
+def test_an_old_module_name_says_where_the_module_went(old, new):
+    import importlib
+    import importlib.util
+
+    import agents  # noqa: F401  (its __init__ names the moved modules)
+    with pytest.raises(ModuleNotFoundError, match=f"{old} has moved to {new}"):
+        importlib.import_module(old)
+    assert importlib.util.find_spec(new) is not None
+
+
+def test_every_moved_name_points_at_a_module():
+    import importlib.util
+
+    import agents  # noqa: F401
+    from saddle_env import _moved
+    finder = next(f for f in __import__("sys").meta_path if isinstance(f, _moved._MovedFinder))
+    missing = [new for new in finder.moved.values()
+               if " " not in new and importlib.util.find_spec(new) is None]
+    assert not missing, missing

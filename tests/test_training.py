@@ -108,7 +108,7 @@ def test_sigterm_raises_stop_or_only_sets_the_flag_when_deferred():
     assert signal.getsignal(signal.SIGTERM) is before
 
 
-def test_a_stop_during_a_save_comes_after_the_files_are_whole(tmp_path, monkeypatch):
+def test_a_stop_during_a_save_comes_after_the_files_are_whole(tmp_path, monkeypatch, set_sigint):
     """SIGTERM or Ctrl-C while a checkpoint or the selected model is being written waits
     for the save to finish (it used to break torch's zip writer mid-file, whose RuntimeError
     then crashed the run instead of checkpointing), and is raised as itself after it."""
@@ -129,6 +129,9 @@ def test_a_stop_during_a_save_comes_after_the_files_are_whole(tmp_path, monkeypa
             return None
 
     monkeypatch.setattr(sb3_backend, "write_sidecar", lambda *a: written.append("sidecar"))
+    # Ctrl-C's handler as in a foreground terminal, whatever this process inherited (under
+    # nohup or `cmd &` SIGINT comes ignored, and the code rightly leaves it so: next test).
+    set_sigint(signal.default_int_handler)
     with pytest.raises(Stop), sigterm_stops():
         sb3_backend.save_model(Model(), tmp_path / "m.zip", None)
     assert written == ["m.zip", "sidecar"]
@@ -139,6 +142,27 @@ def test_a_stop_during_a_save_comes_after_the_files_are_whole(tmp_path, monkeypa
         written.append("after Ctrl-C")
     assert written[-1] == "after Ctrl-C"
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+@pytest.fixture
+def set_sigint():
+    """Set SIGINT's handler for one test; the one the process had comes back after it."""
+    before = signal.getsignal(signal.SIGINT)
+    yield lambda handler: signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGINT, before)
+
+
+def test_an_ignored_ctrl_c_stays_ignored_around_a_save(set_sigint):
+    """A run started with SIGINT ignored (nohup, `cmd &` in a script) keeps it ignored while
+    saving: holding stops must not install a handler the user's shell had turned off."""
+    import os
+
+    from agents.training.runs import sigterm_stops, stops_held
+    set_sigint(signal.SIG_IGN)
+    with sigterm_stops(), stops_held():
+        os.kill(os.getpid(), signal.SIGINT)      # ignored: nothing is raised
+        time.sleep(0.05)
+    assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
 
 
 def test_checkpoints_are_valid_sb3_archives(tmp_path):

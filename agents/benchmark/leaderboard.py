@@ -29,9 +29,11 @@ import numpy as np
 
 from agents.benchmark.report import clairvoyant_reference
 from agents.evaluation.model_files import TRUST_FLAG
+from agents.evaluation.policies import load_policy
+from agents.evaluation.user_code import source_digest
 from agents.paths import DOCS_DIR, MODELS_DIR, REPO_ROOT
 from agents.seeds import SEARCH_SEED, TEST_SEED, VALIDATION_SEED
-from saddle_env.envs import LEVELS, get_level
+from saddle_env.envs import LEVELS, EnvConfig, get_level
 from saddle_env.files import write_text_atomically
 
 TEST_EPISODES = 1000           # 200-episode sets move the kept fraction by about 7 points
@@ -54,10 +56,13 @@ def shipped_agents(env_id: str, models_dir: Path = MODELS_DIR) -> list[Path]:
     return out
 
 
-def policy_specs(env_id: str, models_dir: Path = MODELS_DIR) -> list[str]:
+def policy_specs(env_id: str, models_dir: Path = MODELS_DIR,
+                 extra: Sequence[str] = ()) -> list[str]:
     """What the leaderboard runs on ``env_id``: every baseline, then the agents in
-    ``models_dir`` (the shipped ones by default)."""
-    return list(BASELINE_POLICIES) + [str(p) for p in shipped_agents(env_id, models_dir)]
+    ``models_dir`` (the shipped ones by default), then the ``extra`` policies (``--policy``:
+    a controller class of yours, another model file)."""
+    return (list(BASELINE_POLICIES) + [str(p) for p in shipped_agents(env_id, models_dir)]
+            + list(extra))
 
 
 def shown_spec(spec: str) -> str:
@@ -74,24 +79,31 @@ def shown_spec(spec: str) -> str:
 
 
 def policy_key(spec: str) -> str:
-    """A baseline's name, or a model file's name with a digest of its bytes (a retrained
-    model is a new entry, not a stale one)."""
+    """A baseline's name, or a model file's (or a controller class's file's) name with a
+    digest of its bytes (a retrained model or an edited controller is a new entry, not a
+    stale one)."""
     path = Path(spec)
     if spec.endswith(".zip") and path.is_file():
         return f"{path.name}@{hashlib.sha256(path.read_bytes()).hexdigest()[:12]}"
+    digest = source_digest(spec)
+    if digest is not None:
+        return f"{Path(spec).name}@{digest}"
     return spec
 
 
 def evaluate_policy(env_id: str, spec: str, episodes: int, seed: int, progress: bool = True,
-                    trust: bool = False) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+                    trust: bool = False, policy_kwargs: dict[str, Any] | None = None
+                    ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """(table row, per-episode results) of one policy on level ``env_id``'s test episodes
-    (model files read as data unless ``trust``, see `agents.evaluation.policies.load_policy`)."""
+    (model files read as data unless ``trust``, controller classes built with
+    ``policy_kwargs``: see `agents.evaluation.policies.load_policy`)."""
     from agents.evaluation.evaluate import evaluate
 
     level = get_level(env_id)
     table, details = evaluate([spec], level.config(), episodes, seed,
                               max_episode_steps=level.max_episode_steps, progress=progress,
-                              examples=0, env_id=env_id, trust=trust)
+                              examples=0, env_id=env_id, trust=trust,
+                              policy_kwargs=policy_kwargs)
     return table["policies"][0], details[table["policies"][0]["policy"]]
 
 
@@ -239,6 +251,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="keep the results already in DIR/leaderboard.json with the same "
                         "episodes and seed (per level and policy)")
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--policy", action="append", default=[], metavar="SPEC",
+                   help="an extra row on every level: your controller class "
+                        "(path/to/file.py:ClassName or package.module:ClassName; imported and "
+                        "run) or another model file; repeat for several")
+    p.add_argument("--policy-kwargs", default=None, metavar="JSON",
+                   help="a JSON object of arguments the --policy classes are built with")
     p.add_argument("--models", default=str(MODELS_DIR), metavar="DIR",
                    help="the agents to rank: every .zip in DIR whose JSON sidecar names the "
                         "level (default: the shipped agents). Read as data, never unpickled")
@@ -255,6 +273,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
+    policy_kwargs = None
+    if args.policy_kwargs is not None:
+        try:
+            policy_kwargs = json.loads(args.policy_kwargs)
+        except ValueError as exc:
+            parser.error(f"--policy-kwargs: not JSON ({exc})")
+        if not isinstance(policy_kwargs, dict):
+            parser.error(f"--policy-kwargs: expected a JSON object, got {args.policy_kwargs!r}")
+    for spec in args.policy:  # a bad class fails before an hour of baselines, not after
+        try:
+            load_policy(spec, EnvConfig(), trust=args.trust_model, policy_kwargs=policy_kwargs)
+        except ValueError as exc:
+            parser.error(f"--policy: {exc}")
     ids = args.levels or [level.id for level in LEVELS]
     for lid in ids:
         try:
@@ -316,7 +347,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             episodes: dict[str, Any] = {}
             results["episode_results"][lid] = episodes
             results["levels"][lid] = table
-            for spec in policy_specs(lid, Path(args.models)):
+            for spec in policy_specs(lid, Path(args.models), args.policy):
                 key = policy_key(spec)
                 if key in done.get(lid, {}):
                     row, eps = done[lid][key]
@@ -325,7 +356,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     try:
                         row, res = evaluate_policy(lid, spec, args.episodes, args.seed,
                                                    progress=not args.no_progress,
-                                                   trust=args.trust_model)
+                                                   trust=args.trust_model,
+                                                   policy_kwargs=policy_kwargs)
                     except ValueError as exc:   # one bad submission does not stop the board
                         print(f"{lid}: skipped {spec}: {exc}", file=sys.stderr, flush=True)
                         continue

@@ -1,12 +1,15 @@
-"""``saddle-eval``: evaluate policies (baselines or Stable-Baselines3 model files) on the
-same seeded episodes of a task level and tabulate how long they keep the ball.
+"""``saddle-eval``: evaluate policies (baselines, model files, or controller classes of your
+own) on the same seeded episodes of a task level and tabulate how long they keep the ball.
 
 ```
 saddle-eval --policy const-1.2 --policy mpc --policy runs/ppo/model.zip \\
             --policy runs/ppo_rllib_seed0_<date>/final \\
+            --policy my_controllers.py:Bang --policy-kwargs '{"gain": 2}' \\
             --episodes 200 --seed 0 [--env ID] [--env-kwargs R=0.033 air_force=0.3]
             [--json] [--out DIR]
 ```
+
+In Python, `evaluate_controller` puts any object with SB3's ``predict`` beside the baselines.
 
 The environment is the level ``--env`` (`saddle_env.LEVELS`; default: the level named by the
 sidecar of the first model file that has one, else ``SaddleTrap-v0``) with ``--env-kwargs``
@@ -59,6 +62,8 @@ from agents.cli_args import (
 from agents.control.rollout import CHUNK, Actor, PolicyActor, policy_actor, run_episodes  # noqa: F401
 from agents.evaluation.model_files import TRUST_FLAG
 from agents.evaluation.policies import load_policy, model_sidecar, policy_sidecar  # noqa: F401
+from agents.evaluation.user_code import is_controller_spec
+from agents.seeds import TEST_SEED
 from saddle_env.envs import DEFAULT_EPISODE_STEPS, ENV_ID, LEVEL_IDS, EnvConfig, get_level
 from saddle_env.envs.observation import layout
 
@@ -125,24 +130,29 @@ def summarise(res: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
 # Evaluation of named policies
 # --------------------------------------------------------------------------------------
 def policy_label(policy: Any, spec: str) -> tuple[str, str]:
-    """(label, kind) of a loaded policy: a baseline's name, or a model file's path and algorithm."""
+    """(label, kind) of a loaded policy: a baseline's name, a user's controller class's
+    name, or a model file's path and algorithm."""
     if hasattr(policy, "algo_name"):
         return spec, policy.algo_name
+    if is_controller_spec(spec):
+        return str(getattr(policy, "name", spec)), "controller"
     return getattr(policy, "name", spec), "baseline"
 
 
 def evaluate(specs: Sequence[str | tuple[str, Any]], config: EnvConfig, episodes: int, seed: int,
              max_episode_steps: int = DEFAULT_EPISODE_STEPS, progress: bool = False,
-             examples: int = N_EXAMPLES, env_id: str | None = None, trust: bool = False
+             examples: int = N_EXAMPLES, env_id: str | None = None, trust: bool = False,
+             policy_kwargs: dict[str, Any] | None = None
              ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Evaluate every policy on episodes ``seed .. seed + episodes − 1``.
 
-    ``specs``: baseline names or model paths (see `load_policy`), or (spec, policy) pairs of
-    already loaded policies. ``env_id``: the level ``config`` was built from (recorded with
-    the options that override it; default: the options over `EnvConfig`'s defaults).
-    ``trust``: load model files with their pickles (see `load_policy`); default: as data.
-    Returns (table, details): the table is what ``--json`` prints; details hold the
-    per-episode arrays and traces for files and plots.
+    ``specs``: baseline names, model paths or controller classes (``file.py:Class``; see
+    `load_policy`), or (spec, policy) pairs of already loaded policies. ``env_id``: the level
+    ``config`` was built from (recorded with the options that override it; default: the
+    options over `EnvConfig`'s defaults). ``trust``: load model files with their pickles
+    (see `load_policy`); default: as data. ``policy_kwargs``: the arguments controller
+    classes are built with. Returns (table, details): the table is what ``--json`` prints;
+    details hold the per-episode arrays and traces for files and plots.
     """
     level = get_level(env_id) if env_id is not None else None
     table: dict[str, Any] = {}
@@ -157,7 +167,8 @@ def evaluate(specs: Sequence[str | tuple[str, Any]], config: EnvConfig, episodes
     seeds = seed + np.arange(episodes)
     for item in specs:
         spec, policy = item if isinstance(item, tuple) else \
-            (item, load_policy(item, config, max_episode_steps=max_episode_steps, trust=trust))
+            (item, load_policy(item, config, max_episode_steps=max_episode_steps, trust=trust,
+                               policy_kwargs=policy_kwargs))
         _check_compatible(policy, config, spec)
         label, kind = policy_label(policy, spec)
         act, row_independent = policy_actor(policy)
@@ -170,6 +181,39 @@ def evaluate(specs: Sequence[str | tuple[str, Any]], config: EnvConfig, episodes
         table["policies"].append(row)
         details[label] = res
     return table, details
+
+
+def evaluate_controller(controller: Any, env_id: str = ENV_ID, episodes: int = 100,
+                        seed: int = TEST_SEED,
+                        baselines: Sequence[str] = ("const-1.0", "best-const", "mpc"),
+                        name: str | None = None, env_kwargs: dict[str, Any] | None = None,
+                        max_episode_steps: int | None = None, progress: bool = False
+                        ) -> dict[str, Any]:
+    """Your controller beside the baselines, on the same seeded episodes of a level.
+
+    ``controller``: any object with Stable-Baselines3's ``predict(observation, state=None,
+    episode_start=None, deterministic=True) -> (action, state)``, or a spec string that
+    `load_policy` takes (``"path/to/file.py:ClassName"``, a baseline's name, a model file).
+    ``baselines``: the rows beside it (``const-1.0`` holds Ω at the rigid ball's Ω_crt).
+    ``seed``: episode i is ``reset(seed=seed + i)``; the default, the leaderboard's frozen test
+    seeds, makes the rows comparable with the leaderboard's (docs/leaderboard.md), whose
+    baselines were measured on the first 1,000 of them. ``env_kwargs``: options over the
+    level's. Returns the table ``saddle-eval --json`` prints: ``table["policies"]`` holds one
+    row per policy, yours first, each with the mean trapping time and its 95 % interval.
+    """
+    level, config = resolve_env(env_id, dict(env_kwargs or {}))
+    steps = max_episode_steps or level.max_episode_steps
+    if isinstance(controller, str):
+        first: str | tuple[str, Any] = controller
+    else:
+        if not callable(getattr(controller, "predict", None)):
+            raise TypeError("controller must have a method predict(observation, state=None, "
+                            "episode_start=None, deterministic=True), got "
+                            f"{type(controller).__name__}")
+        first = (name or str(getattr(controller, "name", type(controller).__name__)), controller)
+    table, _ = evaluate([first, *baselines], config, episodes, seed, steps, progress=progress,
+                        examples=0, env_id=level.id)
+    return table
 
 
 def _check_compatible(policy: Any, config: EnvConfig, spec: str) -> None:
@@ -307,8 +351,14 @@ def build_parser() -> argparse.ArgumentParser:
                     "plots, or with --json print the table and write nothing.")
     p.add_argument("--policy", action="append", required=True, metavar="NAME_OR_PATH",
                    help="a baseline (const-1.0, const-1.2, const-<K>, masspoint, best-const, mpc, "
-                        "clairvoyant, zero, random), a model file or an RLlib checkpoint directory; repeat "
-                        "for several")
+                        "clairvoyant, zero, random), a model file, an RLlib checkpoint "
+                        "directory, or your controller class as path/to/file.py:ClassName or "
+                        "package.module:ClassName (imported and run: name only code you "
+                        "trust); repeat for several")
+    p.add_argument("--policy-kwargs", default=None, metavar="JSON",
+                   help="a JSON object of arguments your controller classes are built with "
+                        "(default: none; a class whose __init__ takes `config` gets the "
+                        "level's options)")
     p.add_argument("--env", default=None, metavar="ID",
                    help=f"task level ({', '.join(LEVEL_IDS)}); default: the level a model "
                         f"file's sidecar names, else {ENV_ID}")
@@ -379,10 +429,23 @@ def main(argv: Sequence[str] | None = None) -> int:
               file=sys.stderr)
         progress = False
 
+    policy_kwargs = None
+    if args.policy_kwargs is not None:
+        try:
+            policy_kwargs = json.loads(args.policy_kwargs)
+        except ValueError as exc:
+            parser.error(f"--policy-kwargs: not JSON ({exc})")
+        if not isinstance(policy_kwargs, dict):
+            parser.error("--policy-kwargs: expected a JSON object such as '{\"gain\": 2}', "
+                         f"got {args.policy_kwargs!r}")
+        if not any(is_controller_spec(s) for s in args.policy):
+            parser.error("--policy-kwargs: no --policy names a controller class "
+                         "(path/to/file.py:ClassName) to build with them")
     policies = []
     for spec in args.policy:  # fail on a bad name or file before any work
         try:
-            policy = load_policy(spec, config, max_episode_steps=steps, trust=args.trust_model)
+            policy = load_policy(spec, config, max_episode_steps=steps, trust=args.trust_model,
+                                 policy_kwargs=policy_kwargs)
             _check_compatible(policy, config, spec)
         except (ValueError, OSError, MissingExtra) as exc:
             parser.error(str(exc))

@@ -45,6 +45,7 @@ from agents.evaluation.model_files import (
     read_normalizer,
     untrusted,
 )
+from agents.evaluation.user_code import is_controller_spec, load_controller
 from saddle_env.envs import EnvConfig
 from saddle_env.envs.observation import observation_space
 
@@ -208,10 +209,13 @@ class WrappedModel:
 
 
 def load_policy(name_or_path: str | os.PathLike, config: EnvConfig | None = None,
-                max_episode_steps: int | None = None, trust: bool = False) -> Any:
+                max_episode_steps: int | None = None, trust: bool = False,
+                policy_kwargs: dict[str, Any] | None = None) -> Any:
     """A baseline by name (``BASELINES``, or ``const-<K>`` for any K) built for ``config``,
-    or a Stable-Baselines3 model loaded from a ``.zip`` file (algorithm detected; wrapped
-    as its sidecar's ``frame_stack``/``normalize`` say), or an RLlib checkpoint directory.
+    a user's controller class (``path/to/file.py:ClassName`` or ``package.module:ClassName``,
+    built with ``policy_kwargs``: `agents.evaluation.user_code`), a Stable-Baselines3 model
+    loaded from a ``.zip`` file (algorithm detected; wrapped as its sidecar's
+    ``frame_stack``/``normalize`` say), or an RLlib checkpoint directory.
     ``max_episode_steps`` is the episode length ``best-const`` is searched for (default:
     the search's own). Files are read as data unless ``trust`` (see `load_model`)."""
     config = EnvConfig() if config is None else config
@@ -223,6 +227,8 @@ def load_policy(name_or_path: str | os.PathLike, config: EnvConfig | None = None
     const = parse_constant(name)
     if const is not None:
         return const(config)
+    if is_controller_spec(name) and not Path(name).exists():
+        return load_controller(name, config, policy_kwargs)
     if Path(name).is_dir():      # an RLlib checkpoint directory (or an RLlib run folder)
         from agents.evaluation.rllib_policy import latest_checkpoint
         from agents.evaluation.rllib_policy import load_policy as load_rllib_policy
@@ -233,7 +239,8 @@ def load_policy(name_or_path: str | os.PathLike, config: EnvConfig | None = None
     if path.is_file():
         return _load_with_pipeline(path, config, trust)
     raise ValueError(f"unknown policy {name!r}: not a baseline ({', '.join(BASELINES)}, "
-                     f"const-<K>) and no model file {str(path)!r}")
+                     f"const-<K>), no model file {str(path)!r} and no controller class "
+                     "(path/to/file.py:ClassName or package.module:ClassName)")
 
 
 def _load_with_pipeline(path: Path, config: EnvConfig, trust: bool = False) -> Any:
