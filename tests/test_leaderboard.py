@@ -163,3 +163,38 @@ def test_a_results_file_is_written_whole_or_not_at_all(tmp_path):
     assert path.read_text() == '{"old": 1}\n'
     assert [p.name for p in tmp_path.iterdir()] == ["leaderboard.json"]
     assert path.stat().st_mode & 0o777 == 0o644
+
+
+def _committed_board() -> dict:
+    return json.loads((lb.DOCS / "leaderboard.json").read_text())
+
+
+def test_every_shipped_agent_is_on_the_board_at_or_above_the_trivial_policies():
+    """A shipped agent that loses to doing nothing (zero), to random actions or to holding
+    one speed (a const-K row, best-const) on its own level's test set is not shipped."""
+    board = _committed_board()
+    for level in LEVELS:
+        agents = [lb.shown_spec(str(p)) for p in lb.shipped_agents(level.id)]
+        if not agents:
+            continue
+        rows = {r["policy"]: r for r in board["levels"][level.id]["policies"]}
+        trivial = {name: r["trapping_time"]["mean"] for name, r in rows.items()
+                   if name in ("zero", "random", "best-const") or name.startswith("const-")}
+        assert {"zero", "best-const"} <= set(trivial), level.id
+        best_name = max(trivial, key=trivial.get)
+        for agent in agents:
+            assert agent in rows, f"{agent} is shipped for {level.id} but not on the board"
+            mean = rows[agent]["trapping_time"]["mean"]
+            assert mean >= trivial[best_name], \
+                f"{agent} ({mean:.3f} s) is below {best_name} ({trivial[best_name]:.3f} s)"
+
+
+def test_no_constant_beats_best_const_beyond_its_interval():
+    """``best-const`` is searched on other episodes than the test set: a listed constant may
+    beat it by chance, but not by more than best-const's own interval."""
+    for lid, table in _committed_board()["levels"].items():
+        rows = {r["policy"]: r for r in table["policies"]}
+        high = rows["best-const"]["trapping_time"]["high"]
+        for name, row in rows.items():
+            if name.startswith("const-"):
+                assert row["trapping_time"]["mean"] <= high, (lid, name)

@@ -329,7 +329,7 @@ def test_shipped_models_load_and_act_in_the_task_they_were_trained_on():
     from agents.evaluation.policies import load_policy
     from saddle_env.envs import level_config
     models = sorted((ROOT / "agents" / "models").glob("*.zip"))
-    assert {m.stem for m in models} >= {"ppo_default", "sac_default", "ppo_gusty",
+    assert {m.stem for m in models} >= {"sac_default", "ppo_gusty",
                                         "ppo_capture", "ppo_storm", "ppo_slippery"}
     for path in models:
         side = json.loads(path.with_suffix(".json").read_text())
