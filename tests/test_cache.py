@@ -61,7 +61,7 @@ def test_dependencies_follow_the_imports(tmp_path, monkeypatch):
     deps = {m: _cache._imports(m, p, mods) for m, p in mods.items()}
     assert deps["saddle_env._kernels"] == {"saddle_env.scene"}
     assert deps["saddle_env.envs._step"] == {"saddle_env._kernels", "saddle_env.integrators"}
-    assert deps["agents.control.mpc"] == {"saddle_env._kernels"}
+    assert deps["agents.mpc"] == {"saddle_env._kernels"}
     # the package __init__ is not a dependency of its modules (it imports everything)
     assert "saddle_env" not in set().union(*deps.values())
 
@@ -92,7 +92,7 @@ def test_a_changed_file_drops_only_its_own_and_its_dependents_caches(tmp_path, m
     _cached(files["linear.py"])
     files["_kernels.py"].write_text("from .scene import P_A\nx = 2\n")
     assert _modules(_cache.refresh()) == {"saddle_env._kernels", "saddle_env.integrators",
-                                          "saddle_env.envs._step", "agents.control.mpc"}
+                                          "saddle_env.envs._step", "agents.mpc"}
     assert _has_cache(files["linear.py"])
     assert not any(_has_cache(f) for k, f in files.items() if k != "linear.py")
 
