@@ -35,6 +35,7 @@ import contextvars
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, TypedDict
 
 import numpy as np
 
@@ -42,6 +43,9 @@ from . import _kernels as K
 from .omega import OmegaProfile
 from .runner import Settings, drive_row, run
 from .scene import Scene, _finite_number
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack  # typing.Unpack from Python 3.11
 
 SAFETY = 2.0                     # predicted error must be below tol / SAFETY
 PILOT_FRACTION = 0.1
@@ -53,6 +57,16 @@ TOL_FLOOR = 1e-11                # [m] below this the reference itself cannot vo
 TOL_CEIL = 1.0                   # [m]
 ADAPTIVE_RTOLS = tuple(10.0 ** -k for k in range(4, 14))
 RK4_DIVISORS = (1, 2, 4, 8, 16, 32)
+
+
+class IntegratorKwargs(TypedDict, total=False):
+    """The integrator's keywords of `simulate` and `runner.run`: a candidate or a pick."""
+
+    method: str
+    rtol: float | None
+    atol: float | None
+    dt: float
+    max_step: float
 
 
 @dataclass(frozen=True)
@@ -70,8 +84,8 @@ class Choice:
     candidates_tried: int
     pilot_rhs_evaluations: int
 
-    def kwargs(self) -> dict[str, object]:
-        out: dict[str, object] = {"method": self.method}
+    def kwargs(self) -> IntegratorKwargs:
+        out: IntegratorKwargs = {"method": self.method}
         if self.dt is not None:
             out["dt"] = self.dt
         else:
@@ -107,7 +121,7 @@ def _base_step(scene: Scene, profile: OmegaProfile, t_end: float) -> float:
     return min(h0, cap, t_end)
 
 
-def _families(h0: float, t_end: float, detach: bool) -> list[list[dict[str, object]]]:
+def _families(h0: float, t_end: float, detach: bool) -> list[list[IntegratorKwargs]]:
     """Candidate families, each cheap to dear; dop853 first (it wins most often on the
     benchmark's diagram, so its pick prunes the other families early)."""
     cap = None if detach else max(t_end, h0)
@@ -117,7 +131,7 @@ def _families(h0: float, t_end: float, detach: bool) -> list[list[dict[str, obje
         for r in ADAPTIVE_RTOLS:
             if m == "dopri5" and r < 1e-10:
                 continue
-            kw: dict[str, object] = {"method": m, "rtol": r}
+            kw: IntegratorKwargs = {"method": m, "rtol": r}
             if cap is not None:
                 kw["max_step"] = cap
             fam.append(kw)
@@ -188,7 +202,7 @@ def _choose(simulate, scenes, states, t_end, tol, omegas, dt_out, events, force)
         refs.append(_positions(tr))
     h0 = min(_base_step(sc, om, t_end) for sc, _, om in balls)
     fams = _families(h0, t_end, detach)
-    best: tuple[int, dict[str, object], float] | None = None
+    best: tuple[int, IntegratorKwargs, float] | None = None
     tried = 0
     total_evals = 0
     for fam in fams:
@@ -232,9 +246,9 @@ def _choose(simulate, scenes, states, t_end, tol, omegas, dt_out, events, force)
     if dt is not None and dt_out is not None:
         # The run lands on every output, so a larger step would run at dt_out anyway (as in
         # the pilot); saying so keeps choice.kwargs() valid for simulate(..., dt_out=dt_out).
-        dt = min(float(dt), float(dt_out))  # type: ignore[arg-type]
-    return Choice(method=str(kw["method"]), rtol=kw.get("rtol"), dt=dt,  # type: ignore[arg-type]
-                  max_step=kw.get("max_step"), tol=tol, predicted_error=best[2],  # type: ignore[arg-type]
+        dt = min(float(dt), float(dt_out))
+    return Choice(method=str(kw["method"]), rtol=kw.get("rtol"), dt=dt,
+                  max_step=kw.get("max_step"), tol=tol, predicted_error=best[2],
                   pilot_t=t_p, t_end=t_end, candidates_tried=tried,
                   pilot_rhs_evaluations=total_evals)
 
@@ -345,18 +359,18 @@ def check_fixed_step(traj, dt: float, method: str = "rk4") -> str | None:
     return msg
 
 
-def assess(traj, **settings: object) -> dict[str, float]:
+def assess(traj, **settings: Unpack[IntegratorKwargs]) -> dict[str, float]:
     """A posteriori error estimate of a finished run: re-run it with half the fixed step
     (or rtol/100 for an adaptive run; pass the run's ``method``/``dt``/``rtol`` as
     ``settings``) and report the largest contact-point distance between the two, plus the
     Jacobi drift where it is conserved."""
-    kw = dict(settings)
+    kw: IntegratorKwargs = {**settings}
     dt_out = float(traj.t[1] - traj.t[0]) if len(traj.t) > 2 else None
     if kw.get("dt") is not None:
         # the loop lands on every output, so the step taken is at most the output spacing
-        kw["dt"] = min(float(kw["dt"]), dt_out or math.inf) / 2.0  # type: ignore[arg-type]
+        kw["dt"] = min(float(kw["dt"]), dt_out or math.inf) / 2.0
     else:
-        kw["rtol"] = max(float(kw.get("rtol") or 1e-10) / 100.0, 1e-14)  # type: ignore[arg-type]
+        kw["rtol"] = max(float(kw.get("rtol") or 1e-10) / 100.0, 1e-14)
     token = _INTERNAL.set(True)
     try:
         finer = run(traj.scene, traj.state[0], float(traj.t[-1]), omega=traj.omega,

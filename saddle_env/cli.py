@@ -117,8 +117,9 @@ def render(traj: Trajectory, fmt: str) -> str:
     if fmt == "json":
         return json.dumps(traj.as_dict()) + "\n"
     cols = [traj.t, traj.x, traj.y, traj.vx, traj.vy, traj.N_over_mg, traj.h]
-    names = COLUMNS
+    names: tuple[str, ...] = COLUMNS
     if traj.phase is not None:  # coulomb: the phase (0 stick, 1 slip) and the work
+        assert traj.work is not None  # Trajectory.__post_init__ fills work
         cols += [traj.phase, traj.work]
         names += ("slipping", "work")
     lines = [f"# saddle-sim: {traj.scene}; integrator {traj.settings}"]

@@ -202,6 +202,7 @@ def _scipy_ivp_module(name: str) -> types.ModuleType:
     import scipy
     path = Path(scipy.__file__).parent / "integrate" / "_ivp" / f"{name}.py"
     spec = importlib.util.spec_from_file_location(f"saddle_env._scipy_ivp_{name}", path)
+    assert spec is not None and spec.loader is not None  # a .py file's spec has a loader
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

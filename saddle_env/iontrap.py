@@ -166,13 +166,14 @@ class RRFTrap:
         V0 = _finite_number("V0", V0)
         B = _finite_number("B", B)
         Vt = _finite_number("Vt", Vt)
+        kt = 0.0
         if Vt != 0.0:
             if d is None:
                 raise ValueError("d (end-cap distance in metres) is needed when Vt != 0")
             d = _finite_number("d", d)
             if not d > 0:
                 raise ValueError(f"d must be > 0 metres, got {d:g}")
-        kt = em * Vt / d ** 2 if Vt != 0.0 else 0.0
+            kt = em * Vt / d ** 2
         return cls(omega=omega, kappa=em * V0 / r ** 2, omega_B=em * B, kappa_t=kt, r0=r)
 
     @property
@@ -538,6 +539,7 @@ def paper_analogy_ion(scene: Scene, omega: float, spin_z: float = 0.0) -> RRFTra
         raise ValueError(f"scene must be a saddle_env.Scene, got {type(scene).__name__}")
     W = _rate("omega", omega, positive=True)
     wz = _rate("spin_z", spin_z)
+    assert scene.b is not None  # Scene.__post_init__ sets b (None means b = a)
     a, b, R, g, al = scene.a, scene.b, scene.radius, scene.g, scene.alpha
     q = 2 * al * R / (b + 2 * R) if scene.rolling else 0.0
     return RRFTrap(omega=W, kappa=g * (1 / (a - 2 * R) + 1 / (b + 2 * R)), omega_B=q * wz,

@@ -58,6 +58,7 @@ def abcd(scene: Scene, omega: float, spin_z: float = 0.0) -> ABCD:
     wz = _finite_number("spin_z", spin_z)
     if abs(W) > MAX_RATE or abs(wz) > MAX_RATE:
         raise ValueError(f"omega and spin_z must lie within ±{MAX_RATE:g} rad/s, got {W:g}, {wz:g}")
+    assert scene.b is not None  # Scene.__post_init__ sets b (None means b = a)
     a, b, R, g, al = scene.a, scene.b, scene.radius, scene.g, scene.alpha
     am, bp = a - 2.0 * R, b + 2.0 * R
     if scene.rolling:
@@ -203,6 +204,7 @@ def _bands_where(holds: Callable[[float], bool], scene: Scene, omega_max: float 
     """Intervals of Ω in (0, omega_max] where ``holds(Ω)``: a grid scan, edges bisected."""
     if isinstance(n_grid, bool) or not isinstance(n_grid, (int, np.integer)) or not 10 <= n_grid <= 10**7:
         raise ValueError(f"n_grid must be an integer in [10, 1e7], got {n_grid!r}")
+    assert scene.b is not None  # Scene.__post_init__ sets b (None means b = a)
     ref = math.sqrt(2 * max(scene.g, 1e-12) / min(scene.a, scene.b))
     top = 100.0 * ref if omega_max is None else _finite_number("omega_max", omega_max)
     if top <= 0:
@@ -241,6 +243,7 @@ def _bands_where(holds: Callable[[float], bool], scene: Scene, omega_max: float 
 def centre_from_contact(scene: Scene, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Linearised map from contact point to ball centre: x_c = (1 − 2R/a) x, y_c = (1 + 2R/b) y."""
     R = scene.radius
+    assert scene.b is not None  # Scene.__post_init__ sets b (None means b = a)
     return (1 - 2 * R / scene.a) * np.asarray(x), (1 + 2 * R / scene.b) * np.asarray(y)
 
 

@@ -444,6 +444,7 @@ class Trajectory:
                "N_over_mg": self.N_over_mg.tolist(), "h": self.h.tolist(),
                "event": None if self.event is None else self.event.as_dict()}
         if self.phase is not None:
+            assert self.work is not None  # __post_init__ fills work (zeros when there is none)
             out["phase"] = [PHASE_NAMES[float(p)] for p in self.phase]
             out["transitions"] = [tr.as_dict() for tr in self.transitions]
             out["work"] = self.work.tolist()
@@ -499,6 +500,7 @@ def run(scene: Scene, state: np.ndarray, t_end: float, *,
 
 
 def _raise_on_failure(status: int, t_final: float, r: float, scene: Scene) -> None:
+    assert scene.b is not None  # Scene.__post_init__ sets b (None means b = a)
     if status in (STATUS_FAILED, STATUS_MAX_STEPS) and not r < 10 * max(scene.a, scene.b):
         raise SimulationError(
             f"integration stopped at t = {t_final:.9g} s with the ball {r:.3g} m from the axis: "

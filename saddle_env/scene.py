@@ -14,7 +14,7 @@ from typing import Literal
 import numpy as np
 
 ContactModel = Literal["rolling", "slipping", "point", "coulomb"]
-CONTACT_MODELS: tuple[str, ...] = ("rolling", "slipping", "point", "coulomb")
+CONTACT_MODELS: tuple[ContactModel, ...] = ("rolling", "slipping", "point", "coulomb")
 
 # Integer codes the compiled kernels switch on (kept in one place). The ion codes select a
 # charged particle in a quadrupole trap (saddle_env.iontrap), integrated by the same loop.

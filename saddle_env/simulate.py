@@ -17,7 +17,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from . import runner
-from .accuracy import Choice, check_fixed_step, check_tol, choose
+from .accuracy import Choice, IntegratorKwargs, check_fixed_step, check_tol, choose
 from .omega import OmegaProfile
 from .runner import (
     DEFAULT_EVENTS,
@@ -123,12 +123,12 @@ def _auto(scenes, states, profiles, t_out, dt_out, tol, explicit, events, force)
                   events=events, force=force)
 
 
-def _run_kwargs(choice: Choice, dt_out: float | None) -> dict[str, object]:
+def _run_kwargs(choice: Choice, dt_out: float | None) -> IntegratorKwargs:
     """The run's settings from a pick. A fixed step above the output spacing runs at the
     spacing (the loop lands on every output), which is what the pilot measured."""
     kw = choice.kwargs()
     if "dt" in kw and dt_out is not None:
-        kw["dt"] = min(float(kw["dt"]), float(dt_out))  # type: ignore[arg-type]
+        kw["dt"] = min(float(kw["dt"]), float(dt_out))
     return kw
 
 

@@ -30,7 +30,7 @@ from ..accuracy import AccuracyWarning
 from .blas import limit_blas_threads
 from .core import COLUMNS, MODEL_TIERS, TIERS, Case, measure_jacobi, reference, tasks, warm_up
 from .peer import PeerModel
-from .report import plot, read_rows, summarize
+from .report import Summary, plot, read_rows, summarize
 
 __all__ = ["Case", "PeerModel", "main", "run"]
 
@@ -50,7 +50,7 @@ def _progress(items: list, quiet: bool):
 
 def run(out: str | Path, quick: bool = False, tiers: Sequence[str] = TIERS, peers: bool = True,
         batch: bool = True, figures: bool = True, jacobi_periods: int | None = None,
-        quiet: bool = False, case: Case | None = None) -> dict[str, object]:
+        quiet: bool = False, case: Case | None = None) -> Summary:
     """Run the benchmark; return the summary (also written to ``out/summary.json``)."""
     with warnings.catch_warnings():
         # The sweep runs deliberately coarse fixed steps: their AccuracyWarning is the point.
@@ -91,7 +91,7 @@ def _run(out, quick, tiers, peers, batch, figures, jacobi_periods, quiet, case):
         finally:
             if bar is not None:
                 bar.close()
-    extra: dict[str, object] = {}
+    extra: Summary = {}
     if jacobi_periods is None:
         jacobi_periods = 1000 if quick else 10_000
     if jacobi_periods and not interrupted:
@@ -112,8 +112,8 @@ def _run(out, quick, tiers, peers, batch, figures, jacobi_periods, quiet, case):
     return finish(csv_path, out, figures, extra)
 
 
-def finish(csv_path: Path, out: Path, figures: bool, extra: dict[str, object] | None = None
-           ) -> dict[str, object]:
+def finish(csv_path: Path, out: Path, figures: bool, extra: Summary | None = None
+           ) -> Summary:
     """Summary and figures from the CSV."""
     from ..simulate import DEFAULT_METHOD, DEFAULT_RTOL
 
@@ -191,7 +191,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-def _headline(summary: dict[str, object]) -> str:
+def _headline(summary: Summary) -> str:
     lines = []
     t1 = summary.get("target_speedup", {})
     if "speedup_cheapest_rows" in t1:

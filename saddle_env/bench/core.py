@@ -22,21 +22,28 @@ import math
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
+from functools import partial
+from typing import Literal, TypeVar, cast
 
 import numpy as np
 
 from .. import _kernels as K
+from ..accuracy import IntegratorKwargs
 from ..integrators import STATUS_DONE
 from ..linear import abcd, linear_trajectory
+from ..runner import Start
 from ..scene import P_A, P_B, P_R, Scene
 from ..simulate import initial_state, simulate, simulate_batch
 from .peer import PeerModel
 
 REFERENCE_RTOL = 1e-12
-TIERS = ("rolling", "slipping", "point", "coulomb", "linear")
+# A contact model (`Scene.contact`) or the linearised rolling model.
+Tier = Literal["rolling", "slipping", "point", "coulomb", "linear"]
+TIERS: tuple[Tier, ...] = ("rolling", "slipping", "point", "coulomb", "linear")
 # The exact models, each measured against its own reference solve (the linearised tier
 # against the rolling one).
 MODEL_TIERS = TIERS[:-1]
+T = TypeVar("T")
 
 COLUMNS = (
     # what was run
@@ -62,7 +69,7 @@ class Case:
     omega: float = 20.0          # [rad/s], Ω_crt = 12.8 (rolling/slipping), 11.1 (point)
     x0: float = 0.005            # contact point at release [m]
     y0: float = 0.0025
-    start: str = "lab-rest"
+    start: Start = "lab-rest"
     t_end: float = 10.0          # [s]
     dt_out: float = 0.1          # error sampled (and outputs landed on) every dt_out [s]
     batch_n: int = 1024
@@ -71,13 +78,13 @@ class Case:
     # in 10 s (slipping 27 % of the time), and stays on the saddle.
     mu: float = 0.022
 
-    def scene(self, tier: str) -> Scene:
+    def scene(self, tier: Tier) -> Scene:
         contact = "rolling" if tier == "linear" else tier
         if contact == "coulomb":
             return Scene(a=self.a, R=self.R, contact=contact, rim_radius=0.1, mu=self.mu)
         return Scene(a=self.a, R=self.R, contact=contact, rim_radius=0.1)
 
-    def state(self, tier: str, x0: float | None = None, y0: float | None = None) -> np.ndarray:
+    def state(self, tier: Tier, x0: float | None = None, y0: float | None = None) -> np.ndarray:
         return initial_state(self.scene(tier), self.x0 if x0 is None else x0,
                              self.y0 if y0 is None else y0, start=self.start, omega=self.omega)
 
@@ -149,8 +156,8 @@ def peer_configs(quick: bool) -> list[Config]:
 # ----------------------------------------------------------------------------------------
 # Measurements
 # ----------------------------------------------------------------------------------------
-def _timed(fn: Callable[[], object], budget: float = 0.3, max_repeats: int = 7
-           ) -> tuple[object, float, int]:
+def _timed(fn: Callable[[], T], budget: float = 0.3, max_repeats: int = 7
+           ) -> tuple[T, float, int]:
     """Run ``fn`` (at least once, more while the total stays under ``budget`` seconds) and
     return its result and the minimum wall time."""
     best = math.inf
@@ -164,7 +171,7 @@ def _timed(fn: Callable[[], object], budget: float = 0.3, max_repeats: int = 7
         best = min(best, dt)
         total += dt
         n += 1
-    return out, best, n
+    return cast(T, out), best, n  # fn ran: the loop's first pass always does
 
 
 def centre_xy(scene: Scene, states: np.ndarray) -> np.ndarray:
@@ -184,8 +191,15 @@ def max_distance(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.max(np.hypot(*(a - b).T)))
 
 
-def _sim_kwargs(case: Case, cfg: Config) -> dict[str, object]:
-    kw: dict[str, object] = {"omega": case.omega, "dt_out": case.dt_out, "method": cfg.method}
+class SimKwargs(IntegratorKwargs, total=False):
+    """`simulate`'s keywords for a row: the case's speed and output spacing, and the setting."""
+
+    omega: float
+    dt_out: float
+
+
+def _sim_kwargs(case: Case, cfg: Config) -> SimKwargs:
+    kw: SimKwargs = {"omega": case.omega, "dt_out": case.dt_out, "method": cfg.method}
     if cfg.kind == "fixed":
         kw["dt"] = cfg.dt
     else:
@@ -195,7 +209,7 @@ def _sim_kwargs(case: Case, cfg: Config) -> dict[str, object]:
     return kw
 
 
-def reference(case: Case, tier: str) -> np.ndarray:
+def reference(case: Case, tier: Tier) -> np.ndarray:
     """Centre positions (n, 2) of the model's DOP853 solve at rtol = atol = 1e-12."""
     sc = case.scene(tier)
     tr = simulate(sc, case.state(tier), case.t_end, omega=case.omega, dt_out=case.dt_out,
@@ -205,7 +219,7 @@ def reference(case: Case, tier: str) -> np.ndarray:
     return centre_xy(sc, tr.state)
 
 
-def _row(case: Case, tier: str, cfg: Config, **values: object) -> dict[str, object]:
+def _row(case: Case, tier: Tier, cfg: Config, **values: object) -> dict[str, object]:
     row: dict[str, object] = {c: "" for c in COLUMNS}
     row.update(tier=tier, solver=cfg.solver, method=cfg.method, kind=cfg.kind, rtol=cfg.rtol,
                dt=cfg.dt, max_step=cfg.max_step, label=cfg.label, **case.columns())
@@ -213,14 +227,14 @@ def _row(case: Case, tier: str, cfg: Config, **values: object) -> dict[str, obje
     return row
 
 
-def batch_states(case: Case, tier: str, n: int) -> np.ndarray:
+def batch_states(case: Case, tier: Tier, n: int) -> np.ndarray:
     """n releases spread ±20 % around the case's (deterministic)."""
     rng = np.random.default_rng(12345)
     f = 1.0 + 0.2 * (2.0 * rng.random((n, 2)) - 1.0)
     return np.array([case.state(tier, case.x0 * fx, case.y0 * fy) for fx, fy in f])
 
 
-def measure_ours(case: Case, tier: str, cfg: Config, refs: dict[str, np.ndarray],
+def measure_ours(case: Case, tier: Tier, cfg: Config, refs: dict[str, np.ndarray],
                  batch: bool) -> dict[str, object]:
     sc = case.scene(tier)
     s0 = case.state(tier)
@@ -238,7 +252,7 @@ def measure_ours(case: Case, tier: str, cfg: Config, refs: dict[str, np.ndarray]
     return row
 
 
-def measure_batch(case: Case, tier: str, kw: dict[str, object]) -> dict[str, object]:
+def measure_batch(case: Case, tier: Tier, kw: SimKwargs) -> dict[str, object]:
     import numba
 
     sc = case.scene(tier)
@@ -253,7 +267,7 @@ def measure_batch(case: Case, tier: str, kw: dict[str, object]) -> dict[str, obj
             "batch_ball_steps_per_s": steps / wall if ok == case.batch_n else math.nan}
 
 
-def measure_peer(case: Case, tier: str, cfg: Config, refs: dict[str, np.ndarray]
+def measure_peer(case: Case, tier: Tier, cfg: Config, refs: dict[str, np.ndarray]
                  ) -> dict[str, object]:
     """scipy ``solve_ivp`` on the plain-numpy peer. RK45 runs at scipy's own defaults
     (rtol 1e-3, atol 1e-6 absolute); DOP853 at atol = rtol × the simulator's state scales,
@@ -332,12 +346,12 @@ def warm_up(case: Case) -> None:
         sc = case.scene(tier)
         s0 = case.state(tier)
         for m in ("dop853", "dopri5", "rk4"):
-            kw = {"dt": 0.01} if m == "rk4" else {}
-            simulate(sc, s0, 0.05, omega=case.omega, method=m, **kw)
-            simulate_batch(sc, s0[None, :], 0.05, omega=case.omega, method=m, **kw)
+            dt = 0.01 if m == "rk4" else None
+            simulate(sc, s0, 0.05, omega=case.omega, method=m, dt=dt)
+            simulate_batch(sc, s0[None, :], 0.05, omega=case.omega, method=m, dt=dt)
 
 
-def tasks(case: Case, quick: bool, tiers: tuple[str, ...] = TIERS, peers: bool = True,
+def tasks(case: Case, quick: bool, tiers: tuple[Tier, ...] = TIERS, peers: bool = True,
           batch: bool = True) -> Iterator[tuple[str, Callable[[dict[str, np.ndarray]], dict]]]:
     """(description, measurement) pairs, cheapest first within each tier."""
     for tier in tiers:
@@ -346,11 +360,11 @@ def tasks(case: Case, quick: bool, tiers: tuple[str, ...] = TIERS, peers: bool =
             continue
         for cfg in our_configs(quick):
             yield (f"{tier} {cfg.label} {cfg.rtol if cfg.kind == 'adaptive' else cfg.dt:g}",
-                   lambda refs, tier=tier, cfg=cfg: measure_ours(case, tier, cfg, refs, batch))
+                   partial(measure_ours, case, tier, cfg, batch=batch))
         if peers and tier != "coulomb":  # the plain-numpy peer has no friction model
             for cfg in peer_configs(quick):
                 yield (f"{tier} {cfg.label} {cfg.rtol:g}",
-                       lambda refs, tier=tier, cfg=cfg: measure_peer(case, tier, cfg, refs))
+                       partial(measure_peer, case, tier, cfg))
 
 
 def measure_jacobi(case: Case, periods: int, rtol: float = REFERENCE_RTOL) -> dict[str, object]:

@@ -6,8 +6,15 @@ import csv
 import math
 from collections import defaultdict
 from pathlib import Path
+from typing import Any
 
 from .core import MODEL_TIERS, TIERS
+
+# A row of bench.csv as `read_rows` returns it: the NUMERIC columns as floats, the others as
+# strings. Read by computed column names (``r[key]``), which a TypedDict cannot check.
+Row = dict[str, Any]
+# The summary (summary.json): a JSON document of nested dicts and lists of mixed values.
+Summary = dict[str, Any]
 
 TARGET_ERROR = 1e-9          # [m] target 1: one rolling ball at <= 1e-9 m over the run
 TARGET_SPEEDUP = 100.0
@@ -20,12 +27,12 @@ NUMERIC = ("rtol", "dt", "max_step", "a", "R", "omega", "x0", "y0", "t_end", "dt
            "batch_us_per_ball_sim_s", "batch_ball_steps_per_s")
 
 
-def read_rows(path: str | Path) -> list[dict[str, object]]:
+def read_rows(path: str | Path) -> list[Row]:
     """The CSV's rows with numeric columns as floats (blank → nan)."""
     rows = []
     with open(path, newline="", encoding="utf-8") as fh:
         for raw in csv.DictReader(fh):
-            row: dict[str, object] = dict(raw)
+            row: Row = dict(raw)
             for k in NUMERIC:
                 v = raw.get(k, "")
                 row[k] = float(v) if v not in ("", None) else math.nan
@@ -33,7 +40,7 @@ def read_rows(path: str | Path) -> list[dict[str, object]]:
     return rows
 
 
-def _ok(row: dict[str, object], key: str = "error_m") -> bool:
+def _ok(row: Row, key: str = "error_m") -> bool:
     v = row[key]
     return row["status"] == "ok" and isinstance(v, float) and math.isfinite(v)
 
@@ -63,16 +70,15 @@ def interpolated_cost(rows, tol: float, key: str = "error_m", cost: str = "us_pe
     return float(math.exp(y0 + (math.log(tol) - x0) * (y1 - y0) / (x1 - x0)))
 
 
-def summarize(rows: list[dict[str, object]], extra: dict[str, object] | None = None
-              ) -> dict[str, object]:
+def summarize(rows: list[Row], extra: Summary | None = None) -> Summary:
     """The targets and the per-tier work-precision fronts, from the rows."""
-    out: dict[str, object] = {}
+    out: Summary = {}
     rolling = [r for r in rows if r["tier"] == "rolling"]
     ours = [r for r in rolling if r["solver"] == "saddle_env"]
     dop = [r for r in rolling if r["solver"] == "scipy" and r["method"] == "DOP853"]
     best_ours = cheapest_meeting(ours, TARGET_ERROR)
     best_dop = cheapest_meeting(dop, TARGET_ERROR)
-    t1: dict[str, object] = {"target": f">= {TARGET_SPEEDUP:g}x less wall time per simulated "
+    t1: Summary = {"target": f">= {TARGET_SPEEDUP:g}x less wall time per simulated "
                                        f"second than scipy DOP853 at <= {TARGET_ERROR:g} m"}
     if best_ours:
         t1["ours"] = _brief(best_ours)
@@ -96,7 +102,7 @@ def summarize(rows: list[dict[str, object]], extra: dict[str, object] | None = N
             "us_per_ball_sim_s": r["batch_us_per_ball_sim_s"], "error_m": r["error_m"],
             "single_ball_steps_per_s": r["steps"] / r["wall_s"],
             "met": bool(r["batch_ball_steps_per_s"] >= TARGET_BALL_STEPS)}
-    fronts: dict[str, list[dict[str, object]]] = {}
+    fronts: dict[str, list[Summary]] = {}
     for tier in TIERS:
         tier_rows = [r for r in rows if r["tier"] == tier and r["solver"] == "saddle_env"]
         if not tier_rows:
@@ -121,7 +127,7 @@ def summarize(rows: list[dict[str, object]], extra: dict[str, object] | None = N
     return out
 
 
-def _brief(r: dict[str, object]) -> dict[str, object]:
+def _brief(r: Row) -> Summary:
     setting = r["rtol"] if r["kind"] == "adaptive" else r["dt"]
     return {"label": r["label"], "method": r["method"], "kind": r["kind"], "setting": setting,
             "max_step": r["max_step"], "error_m": r["error_m"],
@@ -141,8 +147,8 @@ STYLE = {
 }
 
 
-def plot(rows: list[dict[str, object]], out_dir: str | Path, batch: bool = False,
-         default: dict[str, object] | None = None) -> Path:
+def plot(rows: list[Row], out_dir: str | Path, batch: bool = False,
+         default: dict[str, Any] | None = None) -> Path:
     """Work-precision diagram: one panel per contact model (numerical error against the
     model's own reference) and one for the tiers (error against the rolling reference).
     ``batch=True`` plots wall time per ball in the batch instead of one ball's."""

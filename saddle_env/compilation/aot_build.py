@@ -32,9 +32,24 @@ from concurrent.futures import ProcessPoolExecutor
 from datetime import datetime, timezone
 from multiprocessing import get_context
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypedDict
 
 from . import aot as _aot
 from .specialise import specialise, variant_flags
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+    from ..scene import ContactModel, Scene
+
+    # The JIT copies the thin callers below call: each caller is rebuilt per build with its
+    # copy as its one global (`_build_one`), so these names exist in no module.
+    place: Callable[..., None]
+    step_scalar: Callable[..., Any]
+    step_serial: Callable[..., Any]
+    integrate_h: Callable[..., Any]
+    integrate_batch: Callable[..., None]
+    integrate_segments: Callable[..., None]
 
 
 # The exported entry points call the JIT copies through these thin functions rather than
@@ -76,7 +91,7 @@ def _integrate_segments(lo, hi, models, P, scales, Y, drives, durations, sample,
 
 
 # module whose JIT copy an export calls → {export name: its thin caller}
-_EXPORTS = {
+_EXPORTS: dict[str, dict[str, Callable[..., Any]]] = {
     "saddle_env.envs._step": {"place": _place, "step_scalar": _step_scalar,
                               "step_serial": _step_serial},
     "saddle_env.integrators": {"integrate_h": _integrate_h, "integrate_batch": _integrate_batch},
@@ -96,12 +111,25 @@ def _release_gil_in_exports() -> None:
     class _NoGilFlags(Flags):
         def __init__(self, *args, **kwargs):
             super().__init__(*args, **kwargs)
-            self.release_gil = True
+            # numba types its flags as the Option descriptors that hold them, not their values
+            self.release_gil = True  # type: ignore[assignment]
 
-    compiler.Flags = _NoGilFlags
+    pycc_compiler: Any = compiler  # Any: its Flags class is replaced, as numba does not expect
+    pycc_compiler.Flags = _NoGilFlags
 
 
-def planned_builds() -> dict[tuple[str, ...], dict[str, object]]:
+class BuildSpec(TypedDict):
+    """What one module is built for (`planned_builds`)."""
+
+    models: list[int]
+    resist: bool
+    env: list[Any] | None             # [env id, its options]
+    contact: ContactModel | None
+    mix: bool
+    ion: bool
+
+
+def planned_builds() -> dict[tuple[str, ...], BuildSpec]:
     """Each module to build, by its `_kernels.variant_flags`: the contact models, the
     resistance flag, the environment whose first step uses them (``[id, options]``: a
     registered level, or ``SaddleTrap-v0`` given one contact model where no level has it
@@ -112,9 +140,9 @@ def planned_builds() -> dict[tuple[str, ...], dict[str, object]]:
     from ..envs.levels import LEVELS
     from ..scene import CONTACT_MODELS, ION_PAUL, ION_RRF
 
-    plan: dict[tuple[str, ...], dict[str, object]] = {}
+    plan: dict[tuple[str, ...], BuildSpec] = {}
 
-    def module_for(models, resist: bool) -> dict[str, object]:
+    def module_for(models, resist: bool) -> BuildSpec:
         return plan.setdefault(variant_flags(models, resist),
                                {"models": sorted(models), "resist": resist, "env": None,
                                 "contact": None, "mix": False, "ion": False})
@@ -133,12 +161,12 @@ def planned_builds() -> dict[tuple[str, ...], dict[str, object]]:
     return plan
 
 
-def _one_model_options(contact: str) -> dict[str, object]:
+def _one_model_options(contact: ContactModel) -> dict[str, object]:
     """Environment options that draw only balls of the contact model ``contact``."""
     return {"contact": contact, "mu": 0.3} if contact == "coulomb" else {"contact": contact}
 
 
-def _example_scene(contact: str):
+def _example_scene(contact: ContactModel) -> Scene:
     """A scene with the contact model ``contact`` (coulomb's needs a friction coefficient)."""
     from ..scene import Scene
     return Scene(contact=contact, mu=0.3) if contact == "coulomb" else Scene(contact=contact)
@@ -148,7 +176,7 @@ def _module_name(flags: tuple[str, ...]) -> str:
     return "k_" + ("_".join(f[:-3].lower() for f in flags) or "none")
 
 
-def _build_one(flags: tuple[str, ...], spec: dict[str, object], out_dir: str) -> dict:
+def _build_one(flags: tuple[str, ...], spec: BuildSpec, out_dir: str) -> dict:
     """Compile one module in this (worker) process; return its manifest entry."""
     os.environ[_aot.AOT_ENV] = "0"  # the JIT's copies are what gets built
     # the compile notice is for a user waiting on a first call, not for this build
@@ -170,7 +198,8 @@ def _build_one(flags: tuple[str, ...], spec: dict[str, object], out_dir: str) ->
     # choice of both, so the modules run wherever the JIT's code runs (`_aot.machine`)
     from numba.core.codegen import AOTCPUCodegen
     host = _aot.machine()
-    AOTCPUCodegen._customize_tm_features = lambda self: host["features"]
+    codegen: Any = AOTCPUCodegen  # Any: a method of numba's is replaced in this worker
+    codegen._customize_tm_features = lambda self: host["features"]
     cc.target_cpu = host["cpu"]
     _release_gil_in_exports()
     modules = {"saddle_env.envs._step": _step, "saddle_env.integrators": integrators,
@@ -191,7 +220,7 @@ def _build_one(flags: tuple[str, ...], spec: dict[str, object], out_dir: str) ->
         from ..runner import initial_state
         from ..simulate import simulate, simulate_batch
         # one ball of each model (a mix's batch has rows of several)
-        by_code: dict[int, object] = {}
+        by_code: dict[int, Scene] = {}
         for contact in CONTACT_MODELS:
             scene = _example_scene(contact)
             if scene.model_code in spec["models"]:

@@ -58,7 +58,7 @@ def _imports(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
     counted, or every module would depend on everything ``saddle_env/__init__`` imports.)"""
     is_pkg = path.name == "__init__.py"
     package = name if is_pkg else name.rpartition(".")[0]
-    found = set()
+    found: set[str] = set()
     try:
         tree = ast.parse(path.read_bytes())
     except (SyntaxError, ValueError):

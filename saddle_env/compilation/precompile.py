@@ -85,7 +85,9 @@ def default_targets() -> list[str]:
     from ..envs import LEVELS
     from ..envs.engine import contact_uses
 
-    first, later, seen = [], [], set()
+    first: list[str] = []
+    later: list[str] = []
+    seen = set()
     for level in LEVELS:
         uses = contact_uses(level.config())
         (later if uses in seen else first).append(level.id)
@@ -147,9 +149,9 @@ def precompile(targets: Sequence[str], jobs: int = 1,
         futures = {pool.submit(run_target, t): t for t in targets}
         try:
             for fut in as_completed(futures):
-                exc = fut.exception()
-                report(futures[fut], fut.result() if exc is None
-                       else f"{type(exc).__name__}: {exc}")
+                error = fut.exception()
+                report(futures[fut], fut.result() if error is None
+                       else f"{type(error).__name__}: {error}")
         except KeyboardInterrupt:
             pool.shutdown(wait=False, cancel_futures=True)
             raise

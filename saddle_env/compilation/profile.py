@@ -34,7 +34,7 @@ import sys
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import Any, ClassVar
 
 from . import aot as _aot
 
@@ -98,7 +98,8 @@ class LLVMSize:
     def __init__(self):
         from numba.core import codegen
 
-        self._cls = codegen.CPUCodeLibrary
+        # Any: its method is replaced while counting (numba's own types forbid the assignment)
+        self._cls: Any = codegen.CPUCodeLibrary
         self._orig = self._cls._optimize_final_module
         self.modules = 0
         self.instructions = 0
@@ -158,7 +159,7 @@ class CompilePhases:
         recorder = self
 
         def timed(*args, **kwargs):
-            pass_name = None if phase else args[2].name()
+            pass_name: str = "" if phase else args[2].name()  # read only when phase is None
             label = phase or recorder.PHASES.get(pass_name, recorder.OTHER)
             start = time.process_time()
             recorder._stack.append(0.0)

@@ -138,11 +138,11 @@ def specialise(models, resist: bool, module: types.ModuleType):
             variant.spaces[mod.__name__] = types.SimpleNamespace(**space)
     if module.__name__ not in variant.public:
         ahead = _aot.compiled(flags, module.__name__)
-        space = variant.spaces[module.__name__]
+        namespace = variant.spaces[module.__name__]
         for name, fn in ahead.items():
-            _jit_of[id(fn)] = getattr(space, name)
+            _jit_of[id(fn)] = getattr(namespace, name)
         variant.public[module.__name__] = \
-            types.SimpleNamespace(**{**vars(space), **ahead}) if ahead else space
+            types.SimpleNamespace(**{**vars(namespace), **ahead}) if ahead else namespace
     return variant.public[module.__name__]
 
 

@@ -6,8 +6,12 @@ from __future__ import annotations
 
 import math
 import os
+from typing import TYPE_CHECKING
 
 import numba as nb
+
+if TYPE_CHECKING:
+    from concurrent.futures import ThreadPoolExecutor
 
 # Threads for numba's parallel loop (the vector environment's step). Measured
 # on a shared 2-core machine, 1024-ball vector env, one run per row:
@@ -20,7 +24,8 @@ import numba as nb
 # wins. (GNU OpenMP is not fork-safe: fork after a parallel step and use it in the child
 # fails loudly in numba; spawn/forkserver, SB3's default, are fine.)
 if "NUMBA_THREADING_LAYER" not in os.environ:
-    nb.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+    # numba.config sets its options from the environment at import: its stubs do not declare them
+    nb.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]  # type: ignore[attr-defined]
     if "GOMP_SPINCOUNT" not in os.environ and "OMP_WAIT_POLICY" not in os.environ:
         os.environ["GOMP_SPINCOUNT"] = "1000"
 
@@ -56,7 +61,7 @@ def threads_usable() -> bool:
 # Python threads survive a fork (the pool is made again in the child). Waking a thread
 # costs tens of microseconds, nothing next to these calls' milliseconds; the vector
 # environment's step, a fraction of a millisecond, keeps numba's OpenMP threads.
-_pool: tuple[int, int, object] | None = None   # (its process id, its threads, the executor)
+_pool: tuple[int, int, ThreadPoolExecutor] | None = None   # (its process id, its threads, the executor)
 
 
 # Below this much simulated time in a call (all balls together) the batch kernels run on the
@@ -71,7 +76,7 @@ THREADS_FROM_SIMULATED_S = 10.0
 def thread_count() -> int:
     """How many threads the batch kernels use: numba's setting (``NUMBA_NUM_THREADS``, by
     default the machine's cores), read without starting numba's own threads."""
-    return max(1, int(nb.config.NUMBA_NUM_THREADS))
+    return max(1, int(nb.config.NUMBA_NUM_THREADS))  # type: ignore[attr-defined]  # as above
 
 
 def _executor(workers: int):

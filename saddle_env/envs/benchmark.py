@@ -54,7 +54,10 @@ def _single_rate(env_id: str, action, seconds: float) -> float:
 def _vector_rate(env_id: str, num_envs: int, seconds: float, lockstep: bool = True) -> float:
     env = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point")
     if not lockstep:
-        env.unwrapped.engine.lockstep = False  # every ball through integrate_h
+        from .vector import SaddleTrapVectorEnv
+        vec = env.unwrapped
+        assert isinstance(vec, SaddleTrapVectorEnv)  # lockstep is SaddleTrap's switch
+        vec.engine.lockstep = False  # every ball through integrate_h
     actions = (np.zeros((num_envs, 1), np.float32) if env_id.startswith("SaddleTrap")
                else np.zeros(num_envs, dtype=np.int64))
     env.reset(seed=0)

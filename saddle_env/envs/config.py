@@ -236,7 +236,7 @@ class EnvConfig:
             kw["mu"] = kw["mu_static"] = None
         elif kw["mu"] is None and self.mu_range is not None:
             kw["mu"] = self.mu_range[0]
-        return Scene(**kw)  # type: ignore[arg-type]
+        return Scene(**kw)
 
     def extreme_scenes(self) -> list[Scene]:
         radii = self.ball_radii or (self.R,)

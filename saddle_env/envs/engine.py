@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from typing import Literal, TypedDict, cast
 
 import numba
 import numpy as np
@@ -35,6 +36,21 @@ from .observation import VELOCITY_SCALE, layout
 
 RESET_OPTION_KEYS = ("x", "y", "vx", "vy", "omega", "R", "a", "contact", "start", "spin_normal")
 MAX_STEPS_PER_CONTROL_STEP = 100_000  # integrator steps before a control step counts as failed
+
+
+class ResetOptions(TypedDict, total=False):
+    """``reset(options=...)`` as `_check_options` returns it: its numbers as floats."""
+
+    x: float
+    y: float
+    vx: float
+    vy: float
+    omega: float
+    R: float
+    a: float
+    contact: str
+    start: Literal["lab-rest", "rotating-rest"]
+    spin_normal: float
 
 
 class TrapEngine:
@@ -194,7 +210,7 @@ class TrapEngine:
         placed = "x" in opts or "y" in opts
         given_velocity = "vx" in opts or "vy" in opts
         start = opts.get("start", c.init_start)
-        spin = float(opts.get("spin_normal", 0.0))  # type: ignore[arg-type]
+        spin = float(opts.get("spin_normal", 0.0))
         for j, i in enumerate(idx):
             rng = rngs[i]
             scene, params, scale = self._draw_scene(rng, opts)
@@ -300,7 +316,7 @@ class TrapEngine:
     def _draw_noise(self, rngs: Sequence[np.random.Generator], mask: np.ndarray) -> None:
         if self._noise_scale is not None:
             for i in np.flatnonzero(mask):
-                self.noise[i] = rngs[i].standard_normal(self.frame_dim) * self._noise_scale
+                self.noise[i] = rngs[int(i)].standard_normal(self.frame_dim) * self._noise_scale
 
     # -- step ----------------------------------------------------------------------------
     def step(self, actions: np.ndarray, active: np.ndarray,
@@ -317,7 +333,7 @@ class TrapEngine:
             kick_std = c.air_force * math.sqrt(1 - self._air_decay ** 2)
             for i in np.flatnonzero(active):
                 f = self.balls[i, S.B_FX:S.B_FY + 1]
-                f[:] = self._air_decay * f + rngs[i].normal(0.0, kick_std, size=2)
+                f[:] = self._air_decay * f + rngs[int(i)].normal(0.0, kick_std, size=2)
         if self._noise_scale is not None:
             self._draw_noise(rngs, active)
         args = (self.models, self.P, self.scales, self.Y, self.balls, self.cfg, actions, active,
@@ -331,8 +347,8 @@ class TrapEngine:
             # Where no SIMD block can form, the entry compiled without them (less to
             # compile on a first step; the same results).
             name = "step_serial" if self._lockstep and self.n >= S.MIN_BLOCK else "step_scalar"
-            args = (*args, self._scratch, self._iscratch)
-            failed = self._entry(name, args)(*args)
+            serial_args = (*args, self._scratch, self._iscratch)
+            failed = self._entry(name, serial_args)(*serial_args)
         if failed:
             bad = int(np.flatnonzero(active & (self.out[:, S.O_STATUS] < 0))[0])
             code = int(self.out[bad, S.O_STATUS])
@@ -369,7 +385,7 @@ class TrapEngine:
             self.obs[rows] = hist
 
     # -- views ---------------------------------------------------------------------------
-    def cause(self, i: int) -> str | None:
+    def cause(self, i: int | np.integer) -> str | None:
         return EVENT_KINDS.get(int(self.out[i, S.O_STATUS]))
 
 
@@ -381,7 +397,7 @@ def contact_uses(config: EnvConfig) -> tuple[frozenset[int], bool]:
             config.rolling_resistance != 0.0)
 
 
-def _check_options(options: Mapping[str, object] | None) -> dict[str, object]:
+def _check_options(options: Mapping[str, object] | None) -> ResetOptions:
     if options is None:
         return {}
     if not isinstance(options, Mapping):
@@ -400,28 +416,28 @@ def _check_options(options: Mapping[str, object] | None) -> dict[str, object]:
     if "start" in out and out["start"] not in ("lab-rest", "rotating-rest"):
         raise ValueError(f"reset option 'start' must be 'lab-rest' or 'rotating-rest', "
                          f"got {out['start']!r}")
-    return out
+    return cast(ResetOptions, out)  # the checks above: known keys, numbers made floats
 
 
-def check_reset_start(opts: Mapping[str, object], c: EnvConfig) -> None:
+def check_reset_start(opts: ResetOptions, c: EnvConfig) -> None:
     """ValueError for a placed start outside the rim or faster than the config's
     ``max_start_speed``."""
     if "x" in opts or "y" in opts:
-        x, y = float(opts.get("x", 0.0)), float(opts.get("y", 0.0))  # type: ignore[arg-type]
+        x, y = float(opts.get("x", 0.0)), float(opts.get("y", 0.0))
         if not math.hypot(x, y) < c.rim_radius:
             raise ValueError(f"reset options 'x', 'y' must place the ball inside the rim, "
                              f"sqrt(x² + y²) < rim_radius = {c.rim_radius:g} m, got "
                              f"x = {x:g}, y = {y:g} (r = {math.hypot(x, y):g} m)")
     if "vx" in opts or "vy" in opts:
-        u, v = float(opts.get("vx", 0.0)), float(opts.get("vy", 0.0))  # type: ignore[arg-type]
+        u, v = float(opts.get("vx", 0.0)), float(opts.get("vy", 0.0))
         if math.hypot(u, v) > c.max_start_speed:
             raise ValueError(f"reset options 'vx', 'vy' must give a speed sqrt(vx² + vy²) <= "
                              f"omega_max * rim_radius = {c.max_start_speed:g} m/s, got "
                              f"vx = {u:g}, vy = {v:g} m/s")
 
 
-def check_reset_omega(opts: Mapping[str, object], omega_max: float) -> None:
-    if "omega" in opts and not 0 <= float(opts["omega"]) <= omega_max:  # type: ignore[arg-type]
+def check_reset_omega(opts: ResetOptions, omega_max: float) -> None:
+    if "omega" in opts and not 0 <= float(opts["omega"]) <= omega_max:
         raise ValueError(f"reset option 'omega' must lie in [0, omega_max = {omega_max}], "
                          f"got {opts['omega']}")
 

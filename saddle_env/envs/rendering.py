@@ -76,7 +76,7 @@ class SaddleRenderer:
         theta = float(ball[S.B_THETA])
         ct, st = math.cos(theta), math.sin(theta)
 
-        def lab(xb: np.ndarray, yb: np.ndarray, zb: np.ndarray):
+        def lab(xb: np.ndarray, yb: np.ndarray, zb: np.ndarray | float):
             return ct * xb - st * yb, st * xb + ct * yb, zb
 
         # saddle mesh (rings and spokes of the polar grid), perspective

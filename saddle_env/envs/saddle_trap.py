@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
@@ -13,6 +13,9 @@ from . import _step as S
 from .config import EnvConfig
 from .engine import TrapEngine
 from .observation import observation_space
+
+if TYPE_CHECKING:
+    from .rendering import SaddleRenderer
 
 
 def action_space() -> spaces.Box:
@@ -120,7 +123,7 @@ class SaddleTrapEnv(gym.Env):
         self.action_space = action_space()
         self._active = np.ones(1, dtype=bool)
         self._action = np.zeros(1)
-        self._renderer = None
+        self._renderer: SaddleRenderer | None = None
         self._needs_reset = True
 
     @property

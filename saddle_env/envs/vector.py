@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from gymnasium.utils import seeding
@@ -14,6 +14,9 @@ from . import _step as S
 from .config import EnvConfig
 from .engine import TrapEngine
 from .saddle_trap import action_space, check_actions, observation_space
+
+if TYPE_CHECKING:
+    from .rendering import SaddleRenderer
 
 
 class SaddleTrapVectorEnv(VectorEnv):
@@ -57,7 +60,7 @@ class SaddleTrapVectorEnv(VectorEnv):
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._active = np.ones(self.num_envs, dtype=bool)
         self._action_buf = np.zeros(self.num_envs)
-        self._renderer = None
+        self._renderer: SaddleRenderer | None = None
         self._started = False
 
     def reset(self, *, seed: int | list[int | None] | None = None,

@@ -53,6 +53,7 @@ def _start(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     part of −Ω k × c tangent to the surface (normal n): exact, no linearisation."""
     state = initial_state(scene, RELEASE, RELEASE, start="lab-rest", omega=OMEGA)
     x = y = RELEASE
+    assert scene.b is not None  # Scene.__post_init__ sets b (None means b = a)
     n = np.array([-2 * x / scene.a, 2 * y / scene.b, 1.0])
     n /= np.linalg.norm(n)
     c = np.array([x, y, 0.0]) + scene.radius * n

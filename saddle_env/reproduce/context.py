@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from .. import __version__
 from ..files import atomic_open
@@ -73,7 +74,7 @@ class Context:
     written: list[Path] = field(default_factory=list)
 
     # -- files -----------------------------------------------------------------------------
-    def write_csv(self, name: str, columns: Mapping[str, Sequence[Any]],
+    def write_csv(self, name: str, columns: Mapping[str, npt.ArrayLike],
                   comments: Sequence[str] = ()) -> Path:
         """Write ``<out>/<name>.csv``: ``#`` comment lines, a header row, then the columns."""
         cols = {k: np.asarray(v) for k, v in columns.items()}
@@ -152,7 +153,8 @@ class Context:
                 return {k: z[k] for k in z.files}
         result = {k: np.asarray(v) for k, v in compute().items()}
         with atomic_open(path, "wb") as fh:
-            np.savez_compressed(fh, **result)
+            # allow_pickle: numpy's default, named so that mypy does not match the arrays to it
+            np.savez_compressed(fh, allow_pickle=True, **result)
         return result
 
     # -- progress and batched simulation ------------------------------------------------------

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -45,7 +46,7 @@ class Panel:
     key: str                    # CSV and summary name
     title: str
     scene: Scene                # drag-free; each level sets drag_linear
-    omegas: tuple[float, ...]   # plotted range (lo, hi)
+    omegas: tuple[float, float]   # plotted range (lo, hi)
     simulated: tuple[float, ...]  # speeds checked with the nonlinear model
     ylim: tuple[float, float]   # with room at the bottom for the band bars
 
@@ -74,6 +75,7 @@ def dominant_mode(scene: Scene, omega: float) -> tuple[complex, np.ndarray]:
 def model_state(scene: Scene, centre: np.ndarray) -> np.ndarray:
     """The model's state for a small centre state: the contact point and its velocity are
     the centre's scaled by the linear map of `saddle_env.linear.centre_from_contact`."""
+    assert scene.b is not None  # Scene.__post_init__ sets b (None means b = a)
     sx, sy = 1 - 2 * scene.radius / scene.a, 1 + 2 * scene.radius / scene.b
     xc, yc, vxc, vyc = centre
     return initial_state(scene, xc / sx, yc / sy, vxc / sx, vyc / sy)
@@ -109,10 +111,10 @@ def fig_damping(ctx: Context) -> None:
     window = QUICK_WINDOW if ctx.quick else SIM_WINDOW
     n_theory = 120 if ctx.quick else 400
     colours = {k: f"C{j}" for j, k in enumerate(DRAG_LEVELS)}
-    rows: dict[str, list] = {"panel": [], "k1": [], "omega": [], "growth_theory": [],
+    rows: dict[str, list | np.ndarray] = {"panel": [], "k1": [], "omega": [], "growth_theory": [],
                              "growth_simulated": []}
     band_rows: dict[str, list] = {"panel": [], "k1": [], "omega_low": [], "omega_high": []}
-    summary: dict[str, dict] = {}
+    summary: dict[str, Any] = {}   # a section of summary.json: a dict per panel, then notes
     worst_abs, worst_rel = 0.0, 0.0
 
     fig, axes = plt.subplots(1, 2, figsize=(13, 4.8))

@@ -20,6 +20,7 @@ import numpy as np
 
 from .. import _kernels as K
 from ..linear import critical_omega, eigenfrequencies, linear_trajectory
+from ..runner import Start
 from ..scene import P_A, P_B, P_R, Scene
 from ..simulate import Trajectory, initial_state, simulate
 from . import paper_eom
@@ -28,7 +29,7 @@ from .precession import linear_precession_rate, orientation_series, precession_a
 from .theory_figs import A_PAPER, PAPER_BALLS
 
 G = 9.8
-CONVENTIONS = ("rotating-rest", "lab-rest")
+CONVENTIONS: tuple[Start, ...] = ("rotating-rest", "lab-rest")
 CONVENTION_TEXT = {"rotating-rest": "at rest on the saddle (rotating-rest)",
                    "lab-rest": "placed at rest in the laboratory (lab-rest)"}
 
@@ -48,6 +49,7 @@ def _linear_contact_r(scene: Scene, omega: float, tr: Trajectory) -> np.ndarray:
     the linear map x_o = x_c/(1 − 2R/a), y_o = y_c/(1 + 2R/b))."""
     lin = linear_trajectory(scene, omega, _centre_state(scene, tr.state[0]), tr.t)
     R = scene.radius
+    assert scene.b is not None  # Scene.__post_init__ sets b (None means b = a)
     return np.hypot(lin[:, 0] / (1 - 2 * R / scene.a), lin[:, 1] / (1 + 2 * R / scene.b))
 
 
@@ -511,7 +513,7 @@ def fig_trapping(ctx: Context) -> None:
     for k, R in enumerate(PAPER_BALLS):
         sc = Scene(a=A_PAPER, R=R)
         wc, wp = critical_omega(sc), math.sqrt(2 * G / A_PAPER)
-        entry = {"theory_rigid": wc, "theory_mass_point": wp}
+        entry: dict[str, float | None] = {"theory_rigid": wc, "theory_mass_point": wp}
         for conv, col in zip(CONVENTIONS, ("C3", "C0")):
             tt, st = res[f"t_{R:g}_{conv}"], res[f"status_{R:g}_{conv}"]
             med = np.median(tt, axis=1)

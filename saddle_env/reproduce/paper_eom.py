@@ -38,6 +38,7 @@ and small stacked sweeps (`feasible_paper`), not the product's sweeps.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,6 +70,7 @@ def _kinematics(scene: Scene, y: np.ndarray) -> dict:
 
     Derived here from the surface z = x²/a − y²/b independently of the compiled kernels.
     """
+    assert scene.b is not None  # Scene.__post_init__ sets b (None means b = a)
     a, b, R = scene.a, scene.b, scene.radius
     x, yy = y[..., 0], y[..., 1]
     w = (y[..., 2], y[..., 3], y[..., 4])
@@ -240,7 +242,8 @@ def _state_scale(scene: Scene) -> np.ndarray:
 
 def feasible_paper(scene: Scene, states: np.ndarray, omega: float, t_end: float,
                    keep_transport: bool = False, segment: float = 0.02, sample: float = 5e-4,
-                   rtol: float = 1e-10, progress: object = None) -> tuple[np.ndarray, np.ndarray]:
+                   rtol: float = 1e-10, progress: Callable[[float], object] | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """Which starting states never lose contact (N > 0) nor leave the rim within ``t_end``.
 
     All balls are stacked into one ODE system and integrated in segments of ``segment``

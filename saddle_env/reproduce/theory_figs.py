@@ -13,7 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..linear import critical_omega, eigenfrequencies, is_stable, mass_point_band, stable_band
-from ..scene import Scene
+from ..scene import ContactModel, Scene
 from ..simulate import initial_state
 from .context import Context
 
@@ -113,6 +113,7 @@ def fig_eigen(ctx: Context) -> None:
     ax[0].axhline(0, color="k", lw=0.5)
     ax[0].set(xlabel="Re ϖ [rad/s]", ylabel="Im ϖ [rad/s]",
               title="(a) loci of the four roots (labels: Ω)")
+    assert sca is not None  # the loop above ran
     fig.colorbar(sca, ax=ax[0], label="Ω [s⁻¹]")
     for j in range(4):
         ax[1].plot(omegas, roots[:, j].imag, lw=1.2, label=f"root {j + 1}")
@@ -265,7 +266,7 @@ def fig_critical(ctx: Context) -> None:
 # ------------------------------------------------------------------------------------------
 # Cases checked point by point with the nonlinear model: (label, contact, R, b/a).
 ASYM_RELEASE = 1e-4   # [m]
-ASYM_CASES = (("mass point, b/a = 0.8", "point", 0.0, 0.8),
+ASYM_CASES: tuple[tuple[str, ContactModel, float, float], ...] = (("mass point, b/a = 0.8", "point", 0.0, 0.8),
               ("slipping R = 1 cm, b/a = 0.35", "slipping", 0.01, 0.35),
               ("rolling R = 1 cm, b/a = 0.35", "rolling", 0.01, 0.35))
 
@@ -276,7 +277,8 @@ def fig_asymmetric(ctx: Context) -> None:
 
     ratios = np.linspace(0.2, 1.2, 26 if ctx.quick else 201)
     omega_max = 80.0
-    models = (("point", 0.0), ("slipping", 0.01), ("rolling", 0.01))
+    models: tuple[tuple[ContactModel, float], ...] = (("point", 0.0), ("slipping", 0.01),
+                                                      ("rolling", 0.01))
     rows: dict[str, list] = {"model": [], "R": [], "b_over_a": [], "omega_low": [],
                              "omega_high": []}
     for contact, R in models:
