@@ -579,6 +579,8 @@ def _main(tool: str):
         from agents.benchmark.rllib_throughput import main
     elif tool == "compile-profile":
         from saddle_env.compilation.profile import main
+    elif tool == "benchmark":
+        from agents.benchmark.run import main
     elif tool.startswith("python -m "):
         return importlib.import_module(tool.split()[-1]).main
     else:
