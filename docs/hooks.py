@@ -19,11 +19,11 @@ import dataclasses
 import importlib
 import re
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 ROOT = Path(__file__).resolve().parents[1]
-MARKER = re.compile(r"^<!-- generated: (?P<what>[\w-]+)(?: (?P<arg>[^>]*?))? -->$", re.M)
+MARKER = re.compile(r"^<!-- generated: (?P<what>[\w-]+)(?: (?P<arg>[^>]*?))? -->$", re.MULTILINE)
 
 
 # -- command lines ---------------------------------------------------------------------------
@@ -179,13 +179,13 @@ def env_option_groups() -> list[tuple[str, str, list[dataclasses.Field]]]:
     placed: set[str] = set()
     groups = []
     for paragraph in paragraphs:
-        spans = re.findall(r"``(.+?)``", paragraph, flags=re.S)
+        spans = re.findall(r"``(.+?)``", paragraph, flags=re.DOTALL)
         names = [n for span in spans for n in re.split(r"[,\s]+", span)]
         named = list(dict.fromkeys(n for n in names if n in fields and n not in placed))
         if not named:
             continue
         placed.update(named)
-        head, _, rest = paragraph.strip().partition(":")
+        head = paragraph.strip().partition(":")[0]
         title = re.sub(r"\s*\(.*", "", head).strip()
         groups.append((title, _rst_to_markdown(paragraph), [fields[n] for n in named]))
     missing = sorted(set(fields) - placed)
@@ -204,10 +204,11 @@ def env_options_markdown() -> str:
     from saddle_env.envs import EnvConfig
 
     default = EnvConfig()
-    lines = [f"Generated from `saddle_env.envs.EnvConfig` ({len(dataclasses.fields(EnvConfig))} "
+    intro = (f"Generated from `saddle_env.envs.EnvConfig` ({len(dataclasses.fields(EnvConfig))} "
              "options): the names, types and defaults are the dataclass's, the text its "
              "docstring's. The defaults are those of `SaddleTrap-v0`; each level overrides "
-             "some ([levels](levels.md)).", ""]
+             "some ([levels](levels.md)).")
+    lines = [intro, ""]
     for title, text, fields in env_option_groups():
         lines += [f"### {title}", "", text, "", "| option | type | default |", "|---|---|---|"]
         for f in fields:
@@ -232,5 +233,5 @@ def expand(markdown: str) -> str:
     return MARKER.sub(lambda m: generate(m.group("what"), m.group("arg")), markdown)
 
 
-def on_page_markdown(markdown, page, config, files):  # noqa: ARG001 (MkDocs' signature)
+def on_page_markdown(markdown, page, config, files):
     return expand(markdown)

@@ -53,26 +53,38 @@ def _load_hooks():
 
 HOOKS = _load_hooks()
 
-# The marker on the line before a code block that the tests may not run as it stands.
-_SKIP = re.compile(r"<!-- skip: (?P<reason>.+?) -->\n$")
-_SKIP_UNLESS = re.compile(r"<!-- skip-unless: (?P<module>[\w.]+):(?P<attr>\w+) \((?P<reason>.+?)\) -->\n$")
+# The markers on the lines right before a code block that the tests may not run as it stands.
+_SKIP = re.compile(r"^<!-- skip: (?P<reason>.+?) -->$")
+_SKIP_UNLESS = re.compile(r"^<!-- skip-unless: (?P<module>[\w.]+):(?P<attr>\w+) \((?P<reason>.+?)\) -->$")
+
+
+def _markers(text: str, start: int) -> list[str]:
+    """The HTML-comment lines directly above the block that starts at ``start``."""
+    lines = text[:start].splitlines()
+    found = []
+    while lines and lines[-1].startswith("<!--"):
+        found.append(lines.pop())
+    return found
 
 
 def _skip_reason(text: str, start: int) -> tuple[str, bool] | None:
-    """Why the block starting at ``start`` is not run (and whether it is not even parsed:
-    an API that is not there yet), from the marker on the line before it; None: run it."""
-    before = text[max(0, start - 300):start]
-    m = _SKIP.search(before)
-    if m:
-        return m.group("reason"), False
-    m = _SKIP_UNLESS.search(before)
-    if m:
-        try:
-            present = hasattr(importlib.import_module(m.group("module")), m.group("attr"))
-        except ImportError:
-            present = False
-        if not present:
-            return f"{m.group('reason')}: {m.group('module')}.{m.group('attr')} is not there", True
+    """Why the block starting at ``start`` is not run, and whether it is not even parsed (an
+    API that is not there yet: `skip-unless`); None: run it. `skip` alone: parsed, not run."""
+    markers = _markers(text, start)
+    for line in markers:
+        m = _SKIP_UNLESS.match(line)
+        if m:
+            try:
+                present = hasattr(importlib.import_module(m.group("module")), m.group("attr"))
+            except ImportError:
+                present = False
+            if not present:
+                return (f"{m.group('reason')}: {m.group('module')}.{m.group('attr')} "
+                        "is not there"), True
+    for line in markers:
+        m = _SKIP.match(line)
+        if m:
+            return m.group("reason"), False
     return None
 
 
@@ -81,14 +93,14 @@ def _rel(path: Path) -> str:
 
 
 def _text_outside_code(text: str) -> str:
-    return re.sub(r"```.*?```", "", text, flags=re.S)
+    return re.sub(r"```.*?```", "", text, flags=re.DOTALL)
 
 
 def _blocks(page: Path, lang: str) -> list[tuple[str, tuple[str, bool] | None]]:
     """The page's ```lang blocks, each with its skip marker (None: none)."""
     text = page.read_text()
     return [(m.group(1), _skip_reason(text, m.start()))
-            for m in re.finditer(rf"```{lang}\n(.*?)```", text, flags=re.S)]
+            for m in re.finditer(rf"```{lang}\n(.*?)```", text, flags=re.DOTALL)]
 
 
 def _bash_blocks(page: Path) -> list[str]:
@@ -164,7 +176,7 @@ def _extras() -> set[str]:
     """The optional-dependency groups of pyproject.toml (no tomllib before Python 3.11)."""
     text = (ROOT / "pyproject.toml").read_text()
     section = text.split("[project.optional-dependencies]", 1)[1].split("\n[", 1)[0]
-    return set(re.findall(r"^(\w+)\s*=", section, flags=re.M))
+    return set(re.findall(r"^(\w+)\s*=", section, flags=re.MULTILINE))
 
 
 class _Parsed(Exception):
@@ -323,7 +335,7 @@ def _slug(heading: str) -> str:
 
 def _anchors(page: Path) -> set[str]:
     text = _text_outside_code(page.read_text())
-    return {_slug(h) for h in re.findall(r"^#{1,6} (.+)$", text, flags=re.M)}
+    return {_slug(h) for h in re.findall(r"^#{1,6} (.+)$", text, flags=re.MULTILINE)}
 
 
 _LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
@@ -349,7 +361,7 @@ def _nav_pages() -> set[str]:
     """The pages mkdocs.yml's navigation lists (paths under docs/)."""
     text = (ROOT / "mkdocs.yml").read_text()
     nav = text[text.index("\nnav:"):]
-    return set(re.findall(r"([\w./-]+\.md)\s*$", nav, flags=re.M))
+    return set(re.findall(r"([\w./-]+\.md)\s*$", nav, flags=re.MULTILINE))
 
 
 def test_every_docs_page_is_in_the_site_navigation():
@@ -375,7 +387,7 @@ _DATE = re.compile(r"\b20\d\d-\d\d-\d\d\b")
 @pytest.mark.parametrize("page", PAGES, ids=_rel)
 def test_no_dated_section_headings_on_user_pages(page):
     """A user page says how things are now: dated sections are the notes' (docs/notes/)."""
-    headings = re.findall(r"^#{1,6} .*$", _text_outside_code(page.read_text()), flags=re.M)
+    headings = re.findall(r"^#{1,6} .*$", _text_outside_code(page.read_text()), flags=re.MULTILINE)
     dated = [h for h in headings if _DATE.search(h)]
     assert not dated, f"{_rel(page)}: dated headings {dated}: move them to docs/notes/"
 
@@ -510,10 +522,11 @@ def test_python_blocks_run(page, tmp_path, monkeypatch, capsys):
                 skipped.append(f"block {k}: {skip[0]}")
                 continue
             try:
-                exec(compile(block, f"{_rel(page)}:python-block-{k}", "exec"), namespace)
+                # the repository's own pages, not a file from elsewhere
+                exec(compile(block, f"{_rel(page)}:python-block-{k}", "exec"), namespace)  # noqa: S102
             except _TooLong:
                 raise
-            except Exception as exc:
+            except Exception as exc:  # noqa: BLE001 (any error of a block fails the page)
                 pytest.fail(f"{_rel(page)}, Python block {k} raised {exc!r}:\n{block}")
     finally:
         signal.alarm(0)
