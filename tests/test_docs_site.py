@@ -1,9 +1,11 @@
-"""The docs site builds with warnings as errors, and (slow) renders in a real browser.
+"""The docs site builds with warnings as errors, and renders in a real browser (both slow:
+CI runs them; tests/test_docs.py checks the pages' links, anchors and navigation in the
+default suite).
 
 * `mkdocs build --strict`: a broken link or anchor, a page missing from the navigation, a
   missing API object (mkdocstrings) or an undocumented `EnvConfig` option (docs/hooks.py)
   fails it;
-* (slow) the built site, served on localhost, opened in Debian's headless Chromium through
+* the built site, served on localhost, opened in Debian's headless Chromium through
   its chromedriver (selenium): the home page, the environment reference and the physics
   page render, the equations are typeset by the bundled KaTeX (no raw TeX left), nothing is
   requested from another host, and a search for "Omega_crt" lists the physics page.
@@ -38,6 +40,7 @@ def _build(site: Path) -> subprocess.CompletedProcess:
                           env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
 
 
+@pytest.mark.slow  # 14-18 s on the 2-core machine; tests/test_docs.py checks links and anchors fast
 def test_the_site_builds_with_warnings_as_errors(tmp_path):
     done = _build(tmp_path / "site")
     assert done.returncode == 0, f"mkdocs build --strict failed:\n{done.stdout}\n{done.stderr}"
