@@ -130,7 +130,8 @@ def _help_cell(parser: argparse.ArgumentParser, action: argparse.Action) -> str:
     text = ""
     if action.help and action.help is not argparse.SUPPRESS:
         formatter = parser._get_formatter()
-        text = formatter._expand_help(action)
+        # the default has its own column: drop what ArgumentDefaultsHelpFormatter appends
+        text = re.sub(r"\s*\(default: [^()]*\)$", "", formatter._expand_help(action))
     if action.choices is not None and not isinstance(action, argparse._SubParsersAction):
         text += f" (one of: {', '.join(f'`{c}`' for c in action.choices)})"
     return _cell(text)
