@@ -1,12 +1,19 @@
-"""The documentation runs as written: README.md and docs/*.md.
+"""The documentation runs as written: README.md and the user pages under docs/ (docs/notes/,
+the dated engineering notes, only have their links checked).
 
 * every command in a ```bash block is one the project knows, and its arguments are accepted
   by the tool's own argument parser (the parsers are imported, not copied); files a command
   reads (a model for saddle-eval, a test file for pytest, an extra for pip) exist;
+* every ```python block runs, page by page in one namespace, in bounded time; a block that
+  cannot run here says why on the line before it (`<!-- skip: reason -->`, or
+  `<!-- skip-unless: module:attribute (reason) -->` for an API that is not there yet);
 * every repository path the docs mention (docs/..., agents/..., saddle_env/..., tests/...,
   figures/... from inside docs/) exists, and every Markdown link to a local file resolves,
   down to the heading it points at;
-* the flag lists written out in prose match the parsers (saddle-sim's table, train.py's list);
+* the pages are user docs: no dated section headings, at most 3,000 words a page (the
+  physics 6,000), every page in the site's navigation; the README at most 130 lines;
+* the generated references cover the code: every `EnvConfig` option, every documented
+  command line (docs/hooks.py);
 * (slow) every command is run for real, in a temporary folder, with the smallest budget
   its flags allow.
 """
@@ -15,18 +22,70 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib
+import importlib.util
 import io
 import re
 import shlex
+import signal
 import sys
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+DOCS = ROOT / "docs"
+NOTES = DOCS / "notes"
+USER_PAGES = sorted(p for p in DOCS.rglob("*.md") if NOTES not in p.parents)
+NOTE_PAGES = sorted(NOTES.glob("*.md"))
+PAGES = [ROOT / "README.md", *USER_PAGES]
 PENDING: set[str] = set()  # pages another change still has to write (none now)
 TOOLS = ("saddle-sim", "saddle-eval", "saddle-bench", "saddle-reproduce")
+
+
+def _load_hooks():
+    """docs/hooks.py, the site's generator of the reference sections, as a module."""
+    spec = importlib.util.spec_from_file_location("saddle_docs_hooks", DOCS / "hooks.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+HOOKS = _load_hooks()
+
+# The markers on the lines right before a code block that the tests may not run as it stands.
+_SKIP = re.compile(r"^<!-- skip: (?P<reason>.+?) -->$")
+_SKIP_UNLESS = re.compile(r"^<!-- skip-unless: (?P<module>[\w.]+):(?P<attr>\w+) \((?P<reason>.+?)\) -->$")
+
+
+def _markers(text: str, start: int) -> list[str]:
+    """The HTML-comment lines directly above the block that starts at ``start``."""
+    lines = text[:start].splitlines()
+    found = []
+    while lines and lines[-1].startswith("<!--"):
+        found.append(lines.pop())
+    return found
+
+
+def _skip_reason(text: str, start: int) -> tuple[str, bool] | None:
+    """Why the block starting at ``start`` is not run, and whether it is not even parsed (an
+    API that is not there yet: `skip-unless`); None: run it. `skip` alone: parsed, not run."""
+    markers = _markers(text, start)
+    for line in markers:
+        m = _SKIP_UNLESS.match(line)
+        if m:
+            try:
+                present = hasattr(importlib.import_module(m.group("module")), m.group("attr"))
+            except ImportError:
+                present = False
+            if not present:
+                return (f"{m.group('reason')}: {m.group('module')}.{m.group('attr')} "
+                        "is not there"), True
+    for line in markers:
+        m = _SKIP.match(line)
+        if m:
+            return m.group("reason"), False
+    return None
 
 
 def _rel(path: Path) -> str:
@@ -34,11 +93,19 @@ def _rel(path: Path) -> str:
 
 
 def _text_outside_code(text: str) -> str:
-    return re.sub(r"```.*?```", "", text, flags=re.S)
+    return re.sub(r"```.*?```", "", text, flags=re.DOTALL)
+
+
+def _blocks(page: Path, lang: str) -> list[tuple[str, tuple[str, bool] | None]]:
+    """The page's ```lang blocks, each with its skip marker (None: none)."""
+    text = page.read_text()
+    return [(m.group(1), _skip_reason(text, m.start()))
+            for m in re.finditer(rf"```{lang}\n(.*?)```", text, flags=re.DOTALL)]
 
 
 def _bash_blocks(page: Path) -> list[str]:
-    return re.findall(r"```bash\n(.*?)```", page.read_text(), flags=re.S)
+    """The bash blocks the tests can parse (all but those for an API not there yet)."""
+    return [block for block, skip in _blocks(page, "bash") if not (skip and skip[1])]
 
 
 def _commands(block: str) -> list[list[str]]:
@@ -92,10 +159,12 @@ def _tool(argv: list[str]) -> tuple[str, list[str]]:
             return "env-benchmark", argv[3:]
         if argv[1:3] == ["-m", "agents.benchmark.rllib_throughput"]:
             return "rllib-benchmark", argv[3:]
-        if argv[1:3] == ["-m", "agents.benchmark.run"]:
+        if argv[1:3] in (["-m", "agents.benchmark"], ["-m", "agents.benchmark.run"]):
             return "benchmark", argv[3:]
         if argv[1:3] == ["-m", "saddle_env.compilation.profile"]:
             return "compile-profile", argv[3:]
+        if argv[1:2] == ["-m"] and f"python -m {argv[2]}" in HOOKS.CLIS:
+            return f"python -m {argv[2]}", argv[3:]   # parsed; run only with --help
     if argv[0] == "ray" and argv[1:2] in (["start"], ["stop"], ["status"]):
         return "ray", argv[1:]          # Ray's own CLI (docs/scaling.md): not run by the tests
     if argv[:2] == ["pip", "install"]:
@@ -107,7 +176,7 @@ def _extras() -> set[str]:
     """The optional-dependency groups of pyproject.toml (no tomllib before Python 3.11)."""
     text = (ROOT / "pyproject.toml").read_text()
     section = text.split("[project.optional-dependencies]", 1)[1].split("\n[", 1)[0]
-    return set(re.findall(r"^(\w+)\s*=", section, flags=re.M))
+    return set(re.findall(r"^(\w+)\s*=", section, flags=re.MULTILINE))
 
 
 class _Parsed(Exception):
@@ -135,6 +204,8 @@ def _parser(tool: str) -> argparse.ArgumentParser | None:
         from agents.benchmark.run import build_parser
     elif tool == "compile-profile":
         from saddle_env.compilation.profile import build_parser
+    elif tool in HOOKS.CLIS:
+        return HOOKS.parser_for(tool)
     else:
         return None
     return build_parser()
@@ -264,11 +335,11 @@ def _slug(heading: str) -> str:
 
 def _anchors(page: Path) -> set[str]:
     text = _text_outside_code(page.read_text())
-    return {_slug(h) for h in re.findall(r"^#{1,6} (.+)$", text, flags=re.M)}
+    return {_slug(h) for h in re.findall(r"^#{1,6} (.+)$", text, flags=re.MULTILINE)}
 
 
 _LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
-LINK_CASES = [(page, target) for page in PAGES
+LINK_CASES = [(page, target) for page in [*PAGES, *NOTE_PAGES]
               for target in sorted(set(_LINK.findall(_text_outside_code(page.read_text()))))
               if not re.match(r"[a-z]+:", target)]
 
@@ -286,32 +357,119 @@ def test_local_link_resolves(page, target):
         assert anchor in _anchors(dest), f"{_rel(page)}: link {target}: no such heading in {rel}"
 
 
-def test_every_docs_page_is_linked_from_the_readme():
+def _nav_pages() -> set[str]:
+    """The pages mkdocs.yml's navigation lists (paths under docs/)."""
+    text = (ROOT / "mkdocs.yml").read_text()
+    nav = text[text.index("\nnav:"):]
+    return set(re.findall(r"([\w./-]+\.md)\s*$", nav, flags=re.MULTILINE))
+
+
+def test_every_docs_page_is_in_the_site_navigation():
+    nav = _nav_pages()
+    for page in [*USER_PAGES, *NOTE_PAGES]:
+        rel = page.relative_to(DOCS).as_posix()
+        assert rel in nav, f"mkdocs.yml's nav does not list {rel}"
+    for rel in nav:
+        assert (DOCS / rel).is_file(), f"mkdocs.yml's nav lists {rel}, which does not exist"
+
+
+def test_the_readme_links_into_each_part_of_the_docs():
     readme = (ROOT / "README.md").read_text()
-    for page in PAGES[1:]:
-        assert f"({_rel(page)})" in readme, f"README.md does not link {_rel(page)}"
+    for part in ("tutorials/", "how-to/", "reference/", "physics.md", "notes/"):
+        assert f"(docs/{part}" in readme, f"README.md links nothing under docs/{part}"
 
 
-# -- flag lists written out in prose ----------------------------------------------------------
+# -- the pages are user docs ------------------------------------------------------------------
+
+_DATE = re.compile(r"\b20\d\d-\d\d-\d\d\b")
+
+
+@pytest.mark.parametrize("page", PAGES, ids=_rel)
+def test_no_dated_section_headings_on_user_pages(page):
+    """A user page says how things are now: dated sections are the notes' (docs/notes/)."""
+    headings = re.findall(r"^#{1,6} .*$", _text_outside_code(page.read_text()), flags=re.MULTILINE)
+    dated = [h for h in headings if _DATE.search(h)]
+    assert not dated, f"{_rel(page)}: dated headings {dated}: move them to docs/notes/"
+
+
+def _words(page: Path) -> int:
+    return len(page.read_text().split())
+
+
+@pytest.mark.parametrize("page", USER_PAGES, ids=_rel)
+def test_user_pages_are_short(page):
+    limit = 6000 if page.name == "physics.md" else 3000
+    assert _words(page) <= limit, f"{_rel(page)}: {_words(page)} words, at most {limit}: split it"
+
+
+def test_explanations_within_their_budgets():
+    assert _words(DOCS / "coldstart.md") <= 1000      # why the first call is fast
+    assert _words(DOCS / "training_profile.md") <= 1500  # what makes learning fast here
+
+
+def test_readme_is_a_front_door():
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 130
+    head = text.index("## Headline figures")
+    table = text[head:text.index("\n## ", head + 3)]
+    for row in table.splitlines():
+        if not row.startswith("|") or row.startswith("|---"):
+            continue
+        for cell in row.strip().strip("|").split("|"):
+            words = re.sub(r"\]\([^)]*\)", "]", cell).split()  # a link's target is no word
+            assert len(words) <= 25, f"README headline cell of {len(words)} words: {cell!r}"
+        assert "](" in row or row.startswith("| |"), f"a headline row links nowhere: {row!r}"
+
+
+# -- the generated references cover the code --------------------------------------------------
 
 def _long_flags(parser: argparse.ArgumentParser) -> set[str]:
     return {s for a in parser._actions for s in a.option_strings
             if s.startswith("--") and s != "--help"}
 
 
-def test_saddle_sim_flag_table_matches_its_parser():
-    text = (ROOT / "docs" / "simulator.md").read_text()
-    rows = [line for line in text.splitlines() if line.startswith("| `--")]
-    documented = {f for row in rows for f in re.findall(r"`(--[A-Za-z][\w-]*)", row)}
-    assert documented == _long_flags(_parser("saddle-sim"))
+def test_every_env_option_is_in_the_generated_table():
+    import dataclasses
+
+    from saddle_env.envs import EnvConfig
+
+    placed = [f.name for _, _, fields in HOOKS.env_option_groups() for f in fields]
+    assert sorted(placed) == sorted(f.name for f in dataclasses.fields(EnvConfig))
+    table = HOOKS.env_options_markdown()
+    for name in placed:
+        assert f"| `{name}` |" in table
+    assert "<!-- generated: env-options -->" in (DOCS / "environment.md").read_text()
 
 
-def test_train_flag_list_matches_its_parser():
-    text = (ROOT / "docs" / "agents.md").read_text()
-    start = text.index("`train.py` (at the repository root)")
-    paragraph = text[start:text.index("\n\n", start)]
-    documented = set(re.findall(r"`(--[A-Za-z][\w-]*)", paragraph))
-    assert documented == _long_flags(_parser("train.py"))
+def test_every_command_line_has_its_generated_reference():
+    text = (DOCS / "reference" / "cli.md").read_text()
+    for name in HOOKS.CLIS:
+        assert f"<!-- generated: cli {name} -->" in text, f"reference/cli.md lacks {name}"
+
+
+@pytest.mark.parametrize("name", sorted(HOOKS.CLIS))
+def test_generated_command_reference_lists_every_flag(name):
+    parser = HOOKS.parser_for(name)
+    generated = HOOKS.cli_markdown(name)
+    for flag in _long_flags(parser):
+        if any(a.help is argparse.SUPPRESS for a in parser._actions if flag in a.option_strings):
+            continue
+        assert f"`{flag}`" in generated, f"{name}: {flag} missing from its reference"
+
+
+def test_every_documented_tool_has_a_reference():
+    """A command the docs show is one the reference documents (docs/hooks.py's CLIS)."""
+    known = {"saddle-sim": "saddle-sim", "saddle-eval": "saddle-eval",
+             "saddle-bench": "saddle-bench", "saddle-reproduce": "saddle-reproduce",
+             "train.py": "train.py", "benchmark": "python -m agents.benchmark",
+             "env-benchmark": "python -m saddle_env.envs.benchmark",
+             "rllib-benchmark": "python -m agents.benchmark.rllib_throughput",
+             "compile-profile": "python -m saddle_env.compilation.profile"}
+    for page, _, argv in COMMANDS:
+        tool, _ = _tool(argv)
+        if tool in ("pip", "pytest", "ray", ""):
+            continue
+        assert known.get(tool, tool) in HOOKS.CLIS, f"{page}: {tool} has no reference page"
 
 
 def test_readme_keeps_the_ci_test_command():
@@ -319,6 +477,63 @@ def test_readme_keeps_the_ci_test_command():
     i = lines.index("<!-- test-command -->")
     assert lines[i + 1] == "```bash"
     assert lines[i + 2].endswith("python -m pytest")
+
+
+# -- the Python blocks run --------------------------------------------------------------------
+
+# Pages whose blocks compile what the install's ahead-of-time build does not hold (the vector
+# env's threaded step), or load torch and a trained agent: run with the slow checks.
+SLOW_PYTHON_PAGES = {"docs/environment.md", "docs/how-to/load-model.md"}
+PYTHON_SECONDS = 120  # a page's blocks together
+
+
+def _python_pages() -> list:
+    out = []
+    for page in PAGES:
+        if not _blocks(page, "python"):
+            continue
+        marks = [pytest.mark.slow] if _rel(page) in SLOW_PYTHON_PAGES else []
+        out.append(pytest.param(page, marks=marks, id=_rel(page)))
+    return out
+
+
+class _TooLong(Exception):
+    pass
+
+
+@pytest.mark.parametrize("page", _python_pages())
+def test_python_blocks_run(page, tmp_path, monkeypatch, capsys):
+    """A page's Python blocks, in order, in one namespace, from the repository's folder (they
+    name its files, e.g. agents/models/), with the caches pointed away from it."""
+    _keep_caches_out_of_the_repository(tmp_path, monkeypatch)
+    monkeypatch.chdir(ROOT)
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    namespace: dict = {"__name__": f"docs_{page.stem}"}
+    skipped = []
+
+    def too_long(signum, frame):
+        raise _TooLong(f"{_rel(page)}: its Python blocks took over {PYTHON_SECONDS} s")
+
+    previous = signal.signal(signal.SIGALRM, too_long)
+    signal.alarm(PYTHON_SECONDS)
+    try:
+        for k, (block, skip) in enumerate(_blocks(page, "python")):
+            if skip:
+                skipped.append(f"block {k}: {skip[0]}")
+                continue
+            try:
+                # the repository's own pages, not a file from elsewhere
+                exec(compile(block, f"{_rel(page)}:python-block-{k}", "exec"), namespace)  # noqa: S102
+            except _TooLong:
+                raise
+            except Exception as exc:  # noqa: BLE001 (any error of a block fails the page)
+                pytest.fail(f"{_rel(page)}, Python block {k} raised {exc!r}:\n{block}")
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+    capsys.readouterr()
+    if skipped and len(skipped) == len(_blocks(page, "python")):
+        pytest.skip("; ".join(skipped))
 
 
 # -- running the commands (slow) --------------------------------------------------------------
@@ -377,6 +592,10 @@ def _main(tool: str):
         from agents.benchmark.rllib_throughput import main
     elif tool == "compile-profile":
         from saddle_env.compilation.profile import main
+    elif tool == "benchmark":
+        from agents.benchmark.run import main
+    elif tool.startswith("python -m "):
+        return importlib.import_module(tool.split()[-1]).main
     else:
         sys.path.insert(0, str(ROOT))
         try:
@@ -408,8 +627,9 @@ def _keep_caches_out_of_the_repository(tmp: Path, monkeypatch) -> None:
                 monkeypatch.setattr(module, attr, copy)
 
 
-BLOCKS = [(_rel(page), k, block) for page in PAGES for k, block in enumerate(_bash_blocks(page))
-          if any(_tool(argv)[0] not in ("pip", "pytest") for argv in _commands(block))]
+BLOCKS = [(_rel(page), k, block) for page in PAGES
+          for k, (block, skip) in enumerate(_blocks(page, "bash"))
+          if not skip and any(_tool(argv)[0] not in ("pip", "pytest") for argv in _commands(block))]
 
 
 @pytest.mark.slow
@@ -428,6 +648,8 @@ def test_documented_commands_run(page, k, block, tmp_path, monkeypatch, capsys):
         tool, args = _tool(argv)
         if tool in ("pip", "pytest"):
             continue
+        if tool.startswith("python -m ") and "--help" not in args:
+            continue  # documented and parsed above; its own tests run it
         if "--help" in args:
             with pytest.raises(SystemExit) as exc:
                 _main(tool)(args)

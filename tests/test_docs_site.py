@@ -1,0 +1,204 @@
+"""The docs site builds with warnings as errors, and renders in a real browser (both slow:
+CI runs them; tests/test_docs.py checks the pages' links, anchors and navigation in the
+default suite).
+
+* `mkdocs build --strict`: a broken link or anchor, a page missing from the navigation, a
+  missing API object (mkdocstrings) or an undocumented `EnvConfig` option (docs/hooks.py)
+  fails it;
+* the built site, served on localhost, opened in Debian's headless Chromium through
+  its chromedriver (selenium): the home page, the environment reference and the physics
+  page render, the equations are typeset by the bundled KaTeX (no raw TeX left), nothing is
+  requested from another host, and a search for "Omega_crt" lists the physics page.
+  Screenshots go to a folder the test prints.
+"""
+
+from __future__ import annotations
+
+import functools
+import http.server
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+pytest.importorskip("mkdocs", reason="the [docs] extra is not installed")
+pytest.importorskip("material", reason="the [docs] extra is not installed")
+
+
+def _build(site: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--quiet",
+                           "--site-dir", str(site)],
+                          check=False, cwd=ROOT, capture_output=True, text=True, timeout=600,
+                          env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
+
+
+@pytest.mark.slow  # 14-18 s on the 2-core machine; tests/test_docs.py checks links and anchors fast
+def test_the_site_builds_with_warnings_as_errors(tmp_path):
+    done = _build(tmp_path / "site")
+    assert done.returncode == 0, f"mkdocs build --strict failed:\n{done.stdout}\n{done.stderr}"
+    site = tmp_path / "site"
+    for page in ("index.html", "environment/index.html", "physics/index.html",
+                 "reference/cli/index.html", "reference/api/index.html",
+                 "notes/index.html", "search/search_index.json"):
+        assert (site / page).is_file(), f"the site has no {page}"
+    env = (site / "environment" / "index.html").read_text()
+    assert "obs_history" in env and "air_force_tau" in env     # the generated options table
+    cli = (site / "reference" / "cli" / "index.html").read_text()
+    assert "--total-timesteps" in cli and "--policy" in cli    # the generated command lines
+    api = (site / "reference" / "api" / "index.html").read_text()
+    assert "saddle_env.simulate" in api                       # mkdocstrings
+    # nothing is loaded from another host: no CDN, no web fonts
+    for html in site.rglob("*.html"):
+        text = html.read_text()
+        for remote in ("cdn.jsdelivr", "unpkg.com", "fonts.googleapis", "fonts.gstatic",
+                       "cdnjs", "polyfill.io"):
+            assert remote not in text, f"{html.relative_to(site)} loads from {remote}"
+
+
+# -- in a browser (slow) -----------------------------------------------------------------------
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMEDRIVER = shutil.which("chromedriver")
+
+
+class _Quiet(http.server.SimpleHTTPRequestHandler):
+    def log_message(self, *args):
+        pass
+
+
+@pytest.fixture
+def served_site(tmp_path):
+    """The site built and served on 127.0.0.1 (a free port) for the test's length."""
+    site = tmp_path / "site"
+    done = _build(site)
+    assert done.returncode == 0, done.stderr
+    server = http.server.ThreadingHTTPServer(
+        ("127.0.0.1", 0), functools.partial(_Quiet, directory=str(site)))
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield f"http://127.0.0.1:{server.server_address[1]}"
+    finally:
+        server.shutdown()
+        server.server_close()
+
+
+@pytest.fixture
+def browser(tmp_path):
+    webdriver = pytest.importorskip("selenium.webdriver")
+    if not (CHROMIUM and CHROMEDRIVER):
+        pytest.skip("needs Debian's chromium and chromium-driver (apt-get install -y chromium "
+                    "chromium-driver; .ci/run installs them)")
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                 "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync",
+                 "--window-size=1280,1000", f"--user-data-dir={tmp_path / 'profile'}"):
+        options.add_argument(flag)
+    options.set_capability("goog:loggingPrefs", {"performance": "ALL"})
+    service = webdriver.ChromeService(executable_path=CHROMEDRIVER)
+    driver = webdriver.Chrome(options=options, service=service)
+    driver.set_page_load_timeout(60)
+    try:
+        yield driver
+    finally:
+        driver.quit()
+
+
+def _wait(condition, seconds: float = 30.0, what: str = "the page"):
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.2)
+    raise AssertionError(f"timed out after {seconds} s waiting for {what}")
+
+
+def _hosts_requested(driver) -> set[str]:
+    import json
+    from urllib.parse import urlparse
+
+    hosts = set()
+    for entry in driver.get_log("performance"):
+        message = json.loads(entry["message"])["message"]
+        if message.get("method") == "Network.requestWillBeSent":
+            url = message["params"]["request"]["url"]
+            if url.startswith("http"):
+                hosts.add(urlparse(url).hostname)
+    return hosts
+
+
+@pytest.mark.slow
+def test_the_site_renders_in_a_browser(served_site, browser, capsys):
+    from selenium.webdriver.common.by import By
+
+    shots = Path(tempfile.gettempdir()) / "saddle-env-docs-screenshots"
+    shutil.rmtree(shots, ignore_errors=True)
+    shots.mkdir(parents=True)
+    with capsys.disabled():
+        print(f"\nscreenshots of the docs site: {shots}")
+
+    def visit(path: str, heading: str, shot: str) -> None:
+        browser.get(served_site + path)
+        h1 = _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "article h1"),
+                   what=f"the heading of {path}")
+        assert heading in h1[0].text, f"{path}: heading {h1[0].text!r}"
+        browser.save_screenshot(str(shots / shot))
+
+    visit("/", "saddle-env", "home.png")
+    # the home page's equation is typeset too
+    _wait(lambda: browser.find_elements(By.CSS_SELECTOR, ".arithmatex .katex"),
+          what="KaTeX on the home page")
+
+    visit("/environment/", "The environment", "environment.png")
+    assert browser.find_elements(By.ID, "all-options"), "the env reference has no options"
+    options_table = browser.find_element(By.ID, "all-options")
+    browser.execute_script("arguments[0].scrollIntoView();", options_table)
+    assert "obs_history" in browser.find_element(By.TAG_NAME, "article").text
+    browser.save_screenshot(str(shots / "environment-options.png"))
+
+    visit("/physics/", "The physics", "physics.png")
+    # every equation typeset by KaTeX: each arithmatex element holds KaTeX's output, and no
+    # TeX source is left on the page as text
+    maths = browser.find_elements(By.CSS_SELECTOR, ".arithmatex")
+    assert len(maths) >= 15, f"the physics page has {len(maths)} equations"
+    _wait(lambda: all(m.find_elements(By.CSS_SELECTOR, ".katex") for m in maths),
+          what="KaTeX to typeset every equation")
+    assert not browser.find_elements(By.CSS_SELECTOR, ".katex-error")
+    text = browser.find_element(By.TAG_NAME, "article").text
+    for tex in ("\\frac", "\\Omega", "\\mathbf", "\\sqrt", "$$"):
+        assert tex not in text, f"raw TeX {tex!r} left on the physics page"
+    crt = browser.find_element(By.XPATH, "//*[contains(@class, 'arithmatex')][contains(., 'crt')]")
+    browser.execute_script("arguments[0].scrollIntoView({block: 'center'});", crt)
+    browser.save_screenshot(str(shots / "physics-equations.png"))
+
+    # search, in the browser's own index (no server): "Omega_crt" lists the physics page
+    browser.get(served_site + "/")
+    _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "label.md-header__button[for='__search']")
+          or browser.find_elements(By.CSS_SELECTOR, "input.md-search__input"), what="search box")
+    box = browser.find_element(By.CSS_SELECTOR, "input.md-search__input")
+    box.click()
+    box.send_keys("Omega_crt")
+    results = _wait(lambda: [a.get_attribute("href") for a in
+                             browser.find_elements(By.CSS_SELECTOR, ".md-search-result__link")],
+                    what="search results for Omega_crt")
+    time.sleep(2.0)  # let the result list paint before the screenshot
+    browser.save_screenshot(str(shots / "search-omega-crt.png"))
+    from urllib.parse import urlparse
+
+    pages = {urlparse(href).path for href in results}
+    assert "/physics/" in pages, f"search for Omega_crt: {sorted(pages)}"
+
+    hosts = _hosts_requested(browser)
+    assert hosts <= {"127.0.0.1"}, f"the site requested other hosts: {hosts}"
+    assert len(list(shots.glob("*.png"))) == 6
