@@ -5,7 +5,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).parent))
 
 # Searches the tests trigger go to a temporary cache, never into the shipped
-# agents/best_const.json (subprocesses inherit the variable).
+# agents/control/best_const.json (subprocesses inherit the variable).
 import atexit  # noqa: E402
 import os  # noqa: E402
 import shutil  # noqa: E402

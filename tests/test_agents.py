@@ -150,7 +150,7 @@ def test_mpc_keeps_the_ball_and_damps_the_orbit_in_the_default_task():
 def test_mpc_beats_the_best_constant_with_air_currents_and_random_balls():
     config = EnvConfig(**HARD)
     seeds = 1000 + np.arange(40)
-    best = BC.best_constant(config)  # shipped in agents/best_const.json
+    best = BC.best_constant(config)  # shipped in agents/control/best_const.json
     mpc = _run(config, P.load_policy("mpc", config), seeds)
     const = _run(config, C.ConstantSpeed(config, best["omega"]), seeds)
     assert mpc["time"].mean() > const["time"].mean()

@@ -606,7 +606,7 @@ def _main(tool: str):
 
 
 def _keep_caches_out_of_the_repository(tmp: Path, monkeypatch) -> None:
-    """saddle-eval's best-const search caches its result in agents/best_const.json: point
+    """saddle-eval's best-const search caches its result in agents/control/best_const.json: point
     the cache at a copy so that running the docs never edits the repository."""
     import importlib
     import shutil

@@ -1,7 +1,7 @@
 """The ``best-const`` baseline: the constant saddle speed with the longest mean trapping time
 on seeded episodes of a config's own start distribution, found by a grid search and cached.
 
-The cache (``agents/best_const.json``, or ``~/.cache/saddle-env/best_const.json`` if the
+The cache (``agents/control/best_const.json``, or ``~/.cache/saddle-env/best_const.json`` if the
 package folder is not writable) is keyed by a hash of every option that changes a
 constant-speed run, plus the search's episodes, seed and episode length: each task level
 (`saddle_env.LEVELS`) and each set of overrides gets its own entry.
@@ -125,7 +125,7 @@ def cached_best_constant(config: EnvConfig, episodes: int = SEARCH_EPISODES,
 
 def best_constant(config: EnvConfig, episodes: int = SEARCH_EPISODES, seed: int = SEARCH_SEED,
                   max_episode_steps: int = DEFAULT_EPISODE_STEPS, recompute: bool = False) -> dict[str, Any]:
-    """`search_best_constant`, cached by config in ``agents/best_const.json`` (or, if that
+    """`search_best_constant`, cached by config in ``agents/control/best_const.json`` (or, if that
     is not writable, in ``~/.cache/saddle-env/best_const.json``; new searches go only to the
     file named by ``$SADDLE_ENV_BEST_CONST_CACHE`` when it is set)."""
     if not recompute:
