@@ -199,7 +199,7 @@ def plot(rows: list[Row], out_dir: str | Path, batch: bool = False,
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=6.5, loc="best", framealpha=0.6)
     ref = rows[0] if rows else {}
-    who = f"per ball, batch of {ref.get('batch_n', 0):d}" if batch else "one ball"
+    who = f"per ball, batch of {int(ref.get('batch_n', 0))}" if batch else "one ball"
     axes[0].set_ylabel(f"wall time per simulated second [µs], {who}")
     fig.suptitle(f"saddle-bench: a = {ref.get('a')} m, R = {ref.get('R')} m, "
                  f"Ω = {ref.get('omega')} s⁻¹, release ({ref.get('x0')}, {ref.get('y0')}) m "
