@@ -45,6 +45,7 @@ def evaluate_clairvoyant(env_id: str | EnvConfig, episodes: int, seed: int = 2_0
         steps = max_episode_steps or level.max_episode_steps
     policy = clairvoyant(config, loader=load_policy if agents else None, **planner)
     seeds = seed + np.arange(episodes)
+    causes: list[str]
     times, mpc_times, causes, plans = [], [], [], []
     incumbents: dict[str, list[float]] = {}
     t0 = time.perf_counter()

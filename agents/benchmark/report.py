@@ -128,7 +128,7 @@ def report_data(results: list[dict[str, Any]], refs: dict[str, dict[str, Any]]
     data: dict[str, Any] = {"levels": {}, "across_levels": {}, "references": refs,
                             "normalisation": "0 = uniform random actions, 1 = the level's "
                                              "upper reference (clairvoyant, else mpc)"}
-    by = {(r["level"], r["algo"]): [] for r in results}
+    by: dict[tuple[str, str], list[dict[str, Any]]] = {(r["level"], r["algo"]): [] for r in results}
     for r in results:
         by[(r["level"], r["algo"])].append(r)
     for lid in levels:
@@ -194,7 +194,13 @@ def figures(data: dict[str, Any], figs: Path) -> list[str]:
         return []
     figs.mkdir(parents=True, exist_ok=True)
     algos = sorted(matrices)
-    colors = dict(zip(algos, plt.get_cmap("tab10").colors))
+    from matplotlib.colors import ListedColormap
+
+    tab10 = plt.get_cmap("tab10")
+    assert isinstance(tab10, ListedColormap)  # matplotlib's ten qualitative colours
+    # matplotlib's stubs give .colors its constructor argument's type (any array-like or one
+    # colour), though it is the list of colours
+    colors: dict[str, Any] = dict(zip(algos, tab10.colors))  # type: ignore[arg-type]
     across = data["across_levels"]
     point = {a: np.array([across[a]["iqm"], across[a]["mean"]]) for a in algos}
     interval = {a: np.array([across[a]["iqm_ci"], across[a]["mean_ci"]]).T for a in algos}

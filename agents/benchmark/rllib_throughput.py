@@ -33,6 +33,7 @@ import platform
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 COLUMNS = ("path", "env_runners", "balls_per_runner", "sampling_steps_per_s",
            "learner_steps_per_s", "training_steps_per_s")
@@ -44,6 +45,7 @@ class _Results:
 
     def __init__(self, out: Path, meta: dict):
         out.mkdir(parents=True, exist_ok=True)
+        self.rows: list[dict]
         self.out, self.meta, self.rows = out, meta, []
 
     def add(self, row: dict) -> None:
@@ -84,7 +86,7 @@ def sb3_rates(n_envs: int, seconds: float) -> dict:
     model = PPO("MlpPolicy", env, seed=0, device="cpu", verbose=0,
                 policy_kwargs=parse_policy_kwargs(hyper["policy_kwargs"]), **kwargs)
     batch = model.n_steps * n_envs
-    timer = {"train": 0.0}
+    timer: dict[str, Any] = {"train": 0.0}   # seconds in train(); "last": (total, train)
     train = model.train
 
     def timed_train():
@@ -92,7 +94,8 @@ def sb3_rates(n_envs: int, seconds: float) -> dict:
         train()
         timer["train"] += time.perf_counter() - t
 
-    model.train = timed_train
+    timed_model: Any = model  # Any: an instance's method replaced, which SB3's types forbid
+    timed_model.train = timed_train
     model.learn(batch)                                    # warm-up (compiles, allocates)
 
     def iteration():

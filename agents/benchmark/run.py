@@ -296,9 +296,9 @@ def _run_ray(todo: list[tuple[str, str, int]], out: Path, cell: dict[str, Any],
                    for lv, a, s in todo}
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
-            cell = pending.pop(done[0])
+            done_cell = pending.pop(done[0])
             path = write_result(out, ray.get(done[0]))
-            print(f"{'/'.join(map(str, cell))} -> {path}", file=sys.stderr, flush=True)
+            print(f"{'/'.join(map(str, done_cell))} -> {path}", file=sys.stderr, flush=True)
     finally:
         ray.shutdown()
     return len(todo)

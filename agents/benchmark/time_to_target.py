@@ -42,6 +42,7 @@ import json
 import statistics
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -93,7 +94,7 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
         final_episodes: int = 200,
         max_episode_steps: int | None = None, figure: Path | None = None,
         log: Any = print, reuse: bool = False, recipe_of: str | None = None,
-        algo: str = "ppo", backend: str = "sb3", budgets: list[float] = ()) -> dict[str, Any]:
+        algo: str = "ppo", backend: str = "sb3", budgets: Sequence[float] = ()) -> dict[str, Any]:
     """Train ``seeds`` with the recipe, measure the targets, write the files; return the
     summary (what the JSON holds). ``reuse``: a seed whose run folder
     (``<out>/runs/<label>_seed<s>``) holds a finished run is read, not trained again (its
@@ -107,6 +108,7 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
         probe = TrainSettings(algo=algo, backend=backend, env_id=env_id,
                               hyperparams=hyperparams, recipe_of=recipe_of).validate()
         probe.take_recipe(recipe(probe))
+        assert probe.eval_episodes is not None  # take_recipe filled it
         eval_episodes = probe.eval_episodes
     log(f"targets: best-const and mpc on {eval_episodes} validation episodes "
         f"(seeds from {VALIDATION_SEED:,}) ...")
@@ -171,7 +173,7 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
     return summary
 
 
-def shorter_budgets(run_dirs: list[Path], budgets: list[float], label: str,
+def shorter_budgets(run_dirs: list[Path], budgets: Sequence[float], label: str,
                     seeds: list[int]) -> dict[str, dict[str, Any]]:
     """For each run and each budget B: the network the selection rule (the latest best
     mean validation return) keeps among the run's evaluations at or before B steps, by

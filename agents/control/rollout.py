@@ -48,7 +48,7 @@ def run_episodes(config: EnvConfig, act: Actor, seeds: Sequence[int] | np.ndarra
         padded = np.concatenate([seeds, seeds.max() + 1 + np.arange(pad)]) if pad else seeds
         chunks = [padded[i:i + CHUNK] for i in range(0, len(padded), CHUNK)]
     dt = config.control_period
-    out = {"time": np.zeros(n), "kept": np.zeros(n, dtype=bool),
+    out: dict[str, np.ndarray] = {"time": np.zeros(n), "kept": np.zeros(n, dtype=bool),
            "cause": np.full(n, "kept", dtype=object), "mean_r": np.zeros(n),
            "effort": np.zeros(n), "return": np.zeros(n), "min_normal": np.full(n, np.inf)}
     record = min(record, n)
@@ -102,8 +102,8 @@ def run_episodes(config: EnvConfig, act: Actor, seeds: Sequence[int] | np.ndarra
                 if alive[j]:
                     trace_omega[start + j, step + 1] = info["omega"][j]
                     trace_r[start + j, step + 1] = r[j]
-            for j in np.flatnonzero(term & alive):
-                cause[j] = info["cause"][j]
+            for i in np.flatnonzero(term & alive):
+                cause[i] = info["cause"][i]
             alive &= ~(term | trunc)
             if bar is not None:
                 bar.update(1)

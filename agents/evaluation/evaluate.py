@@ -175,7 +175,7 @@ def evaluate(specs: Sequence[str | tuple[str, Any]], config: EnvConfig, episodes
         res = run_episodes(config, act, seeds, max_episode_steps=max_episode_steps,
                            row_independent=row_independent, record=examples,
                            progress=label if progress else False)
-        row = {"policy": label, "kind": kind, **summarise(res)}
+        row: dict[str, object] = {"policy": label, "kind": kind, **summarise(res)}
         if hasattr(policy, "omega"):
             row["omega"] = round(float(policy.omega), 6)
         table["policies"].append(row)

@@ -180,7 +180,7 @@ def fit(policy: Any, obs: np.ndarray, action: np.ndarray, ret: np.ndarray,
 
 
 def imitate(model: Any, config: EnvConfig, max_episode_steps: int, seed: int,
-            settings: ImitationSettings, log: Any = print) -> list[dict[str, float]]:
+            settings: ImitationSettings, log: Any = print) -> list[dict[str, float | int | str]]:
     """DAgger warm start of the SB3 actor-critic ``model`` (PPO, A2C) on ``config``
     (run ``seed`` picks a disjoint block of imitation seeds). Returns one summary per
     round: the driver's mean trapping time and kept fraction, the labels so far, the
@@ -208,8 +208,8 @@ def imitate(model: Any, config: EnvConfig, max_episode_steps: int, seed: int,
         for key, labels in data.items():
             labels.append(rec[key])
         policy.set_training_mode(True)
-        losses = fit(policy, *(np.concatenate(data[k]) for k in ("obs", "action", "ret")),
-                     settings, rng)
+        obs, action, ret = (np.concatenate(data[k]) for k in ("obs", "action", "ret"))
+        losses = fit(policy, obs, action, ret, settings, rng)
         policy.set_training_mode(False)
         summary = {"round": r, "driver": "mpc" if r == 0 else "network",
                    "mean_time": float(np.mean(rec["time"])), "kept": float(np.mean(rec["kept"])),

@@ -75,6 +75,7 @@ def wrapper_settings(hyper: dict[str, Any]) -> tuple[dict[str, Any] | None, int]
     """(VecNormalize keywords or None, frames to stack) from the zoo keys ``normalize`` and
     ``frame_stack``; ValueError for a value the zoo would not accept either."""
     norm = hyper.get("normalize")
+    norm_kw: dict[str, Any] | None
     if norm in (None, False):
         norm_kw = None
     elif norm is True:

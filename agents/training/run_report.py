@@ -53,7 +53,8 @@ def compare(run_dir: Path, settings: TrainSettings, model: Path | None = None) -
     steps = int(settings.max_episode_steps or 500)
     print(f"comparing {model.name} with best-const and mpc on {settings.compare_episodes} fresh "
           f"episodes (seeds from {COMPARE_SEED:,}) ...", flush=True)
-    specs = [(str(model), load_policy(model, config)), "best-const", "mpc"]
+    specs: list[str | tuple[str, Any]] = [(str(model), load_policy(model, config)), "best-const",
+                                          "mpc"]
     table, _ = evaluate(specs, config, settings.compare_episodes, COMPARE_SEED,
                         max_episode_steps=steps, examples=0, env_id=settings.env_id,
                         progress=settings.progress_bar)

@@ -70,6 +70,7 @@ def shape(env: Any, value: Any, config: EnvConfig, training: bool = True) -> Any
             obs, rewards, dones, infos = self.venv.step_wait()
             if cost == 0.0:
                 return obs, rewards, dones, infos
+            assert isinstance(obs, np.ndarray)  # SaddleTrap's observations: one Box
             last = obs
             if dones.any():
                 last = obs.copy()

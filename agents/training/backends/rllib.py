@@ -215,6 +215,8 @@ def build_config(settings: TrainSettings, hyper: dict[str, Any]):
     from ray.tune.registry import register_env
 
     register_env(ENV_NAME, make_env)
+    # filled before training: TrainSettings.validate and take_recipe
+    assert settings.n_envs is not None and settings.num_env_runners is not None
     n_envs = int(settings.n_envs)
     runners = int(settings.num_env_runners)
     cpus = float(ray.cluster_resources().get("CPU", 1.0))
@@ -421,6 +423,7 @@ def _train(settings: TrainSettings, hyper: dict[str, Any], run_dir: Path,
     last_save = steps
     start = time.time()
     final = None
+    assert settings.total_timesteps is not None  # TrainSettings.take_recipe filled it
     try:
         with sigterm_stops(deferred=True) as stop_requested:
             while steps < settings.total_timesteps:

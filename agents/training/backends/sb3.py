@@ -319,7 +319,7 @@ def _selection_callback(eval_env, settings: TrainSettings, run_dir: Path, n_envs
     at least the best so far (ties go to the later snapshot; see the module docstring)."""
     from stable_baselines3.common.callbacks import EvalCallback
 
-    began = time.time() if began is None else began
+    start_s = time.time() if began is None else began
     dt = settings.environment()[1].control_period
 
     class SelectingEvalCallback(EvalCallback):
@@ -344,7 +344,7 @@ def _selection_callback(eval_env, settings: TrainSettings, run_dir: Path, n_envs
             # The curve against wall-clock time (since train() began: warm start and
             # imitation included), for the learning curve and agents.benchmark.time_to_target.
             lengths = np.asarray(self.evaluations_length[-1], dtype=float)
-            append_curve_point(run_dir, self.num_timesteps, time.time() - began,
+            append_curve_point(run_dir, self.num_timesteps, time.time() - start_s,
                                self.last_mean_reward, lengths.mean() * dt)
             if self.last_mean_reward >= self.selected_mean:
                 self.selected_mean = float(self.last_mean_reward)
@@ -365,6 +365,7 @@ def _selection_callback(eval_env, settings: TrainSettings, run_dir: Path, n_envs
             finally:
                 self.eval_freq = period
 
+    assert settings.eval_freq is not None  # TrainSettings.take_recipe filled it
     per_env = max(1, settings.eval_freq // n_envs)    # callbacks count vector steps
     return SelectingEvalCallback(eval_env, n_eval_episodes=settings.eval_episodes,
                                  eval_freq=per_env, best_model_save_path=None,
@@ -427,6 +428,9 @@ def train_with(learner: Sb3Learner, settings: TrainSettings, hyper: dict[str, An
     began = time.time() if began is None else began
     torch.set_num_threads(settings.torch_threads)
     norm_kw, frame_stack = wrapper_settings(hyper)
+    # filled before training: TrainSettings.validate and take_recipe
+    assert settings.n_envs is not None and settings.max_episode_steps is not None
+    assert settings.eval_episodes is not None
     n_envs, steps = int(settings.n_envs), int(settings.max_episode_steps)
     _, config = settings.environment()
     env = make_vec_env(n_envs, settings.seed, settings.env_kwargs,

@@ -201,7 +201,8 @@ def save_learner_state(model, path: Path) -> Path:
     """`learner_state` as an npz file (written whole: a temporary file, then renamed)."""
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as f:
-        np.savez(f, **learner_state(model))
+        # allow_pickle: numpy's default, named so that mypy does not match the arrays to it
+        np.savez(f, allow_pickle=True, **learner_state(model))
     tmp.replace(path)
     return path
 
