@@ -97,13 +97,13 @@ def load_controller(spec: str, config: EnvConfig | None = None,
                          f"{m.group('cls')!r}")
     kwargs = dict(kwargs or {})
     try:
-        params = inspect.signature(cls).parameters
-    except (TypeError, ValueError):
-        params = {}
-    if "config" in params and "config" not in kwargs:
+        takes_config = "config" in inspect.signature(cls).parameters
+    except (TypeError, ValueError):    # a class whose signature cannot be read
+        takes_config = False
+    if takes_config and "config" not in kwargs:
         kwargs["config"] = config if config is not None else EnvConfig()
     try:
-        controller = cls(**kwargs)
+        controller: Any = cls(**kwargs)
     except TypeError as exc:
         raise ValueError(f"--policy {spec}: {cls.__name__}({', '.join(kwargs)}) failed: {exc} "
                          "(pass its arguments with --policy-kwargs '{\"name\": value}')") from None
