@@ -162,7 +162,7 @@ def test_the_engine_hands_the_compiled_step_the_types_it_was_checked_for():
 
 _FIRST_CALLS = """
 import json, numpy as np, gymnasium as gym, saddle_env as se
-from saddle_env import _aot
+from saddle_env.compilation import aot as _aot
 out = {}
 for lid, options in [(lid, {}) for lid in %r] + [("SaddleTrap-v0", {"contact": "slipping"})]:
     name = " ".join([lid, *options.values()])
