@@ -55,7 +55,7 @@ def test_a_comparison_after_it_compiles_nothing(tmp_path):
     done = subprocess.run([sys.executable, "-m", "agents.training.compile_ahead", level, "200", "500"],
                           env=env, capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr
-    code = ("from agents import compile_ahead\n"
+    code = ("from agents.training import compile_ahead\n"
             "compile_ahead.STEPS = 20\n"
             f"compile_ahead.compile_comparison({level!r}, 200, 500)")
     assert compiled_in_fresh_process(code, env) == ["<lambda>"]
