@@ -55,7 +55,7 @@ def test_resume_keeps_finished_policies_and_an_interrupt_keeps_what_finished(tmp
     first, second = LEVELS[1].id, LEVELS[2].id
     calls = []
 
-    def fake(env_id, spec, episodes, seed, progress=True, trust=False):
+    def fake(env_id, spec, episodes, seed, progress=True, trust=False, policy_kwargs=None):
         calls.append((env_id, spec))
         if env_id == second and spec == "const-1.0":
             raise KeyboardInterrupt
@@ -116,7 +116,7 @@ def test_bad_arguments_give_one_line_errors(capsys):
 def test_updating_one_level_keeps_the_others_on_the_board(tmp_path, monkeypatch):
     first, second = LEVELS[1].id, LEVELS[2].id
 
-    def fake(env_id, spec, episodes, seed, progress=True, trust=False):
+    def fake(env_id, spec, episodes, seed, progress=True, trust=False, policy_kwargs=None):
         return _fake_result(spec)
 
     monkeypatch.setattr(lb, "evaluate_policy", fake)
