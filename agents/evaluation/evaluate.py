@@ -3,7 +3,7 @@ own) on the same seeded episodes of a task level and tabulate how long they keep
 
 ```
 saddle-eval --policy const-1.2 --policy mpc --policy runs/ppo/model.zip \\
-            --policy runs/ppo_rllib_seed0_<date>/final \\
+            --policy runs/ppo_rllib_seed0_<date>/final --policy exported/ppo_storm \\
             --policy my_controllers.py:Bang --policy-kwargs '{"gain": 2}' \\
             --episodes 200 --seed 0 [--env ID] [--env-kwargs R=0.033 air_force=0.3]
             [--json] [--out DIR]
@@ -134,6 +134,10 @@ def policy_label(policy: Any, spec: str) -> tuple[str, str]:
     name, or a model file's path and algorithm."""
     if hasattr(policy, "algo_name"):
         return spec, policy.algo_name
+    from saddle_env.deploy import Controller
+
+    if isinstance(policy, Controller):   # a folder saddle-export wrote
+        return spec, policy.kind
     if is_controller_spec(spec):
         return str(getattr(policy, "name", spec)), "controller"
     return getattr(policy, "name", spec), "baseline"
@@ -351,10 +355,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "plots, or with --json print the table and write nothing.")
     p.add_argument("--policy", action="append", required=True, metavar="NAME_OR_PATH",
                    help="a baseline (const-1.0, const-1.2, const-<K>, masspoint, best-const, mpc, "
-                        "clairvoyant, zero, random), a model file, an RLlib checkpoint "
-                        "directory, or your controller class as path/to/file.py:ClassName or "
-                        "package.module:ClassName (imported and run: name only code you "
-                        "trust); repeat for several")
+                        "clairvoyant, zero, random), a model file, a folder saddle-export "
+                        "wrote, an RLlib checkpoint directory, or your controller class as "
+                        "path/to/file.py:ClassName or package.module:ClassName (imported and "
+                        "run: name only code you trust); repeat for several")
     p.add_argument("--policy-kwargs", default=None, metavar="JSON",
                    help="a JSON object of arguments your controller classes are built with "
                         "(default: none; a class whose __init__ takes `config` gets the "
