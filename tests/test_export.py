@@ -227,3 +227,13 @@ def test_export_refuses_what_is_not_a_model_file(tmp_path, capsys):
     with pytest.raises(SystemExit):
         X.main([str(SHIPPED[0]), "--out", str(tmp_path / "o"), "--opset", "7"])
     assert "--opset" in capsys.readouterr().err
+
+
+def test_the_latency_benchmark_reports_both_policies(capsys):
+    from agents.benchmark import deploy_latency
+
+    assert deploy_latency.main(["--calls", "20", "--warmup", "2", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert set(result["rows"]) == {"Controller.act (onnxruntime)", "SB3 predict (torch)"}
+    assert all(0 < r["median_us"] <= r["p99_us"] for r in result["rows"].values())
+    assert result["peer_over_controller"] > 0 and result["threads"] == 1
