@@ -218,6 +218,29 @@ def test_saddle_eval_evaluates_an_exported_folder_as_its_model(exported, capsys)
         assert rows[0][key] == pytest.approx(rows[1][key], rel=1e-4, abs=1e-6), key
 
 
+def test_saddle_eval_warns_when_a_folder_runs_on_another_level(exported, capsys):
+    assert E.main(["--policy", str(exported["ppo_gusty"]), "--env", "SaddleTrap-Storm-v0",
+                   "--json", "--no-progress", "--episodes", "1", "--max-episode-steps", "2"]) == 0
+    assert "trained on SaddleTrap-Gusty-v0" in capsys.readouterr().err
+    # a level whose observations have another shape is refused, as for the model file
+    with pytest.raises(SystemExit):
+        E.main(["--policy", str(exported["ppo_gusty"]), "--env", "SaddleTrap-v0", "--json",
+                "--no-progress", "--episodes", "1"])
+    assert "shape (64,)" in capsys.readouterr().err
+
+
+def test_a_leaderboard_entry_of_a_folder_changes_with_the_folder(exported, tmp_path):
+    import shutil
+
+    from agents.benchmark import leaderboard as lb
+
+    copy = Path(shutil.copytree(exported["ppo_storm"], tmp_path / "ppo_storm"))
+    before = lb.policy_key(str(copy))
+    assert before.startswith("ppo_storm@") and before == lb.policy_key(str(exported["ppo_storm"]))
+    X.export_policy(ROOT / "agents/models/ppo_gusty.zip", copy)   # another policy, same name
+    assert lb.policy_key(str(copy)) != before
+
+
 def test_export_refuses_what_is_not_a_model_file(tmp_path, capsys):
     for arg, match in (("mpc", "model file"), (str(tmp_path), "model file")):
         with pytest.raises(SystemExit) as exc:

@@ -61,7 +61,12 @@ from agents.cli_args import (
 )
 from agents.control.rollout import CHUNK, Actor, PolicyActor, policy_actor, run_episodes  # noqa: F401
 from agents.evaluation.model_files import TRUST_FLAG
-from agents.evaluation.policies import load_policy, model_sidecar, policy_sidecar  # noqa: F401
+from agents.evaluation.policies import (  # noqa: F401
+    is_exported_folder,
+    load_policy,
+    model_sidecar,
+    policy_sidecar,
+)
 from agents.evaluation.user_code import is_controller_spec
 from agents.seeds import TEST_SEED
 from saddle_env.envs import DEFAULT_EPISODE_STEPS, ENV_ID, LEVEL_IDS, EnvConfig, get_level
@@ -458,6 +463,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             import torch
 
             torch.set_num_threads(1)  # one thread: the same actions on any machine
+        if hasattr(policy, "algo_name") or is_exported_folder(spec):
             _warn_if_trained_elsewhere(spec, level.id, config)
     table, details = evaluate(policies, config, args.episodes, args.seed, steps,
                               progress=progress, examples=args.examples, env_id=level.id)
