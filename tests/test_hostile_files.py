@@ -596,3 +596,15 @@ def test_a_graph_that_is_not_onnx_or_is_a_link_is_refused(exported_folder, tmp_p
         Controller.from_dir(linked)
     assert not no_session
     assert Controller.from_dir(exported_folder).act(_obs(1)[0]).shape == (1,)   # the honest one
+
+
+def test_a_graph_whose_actions_are_not_what_policy_json_says_is_an_error(exported_folder,
+                                                                         tmp_path):
+    from saddle_env.deploy import Controller
+
+    def two_actions(data):
+        data["action"].update(dim=2, low=[-1.0, -1.0], high=[1.0, 1.0])
+
+    bad = _folder(exported_folder, tmp_path / "two", spec=two_actions)
+    with pytest.raises(ValueError, match=r"gave actions of shape \(1, 1\).*\(1, 2\)"):
+        Controller.from_dir(bad).act(_obs(1)[0])

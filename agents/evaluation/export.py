@@ -138,12 +138,15 @@ def export_policy(model: str | os.PathLike, out: str | os.PathLike, trust: bool 
     lay = layout(config)
     raw, in_graph = graph_bytes(net, stack * lay.dim, opset)
     space = observation_space(config)
+    steps = side.get("max_episode_steps")
+    if isinstance(steps, bool) or not isinstance(steps, int) or not 1 <= steps <= 10**7:
+        steps = None      # not the sidecar's to break the folder: the level's length applies
     spec = {
         "format": F.FORMAT, "format_version": F.FORMAT_VERSION,
         "env_id": env_id, "env_kwargs": side.get("env_kwargs") or {},
         "options": {k: (list(v) if isinstance(v, tuple) else v)
                     for k, v in config.as_dict().items()},
-        "max_episode_steps": side.get("max_episode_steps"),
+        "max_episode_steps": steps,
         "observation": {"dim": lay.dim, "low": space.low.tolist(), "high": space.high.tolist(),
                         "layout": {"frame_dim": lay.frame_dim, "frames": lay.frames,
                                    "x": lay.x, "y": lay.y, "vx": lay.vx, "vy": lay.vy,

@@ -32,9 +32,8 @@ class Controller:
     def __init__(self, spec: PolicySpec, session: Any):
         self.spec = spec
         self.session = session
-        self.name = spec.source.get("model", str(spec.folder)) if isinstance(
-            spec.source.get("model"), str) else str(spec.folder)
-        self.kind = "ONNX"
+        self.name = str(spec.folder)
+        self.kind = "ONNX"     # saddle-eval's "kind" column
         norm = spec.normalizer
         # (mean, sqrt(var + epsilon), clip) in float64, as evaluation normalises
         self._norm: tuple[np.ndarray, np.ndarray, float] | None = None if norm is None else (
@@ -77,7 +76,12 @@ class Controller:
         return np.clip((obs - mean) / std, -clip, clip).astype(np.float32)
 
     def _run(self, inputs: np.ndarray) -> np.ndarray:
-        return self.session.run([OUTPUT_NAME], {INPUT_NAME: inputs})[0]
+        actions = self.session.run([OUTPUT_NAME], {INPUT_NAME: inputs})[0]
+        want = (len(inputs), self.spec.action_dim)
+        if actions.shape != want or actions.dtype != np.float32:
+            raise ValueError(f"{self.spec.folder}: policy.onnx gave actions of shape "
+                             f"{actions.shape} ({actions.dtype}), policy.json says {want} float32")
+        return actions
 
     def _check(self, obs: np.ndarray, name: str) -> None:
         if obs.shape[-1] != self.spec.observation_dim or obs.ndim > 2:

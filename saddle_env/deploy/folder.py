@@ -148,6 +148,15 @@ def _floats(d: dict[str, Any], key: str, n: int, folder: Path, where: str,
     return [float(v) for v in value]
 
 
+def _number(d: dict[str, Any], key: str, folder: Path, where: str) -> float:
+    """A finite, non-negative number."""
+    value = _get(d, key, (int, float), folder, where)
+    if not math.isfinite(value) or value < 0:
+        raise _fail(folder, f"{POLICY_JSON}: {where}{key} must be a finite non-negative "
+                            f"number, got {value}")
+    return float(value)
+
+
 def _json_plain(value: Any, depth: int = 0) -> bool:
     """JSON of numbers, strings, booleans, null, lists and string-keyed objects, not deep."""
     if depth > 4:
@@ -212,10 +221,8 @@ def read_spec(folder: str | os.PathLike, limits: Limits = LIMITS) -> PolicySpec:
         where = "normalizer."
         norm = {"mean": _floats(norm, "mean", dim, folder, where),
                 "var": _floats(norm, "var", dim, folder, where, nonneg=True),
-                "epsilon": _floats({"epsilon": [norm.get("epsilon")]}, "epsilon", 1, folder,
-                                   where, nonneg=True)[0],
-                "clip": _floats({"clip": [norm.get("clip")]}, "clip", 1, folder, where,
-                                nonneg=True)[0]}
+                "epsilon": _number(norm, "epsilon", folder, where),
+                "clip": _number(norm, "clip", folder, where)}
         if min(norm["var"]) + norm["epsilon"] <= 0:
             raise _fail(folder, f"{POLICY_JSON}: normalizer var + epsilon must be positive")
 
@@ -284,7 +291,7 @@ def check_graph(raw: bytes, spec: PolicySpec, limits: Limits = LIMITS) -> None:
         raise _fail(folder, f"{POLICY_ONNX} is not an ONNX model ({type(exc).__name__})") \
             from None
     graph = model.graph
-    if len(model.functions) or any(f.domain not in STANDARD_DOMAINS for f in model.functions):
+    if len(model.functions):
         raise _fail(folder, f"{POLICY_ONNX} defines local functions; only standard operators "
                             "are allowed")
     for imp in model.opset_import:
@@ -329,8 +336,11 @@ def check_graph(raw: bytes, spec: PolicySpec, limits: Limits = LIMITS) -> None:
                                (graph.output[0], spec.action_dim, "output")):
         ttype = value.type.tensor_type
         dims = ttype.shape.dim
+        # the input's width must be stated; the exporter leaves the output's symbolic (a
+        # reshape), which the controller checks on every call
+        fixed = dims[1].HasField("dim_value") if len(dims) == 2 else False
         if ttype.elem_type != TensorProto.FLOAT or len(dims) != 2 or \
-                (dims[1].HasField("dim_value") and dims[1].dim_value != want):
+                (fixed and dims[1].dim_value != want) or (label == "input" and not fixed):
             raise _fail(folder, f"{POLICY_ONNX}: its {label} must be float32 of shape "
                                 f"(batch, {want}) as {POLICY_JSON} says")
 
