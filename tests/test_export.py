@@ -166,6 +166,35 @@ def test_act_keeps_the_history_of_a_stacking_policy(tmp_path):
     assert np.max(np.abs(np.array(rows)[:, 0] - np.array(acted[:7]))) <= TOLERANCE
 
 
+def test_act_on_single_frames_keeps_the_levels_history(exported):
+    """On a level whose observation is 8 frames, `act` given only each step's newest frame
+    (a camera's view) builds the environment's own history: the same actions as `act` on
+    the environment's whole observation, over episodes and a reset."""
+    import gymnasium as gym
+
+    import saddle_env  # noqa: F401  (registers the levels)
+
+    spec = F.read_spec(exported["ppo_gusty"])
+    frame_dim, frames = spec.layout["frame_dim"], spec.layout["frames"]
+    assert frames > 1
+    whole, framed = Controller.from_dir(exported["ppo_gusty"]), \
+        Controller.from_dir(exported["ppo_gusty"])
+    env = gym.make(spec.env_id)
+    for episode in range(2):
+        obs, _ = env.reset(seed=10 + episode)
+        whole.reset()
+        framed.reset()
+        for _ in range(30):
+            a, b = whole.act(obs), framed.act(obs[:frame_dim])
+            assert np.array_equal(framed._history, obs) and np.array_equal(a, b)
+            obs, _, terminated, truncated, _ = env.step(a)
+            if terminated or truncated:
+                break
+    env.close()
+    with pytest.raises(ValueError, match="one frame"):
+        whole.act(obs[:3])
+
+
 def test_the_runtime_imports_no_torch(exported):
     """A fresh interpreter loads a folder and acts without torch ever being imported."""
     folder = exported["ppo_capture"]

@@ -20,10 +20,14 @@ from .folder import INPUT_NAME, OUTPUT_NAME, PolicySpec, _require, read_graph, r
 class Controller:
     """An exported policy (``saddle-export``'s folder) as a controller.
 
-    ``act(observation)`` takes one raw observation of the level (as the environment gives
-    it) and returns the action (``(action_dim,)`` float32); it keeps the frame history itself
-    when the policy stacks frames; `reset` starts a new episode. ``predict`` is
-    Stable-Baselines3's signature, for batches (evaluation): the history travels in
+    ``act(observation)`` takes one raw observation of the level and returns the action
+    (``(action_dim,)`` float32). Where the level's observation is a history of frames
+    (``obs_history`` k > 1, as on the Gusty, Storm and Capture levels), it takes either the
+    whole observation, as the environment gives it, or one frame, as a rig's camera gives
+    it: then it keeps the level's history itself (newest first, an episode's first frame
+    repeated k times). It also keeps the policy's own frame stack (``frame_stack``, a
+    training wrapper). `reset` starts a new episode. ``predict`` is Stable-Baselines3's
+    signature, for batches of whole observations (evaluation): the frame stack travels in
     ``state``, restarted where ``episode_start`` is true.
     """
 
@@ -40,6 +44,7 @@ class Controller:
             np.asarray(norm["mean"], np.float64),
             np.sqrt(np.asarray(norm["var"], np.float64) + norm["epsilon"]), float(norm["clip"]))
         self._stack: np.ndarray | None = None
+        self._history: np.ndarray | None = None   # the level's frames, newest first
         from gymnasium import spaces
 
         self.observation_space = spaces.Box(np.asarray(spec.observation_low, np.float32),
@@ -91,14 +96,30 @@ class Controller:
     def reset(self) -> None:
         """Start a new episode: `act` forgets the frames it has seen."""
         self._stack = None
+        self._history = None
+
+    def _level_history(self, frame: np.ndarray) -> np.ndarray:
+        """The level's observation after ``frame``: as the environment's engine pushes it."""
+        d = frame.shape[0]
+        if self._history is None:
+            self._history = np.tile(frame, self.spec.layout["frames"])
+        else:
+            self._history[d:] = self._history[:-d].copy()
+            self._history[:d] = frame
+        return self._history.copy()
 
     def act(self, observation: Any) -> np.ndarray:
-        """The action for one raw observation ``(observation_dim,)``, as float32
+        """The action for one raw observation ``(observation_dim,)``, or for one frame
+        ``(frame_dim,)`` of a level whose observation is a history, as float32
         ``(action_dim,)``."""
         obs = np.asarray(observation, dtype=np.float32)
-        if obs.ndim != 1:
+        frame_dim = self.spec.layout["frame_dim"]
+        if obs.ndim == 1 and self.spec.layout["frames"] > 1 and obs.shape[0] == frame_dim:
+            obs = self._level_history(obs)
+        elif obs.ndim != 1 or obs.shape[0] != self.spec.observation_dim:
+            one_frame = f" or one frame ({frame_dim},)" if self.spec.layout["frames"] > 1 else ""
             raise ValueError(f"observation must be one observation of shape "
-                             f"({self.spec.observation_dim},), got {obs.shape}; "
+                             f"({self.spec.observation_dim},){one_frame}, got {obs.shape}; "
                              "use predict for batches")
         action, self._stack = self.predict(obs, state=self._stack,
                                            episode_start=np.array([self._stack is None]))
