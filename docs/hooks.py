@@ -72,6 +72,7 @@ def _build_parser(module: str) -> Callable[[], argparse.ArgumentParser]:
 CLIS: dict[str, Callable[[], argparse.ArgumentParser]] = {
     "train.py": _build_parser("train"),
     "saddle-eval": _build_parser("agents.evaluation.evaluate"),
+    "saddle-export": _build_parser("agents.evaluation.export"),
     "saddle-sim": _build_parser("saddle_env.cli"),
     "saddle-bench": _build_parser("saddle_env.bench"),
     "saddle-reproduce": _build_parser("saddle_env.reproduce.cli"),
@@ -82,6 +83,7 @@ CLIS: dict[str, Callable[[], argparse.ArgumentParser]] = {
     "python -m agents.benchmark.rllib_throughput": _build_parser("agents.benchmark.rllib_throughput"),
     "python -m agents.benchmark.headroom": _from_main("agents.benchmark.headroom"),
     "python -m agents.benchmark.ship": _from_main("agents.benchmark.ship"),
+    "python -m agents.benchmark.deploy_latency": _build_parser("agents.benchmark.deploy_latency"),
     "python -m saddle_env.envs.benchmark": _from_main("saddle_env.envs.benchmark"),
     "python -m saddle_env.compilation.profile": _build_parser("saddle_env.compilation.profile"),
     "python -m saddle_env.compilation.precompile": _build_parser("saddle_env.compilation.precompile"),

@@ -40,7 +40,7 @@ USER_PAGES = sorted(p for p in DOCS.rglob("*.md") if NOTES not in p.parents)
 NOTE_PAGES = sorted(NOTES.glob("*.md"))
 PAGES = [ROOT / "README.md", *USER_PAGES]
 PENDING: set[str] = set()  # pages another change still has to write (none now)
-TOOLS = ("saddle-sim", "saddle-eval", "saddle-bench", "saddle-reproduce")
+TOOLS = ("saddle-sim", "saddle-eval", "saddle-export", "saddle-bench", "saddle-reproduce")
 
 
 def _load_hooks():
@@ -188,6 +188,8 @@ def _parser(tool: str) -> argparse.ArgumentParser | None:
         from saddle_env.cli import build_parser
     elif tool == "saddle-eval":
         from agents.evaluation.evaluate import build_parser
+    elif tool == "saddle-export":
+        from agents.evaluation.export import build_parser
     elif tool == "saddle-bench":
         from saddle_env.bench import build_parser
     elif tool == "saddle-reproduce":
@@ -273,6 +275,8 @@ def test_documented_command_is_accepted(page, block, argv):
     ns = _parse(tool, args)
     if ns is None:
         return
+    if tool == "saddle-export":
+        assert (ROOT / ns.model).is_file(), f"{page}: saddle-export {ns.model}: no such file"
     if tool == "saddle-eval":
         for spec in ns.policy:
             if spec.endswith(".zip"):
@@ -460,6 +464,7 @@ def test_generated_command_reference_lists_every_flag(name):
 def test_every_documented_tool_has_a_reference():
     """A command the docs show is one the reference documents (docs/hooks.py's CLIS)."""
     known = {"saddle-sim": "saddle-sim", "saddle-eval": "saddle-eval",
+             "saddle-export": "saddle-export",
              "saddle-bench": "saddle-bench", "saddle-reproduce": "saddle-reproduce",
              "train.py": "train.py", "benchmark": "python -m agents.benchmark",
              "env-benchmark": "python -m saddle_env.envs.benchmark",
@@ -483,7 +488,7 @@ def test_readme_keeps_the_ci_test_command():
 
 # Pages whose blocks compile what the install's ahead-of-time build does not hold (the vector
 # env's threaded step), or load torch and a trained agent: run with the slow checks.
-SLOW_PYTHON_PAGES = {"docs/environment.md", "docs/how-to/load-model.md"}
+SLOW_PYTHON_PAGES = {"docs/environment.md", "docs/how-to/load-model.md", "docs/how-to/export.md"}
 PYTHON_SECONDS = 120  # a page's blocks together
 
 
@@ -582,6 +587,8 @@ def _main(tool: str):
         from saddle_env.cli import main
     elif tool == "saddle-eval":
         from agents.evaluation.evaluate import main
+    elif tool == "saddle-export":
+        from agents.evaluation.export import main
     elif tool == "saddle-bench":
         from saddle_env.bench import main
     elif tool == "saddle-reproduce":

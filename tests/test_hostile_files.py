@@ -421,3 +421,190 @@ def test_rllib_checkpoints_are_read_as_data(tmp_path, canary, capsys):
     (bare / "policy_weights.pt").unlink()
     with pytest.raises(UntrustedFileError, match="--trust-model"):
         load_policy(bare)
+
+
+# -- exported policy folders (saddle-export, saddle_env.deploy) -------------------------------
+@pytest.fixture(scope="module")
+def exported_folder(model_zip, tmp_path_factory):
+    """An honest export of the small model, the template of the crafted folders."""
+    pytest.importorskip("onnxruntime")
+    pytest.importorskip("onnx")
+    from agents.evaluation.export import export_policy
+
+    return export_policy(model_zip, tmp_path_factory.mktemp("exported") / "honest")
+
+
+def _folder(src: Path, dst: Path, spec=None, graph=None) -> Path:
+    """A copy of exported folder ``src`` at ``dst``: ``spec(dict)`` edits policy.json,
+    ``graph(onnx.ModelProto)`` edits the graph (policy.json's sha256 follows the edit)."""
+    import hashlib
+    import shutil
+
+    import onnx
+
+    shutil.copytree(src, dst)
+    data = json.loads((dst / "policy.json").read_text())
+    if graph is not None:
+        model = onnx.load(str(dst / "policy.onnx"))
+        graph(model)
+        raw = model.SerializeToString()
+        (dst / "policy.onnx").write_bytes(raw)
+        data["onnx"]["sha256"] = hashlib.sha256(raw).hexdigest()
+    if spec is not None:
+        spec(data)
+    (dst / "policy.json").write_text(json.dumps(data))
+    return dst
+
+
+@pytest.fixture
+def no_session(monkeypatch):
+    """Records every onnxruntime session made: a crafted folder must make none."""
+    ort = pytest.importorskip("onnxruntime")
+    made = []
+    real = ort.InferenceSession
+    monkeypatch.setattr(ort, "InferenceSession", lambda *a, **k: made.append(1) or real(*a, **k))
+    return made
+
+
+def _set(path: str, value):
+    def edit(data):
+        *parents, last = path.split(".")
+        node = data
+        for key in parents:
+            node = node[key]
+        node[last] = value
+    return edit
+
+
+@pytest.mark.parametrize("edit, match", [
+    (_set("format", "other"), "format"),
+    (_set("format_version", 99), "format_version"),
+    (_set("frame_stack", "3"), "frame_stack"),
+    (_set("frame_stack", 10 ** 9), "frame_stack"),
+    (_set("observation.dim", -1), "observation.dim"),
+    (_set("observation.low", [0.0]), "observation.low"),
+    (_set("normalizer", {"mean": [0.0] * 5, "var": [-1.0] * 5, "epsilon": 1e-8, "clip": 10.0}),
+     "normalizer.var"),
+    (_set("normalizer", {"mean": ["__import__('os')"] * 5, "var": [1.0] * 5, "epsilon": 1e-8,
+                         "clip": 10.0}), "normalizer.mean"),
+    (_set("action.in_graph", "eval"), "action.in_graph"),
+    (_set("action.low", [float("nan")]), "action.low"),
+    (_set("onnx.file", "../../elsewhere/policy.onnx"), "onnx.file"),
+    (_set("onnx.file", "/etc/passwd"), "onnx.file"),
+    (_set("onnx.opset", 99), "onnx.opset"),
+    (_set("onnx.sha256", "0" * 64), "sha256"),
+    (_set("env_kwargs", {"a": {"b": {"c": {"d": {"e": {"f": 1}}}}}}), "env_kwargs"),
+])
+def test_a_crafted_policy_json_is_a_one_line_error(exported_folder, tmp_path, capsys,
+                                                   no_session, edit, match):
+    from saddle_env.deploy import Controller, PolicyFolderError
+
+    bad = _folder(exported_folder, tmp_path / "bad", spec=edit)
+    with pytest.raises(PolicyFolderError, match=match) as exc:
+        Controller.from_dir(bad)
+    assert len(str(exc.value).splitlines()) == 1 and str(bad) in str(exc.value)
+    code, err = _saddle_eval(capsys, "--policy", str(bad))
+    assert code == 2 and match.split(".")[-1] in err.strip().splitlines()[-1]
+    assert not no_session
+
+
+def test_policy_json_that_is_not_json_or_too_large_is_refused(exported_folder, tmp_path,
+                                                              no_session):
+    from saddle_env.deploy import Controller, PolicyFolderError
+
+    for name, text, match in (("garbage", "\xff{", "not JSON"), ("list", "[1]", "JSON object"),
+                              ("deep", "[" * 100000 + "]" * 100000, "not JSON|JSON object"),
+                              ("huge", " " * (2 << 20) + "{}", "larger than")):
+        bad = _folder(exported_folder, tmp_path / name)
+        (bad / "policy.json").write_text(text)
+        with pytest.raises(PolicyFolderError, match=match):
+            Controller.from_dir(bad)
+    assert not no_session
+
+
+def _graph_edit(kind):
+    """Edits of the honest graph that a reader must refuse."""
+    from onnx import TensorProto, helper, numpy_helper
+
+    def custom_op(model):   # an operator from another domain (a custom-op library's)
+        node = model.graph.node[-1]
+        node.domain = "com.example.evil"
+        model.opset_import.append(helper.make_opsetid("com.example.evil", 1))
+
+    def control_flow(model):   # a standard operator that is not an MLP's: a Loop
+        node = model.graph.node[-1]
+        node.op_type = "Loop"
+
+    def external(model):   # a weight that lives in a file beside (or anywhere)
+        t = model.graph.initializer[0]
+        t.data_location = TensorProto.EXTERNAL
+        del t.external_data[:]
+        t.external_data.add(key="location", value="../../../etc/passwd")
+        t.ClearField("raw_data")
+        t.ClearField("float_data")
+
+    def huge(model):   # a 5M-element constant
+        model.graph.initializer.append(numpy_helper.from_array(
+            np.zeros(5 << 20, np.float32), "padding"))
+
+    def broken(model):   # an edge nobody produces: onnx.checker refuses it
+        model.graph.node[-1].input[0] = "nowhere"
+
+    def renamed(model):
+        model.graph.output[0].name = "other"
+        model.graph.node[-1].output[0] = "other"
+
+    return {"custom_op": (custom_op, "domain|not allowed"), "loop": (control_flow, "Loop"),
+            "external": (external, "external data"), "huge": (huge, "elements|larger than"),
+            "broken": (broken, "onnx.checker"), "renamed": (renamed, "output")}[kind]
+
+
+@pytest.mark.parametrize("kind", ["custom_op", "loop", "external", "huge", "broken", "renamed"])
+def test_a_crafted_graph_is_refused_before_it_runs(exported_folder, tmp_path, capsys,
+                                                   no_session, kind):
+    pytest.importorskip("onnx")
+    from saddle_env.deploy import Controller, PolicyFolderError
+
+    edit, match = _graph_edit(kind)
+    bad = _folder(exported_folder, tmp_path / kind, graph=edit)
+    with pytest.raises(PolicyFolderError, match=match) as exc:
+        Controller.from_dir(bad)
+    assert len(str(exc.value).splitlines()) == 1
+    code, err = _saddle_eval(capsys, "--policy", str(bad))
+    assert code == 2 and "policy.onnx" in err.strip().splitlines()[-1]
+    assert not no_session
+
+
+def test_a_graph_that_is_not_onnx_or_is_a_link_is_refused(exported_folder, tmp_path,
+                                                          no_session):
+    import hashlib
+
+    from saddle_env.deploy import Controller, PolicyFolderError
+
+    garbage = b"\x08\x07" + b"\xff" * 64
+    bad = _folder(exported_folder, tmp_path / "garbage",
+                  spec=_set("onnx.sha256", hashlib.sha256(garbage).hexdigest()))
+    (bad / "policy.onnx").write_bytes(garbage)
+    with pytest.raises(PolicyFolderError, match="not an ONNX model|onnx.checker|input"):
+        Controller.from_dir(bad)
+    linked = _folder(exported_folder, tmp_path / "linked")
+    target = tmp_path / "outside.onnx"
+    target.write_bytes((linked / "policy.onnx").read_bytes())
+    (linked / "policy.onnx").unlink()
+    (linked / "policy.onnx").symlink_to(target)
+    with pytest.raises(PolicyFolderError, match="symbolic link"):
+        Controller.from_dir(linked)
+    assert not no_session
+    assert Controller.from_dir(exported_folder).act(_obs(1)[0]).shape == (1,)   # the honest one
+
+
+def test_a_graph_whose_actions_are_not_what_policy_json_says_is_an_error(exported_folder,
+                                                                         tmp_path):
+    from saddle_env.deploy import Controller
+
+    def two_actions(data):
+        data["action"].update(dim=2, low=[-1.0, -1.0], high=[1.0, 1.0])
+
+    bad = _folder(exported_folder, tmp_path / "two", spec=two_actions)
+    with pytest.raises(ValueError, match=r"gave actions of shape \(1, 1\).*\(1, 2\)"):
+        Controller.from_dir(bad).act(_obs(1)[0])

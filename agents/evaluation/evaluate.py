@@ -3,7 +3,7 @@ own) on the same seeded episodes of a task level and tabulate how long they keep
 
 ```
 saddle-eval --policy const-1.2 --policy mpc --policy runs/ppo/model.zip \\
-            --policy runs/ppo_rllib_seed0_<date>/final \\
+            --policy runs/ppo_rllib_seed0_<date>/final --policy exported/ppo_storm \\
             --policy my_controllers.py:Bang --policy-kwargs '{"gain": 2}' \\
             --episodes 200 --seed 0 [--env ID] [--env-kwargs R=0.033 air_force=0.3]
             [--json] [--out DIR]
@@ -61,7 +61,12 @@ from agents.cli_args import (
 )
 from agents.control.rollout import CHUNK, Actor, PolicyActor, policy_actor, run_episodes  # noqa: F401
 from agents.evaluation.model_files import TRUST_FLAG
-from agents.evaluation.policies import load_policy, model_sidecar, policy_sidecar  # noqa: F401
+from agents.evaluation.policies import (  # noqa: F401
+    is_exported_folder,
+    load_policy,
+    model_sidecar,
+    policy_sidecar,
+)
 from agents.evaluation.user_code import is_controller_spec
 from agents.seeds import TEST_SEED
 from saddle_env.envs import DEFAULT_EPISODE_STEPS, ENV_ID, LEVEL_IDS, EnvConfig, get_level
@@ -134,6 +139,10 @@ def policy_label(policy: Any, spec: str) -> tuple[str, str]:
     name, or a model file's path and algorithm."""
     if hasattr(policy, "algo_name"):
         return spec, policy.algo_name
+    from saddle_env.deploy import Controller
+
+    if isinstance(policy, Controller):   # a folder saddle-export wrote
+        return spec, policy.kind
     if is_controller_spec(spec):
         return str(getattr(policy, "name", spec)), "controller"
     return getattr(policy, "name", spec), "baseline"
@@ -351,10 +360,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "plots, or with --json print the table and write nothing.")
     p.add_argument("--policy", action="append", required=True, metavar="NAME_OR_PATH",
                    help="a baseline (const-1.0, const-1.2, const-<K>, masspoint, best-const, mpc, "
-                        "clairvoyant, zero, random), a model file, an RLlib checkpoint "
-                        "directory, or your controller class as path/to/file.py:ClassName or "
-                        "package.module:ClassName (imported and run: name only code you "
-                        "trust); repeat for several")
+                        "clairvoyant, zero, random), a model file, a folder saddle-export "
+                        "wrote, an RLlib checkpoint directory, or your controller class as "
+                        "path/to/file.py:ClassName or package.module:ClassName (imported and "
+                        "run: name only code you trust); repeat for several")
     p.add_argument("--policy-kwargs", default=None, metavar="JSON",
                    help="a JSON object of arguments your controller classes are built with "
                         "(default: none; a class whose __init__ takes `config` gets the "
@@ -454,6 +463,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             import torch
 
             torch.set_num_threads(1)  # one thread: the same actions on any machine
+        if hasattr(policy, "algo_name") or is_exported_folder(spec):
             _warn_if_trained_elsewhere(spec, level.id, config)
     table, details = evaluate(policies, config, args.episodes, args.seed, steps,
                               progress=progress, examples=args.examples, env_id=level.id)

@@ -79,6 +79,14 @@ def model_sidecar(path: str | os.PathLike) -> dict[str, Any] | None:
 def policy_sidecar(spec: str | os.PathLike) -> dict[str, Any] | None:
     """The sidecar of a ``--policy`` argument: a model file's (``X.zip`` or ``X``), or the
     ``saddle_env.json`` of an RLlib checkpoint directory (a run folder: its latest)."""
+    if is_exported_folder(spec):
+        from saddle_env.deploy import PolicyFolderError, read_spec
+
+        try:
+            exported = read_spec(spec)
+        except PolicyFolderError:
+            return None      # load_policy reports what is wrong with it
+        return {"env_id": exported.env_id, "env_kwargs": exported.env_kwargs}
     if Path(spec).is_dir():
         from agents.evaluation.rllib_policy import checkpoint_sidecar, latest_checkpoint
 
@@ -86,6 +94,14 @@ def policy_sidecar(spec: str | os.PathLike) -> dict[str, Any] | None:
         return checkpoint_sidecar(ckpt) if ckpt is not None else None
     text = str(spec)
     return model_sidecar(text if text.endswith(".zip") else text + ".zip")
+
+
+def is_exported_folder(spec: str | os.PathLike) -> bool:
+    """Whether ``spec`` is a folder ``saddle-export`` wrote (it holds ``policy.json``), which
+    `load_policy` runs with `saddle_env.deploy.Controller`, not as an RLlib checkpoint."""
+    from saddle_env.deploy.folder import POLICY_JSON
+
+    return Path(spec).is_dir() and (Path(spec) / POLICY_JSON).is_file()
 
 
 def vecnormalize_path(model_path: str | os.PathLike, pickled: bool = False) -> Path:
@@ -215,7 +231,8 @@ def load_policy(name_or_path: str | os.PathLike, config: EnvConfig | None = None
     a user's controller class (``path/to/file.py:ClassName`` or ``package.module:ClassName``,
     built with ``policy_kwargs``: `agents.evaluation.user_code`), a Stable-Baselines3 model
     loaded from a ``.zip`` file (algorithm detected; wrapped as its sidecar's
-    ``frame_stack``/``normalize`` say), or an RLlib checkpoint directory.
+    ``frame_stack``/``normalize`` say), a folder ``saddle-export`` wrote (``policy.json``:
+    `saddle_env.deploy.Controller`), or an RLlib checkpoint directory.
     ``max_episode_steps`` is the episode length ``best-const`` is searched for (default:
     the search's own). Files are read as data unless ``trust`` (see `load_model`)."""
     config = EnvConfig() if config is None else config
@@ -229,6 +246,13 @@ def load_policy(name_or_path: str | os.PathLike, config: EnvConfig | None = None
         return const(config)
     if is_controller_spec(name) and not Path(name).exists():
         return load_controller(name, config, policy_kwargs)
+    if is_exported_folder(name):  # saddle-export's folder: run without torch, read as data
+        from agents.cli_args import require
+
+        require("onnxruntime", "deploy", "an exported policy folder")
+        from saddle_env.deploy import Controller
+
+        return Controller.from_dir(name)
     if Path(name).is_dir():      # an RLlib checkpoint directory (or an RLlib run folder)
         from agents.evaluation.rllib_policy import latest_checkpoint
         from agents.evaluation.rllib_policy import load_policy as load_rllib_policy
@@ -280,5 +304,5 @@ def _normalizer(path: Path, config: EnvConfig, trust: bool) -> Any:
     return normalizer
 
 
-__all__ = ["BASELINES", "SB3_ALGOS", "UntrustedFileError", "WrappedModel", "load_model", "load_policy",
-           "model_sidecar", "policy_sidecar", "sb3_algorithm", "vecnormalize_path"]
+__all__ = ["BASELINES", "SB3_ALGOS", "UntrustedFileError", "WrappedModel", "is_exported_folder",
+           "load_model", "load_policy", "model_sidecar", "policy_sidecar", "sb3_algorithm", "vecnormalize_path"]
