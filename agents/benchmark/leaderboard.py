@@ -80,17 +80,17 @@ def shown_spec(spec: str) -> str:
 
 def policy_key(spec: str) -> str:
     """A baseline's name, or a model file's (an exported folder's, a controller class's
-    file's) name with a digest of its bytes (a retrained model or an edited controller is a new entry, not a
-    stale one)."""
+    file's) name with a digest of its bytes (a retrained model or an edited controller is a
+    new entry, not a stale one)."""
     path = Path(spec)
     if spec.endswith(".zip") and path.is_file():
         return f"{path.name}@{hashlib.sha256(path.read_bytes()).hexdigest()[:12]}"
     if is_exported_folder(spec):   # policy.json holds the graph's own digest
         digest = hashlib.sha256((path / "policy.json").read_bytes()).hexdigest()[:12]
         return f"{path.name}@{digest}"
-    digest = source_digest(spec)
-    if digest is not None:
-        return f"{Path(spec).name}@{digest}"
+    source = source_digest(spec)
+    if source is not None:
+        return f"{Path(spec).name}@{source}"
     return spec
 
 
