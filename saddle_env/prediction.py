@@ -117,7 +117,7 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
     P : (n, N_PARAMS) packed scene parameters (`Scene.params()`).
     Y0 : (n, k ≤ 7) start states (padded as in `simulate_batch`), or (n, STATE_WIDTH) kernel
         states (with the work slot, as `states_from_observations` builds them).
-    drives : (n, S, 8) drive rows (DRIVE_*); the angle θ0 of segments after the first is
+    drives : (n, S, DRIVE_WIDTH) drive rows (DRIVE_*); the angle θ0 of segments after the first is
         replaced by where the previous one ended.
     durations : (n, S) [s]; a segment of duration ≤ 0 is skipped.
     sample : float — largest spacing of the samples [s].

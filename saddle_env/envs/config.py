@@ -18,7 +18,8 @@ PAPER_BALL_RADII = (0.0223, 0.0265, 0.0330)
 # same name; the scene validates them (tests/test_levels.py checks the two agree).
 SCENE_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Scene))
 
-ActionMode = Literal["acceleration", "target"]
+ActionMode = Literal["acceleration", "target", "voltage"]
+ACTION_MODES = ("acceleration", "target", "voltage")
 ObsFrame = Literal["rotating", "lab"]
 
 
@@ -49,8 +50,28 @@ class EnvConfig:
     Control: ``control_period`` [s] (20 ms); ``max_accel`` [rad/s²], the motor's limit on
     |Ω̇| (20: 0 → 45 s⁻¹ in 2.25 s); ``omega_max`` [rad/s], the motor's top speed (45, about
     what the paper's apparatus reached); ``action_mode``: ``"acceleration"`` (action × max_accel
-    is Ω̇) or ``"target"`` (the action picks a target speed in [0, omega_max], approached at
-    up to max_accel).
+    is Ω̇), ``"target"`` (the action picks a target speed in [0, omega_max], approached at
+    up to max_accel) or ``"voltage"`` (a DC motor: the action picks a voltage
+    V = (action + 1)/2 · ``voltage_max`` and Ω follows τ Ω̇ = K V − Ω, τ = ``motor_tau`` [s],
+    K = ``motor_gain`` [rad/s/V]; K · voltage_max must not exceed omega_max).
+
+    The motor's defaults are estimates for the paper's rig (a 24 V DC motor turning a
+    3D-printed saddle; the paper gives neither its inertia nor the motor's data):
+    ``voltage_max`` = 24 V (the paper's 0-24 V); ``motor_gain`` = 45 / 24 = 1.875 rad/s/V:
+    about the top speed the apparatus reached (43.6 s⁻¹ in the paper's detachment snapshots;
+    ``omega_max`` = 45) at 24 V, taking Ω proportional to V (no dead band);
+    ``motor_tau`` = 0.25 s, the mechanical time constant τ = J ω_nl / T_stall of a small
+    24 V gearmotor (no-load 45 rad/s, stall torque about 1 N·m at the output) driving
+    J ≈ 5.5e-3 kg·m² (a 0.4 kg PLA saddle of radius 0.15 m as a disc, ½ m r² = 4.5e-3, plus
+    about 1e-3 of rotor inertia reflected through the gearbox): an estimate good to a factor
+    of two, not a measurement.
+
+    Delays (0 by default; any non-negative value, exact, not rounded to a control period):
+    ``obs_delay`` [s], the camera's latency: the observation after a step is the state at
+    t − obs_delay (before the episode's start, the starting state); ``action_delay`` [s]: a
+    command takes effect that long after it is given (until the first does, the motor holds
+    its starting speed). The integration of a control period is split where a sample is
+    taken or a command takes effect (`engine.DelayPlan`).
 
     Observation: ``obs_frame`` ``"rotating"`` or ``"lab"``; sensor noise standard deviations
     ``position_noise`` [m], ``velocity_noise`` [m/s], ``omega_noise`` [rad/s];
@@ -101,6 +122,11 @@ class EnvConfig:
     max_accel: float = 20.0
     omega_max: float = 45.0
     action_mode: str = "acceleration"
+    voltage_max: float = 24.0
+    motor_gain: float = 1.875
+    motor_tau: float = 0.25
+    obs_delay: float = 0.0
+    action_delay: float = 0.0
     obs_frame: str = "rotating"
     position_noise: float = 0.0
     velocity_noise: float = 0.0
@@ -142,8 +168,19 @@ class EnvConfig:
             raise ValueError(f"control_period must be <= 1 s, got {self.control_period}")
         set_("max_accel", _positive("max_accel", self.max_accel))
         set_("omega_max", _positive("omega_max", self.omega_max))
-        if self.action_mode not in ("acceleration", "target"):
-            raise ValueError(f"action_mode must be 'acceleration' or 'target', got {self.action_mode!r}")
+        if self.action_mode not in ACTION_MODES:
+            raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {self.action_mode!r}")
+        for name in ("voltage_max", "motor_gain", "motor_tau"):
+            set_(name, _positive(name, getattr(self, name)))
+        if self.action_mode == "voltage" and \
+                self.motor_gain * self.voltage_max > self.omega_max * (1 + 1e-12):
+            raise ValueError(f"motor_gain * voltage_max (the motor's top speed, "
+                             f"{self.motor_gain * self.voltage_max:g} rad/s) must be <= "
+                             f"omega_max = {self.omega_max:g} in voltage mode")
+        for name in ("obs_delay", "action_delay"):
+            set_(name, _positive(name, getattr(self, name), allow_zero=True))
+            if getattr(self, name) > 10.0:
+                raise ValueError(f"{name} must be <= 10 s, got {getattr(self, name)}")
         if self.obs_frame not in ("rotating", "lab"):
             raise ValueError(f"obs_frame must be 'rotating' or 'lab', got {self.obs_frame!r}")
         for name in ("observe_command", "observe_angle"):
@@ -170,6 +207,10 @@ class EnvConfig:
         if high > self.omega_max:
             raise ValueError(f"omega0_range must lie within [0, omega_max = {self.omega_max}], "
                              f"got ({low}, {high})")
+        if self.action_mode == "voltage" and high > self.motor_gain * self.voltage_max * (1 + 1e-12):
+            raise ValueError(f"omega0_range must lie within [0, motor_gain * voltage_max = "
+                             f"{self.motor_gain * self.voltage_max:g}] in voltage mode (the "
+                             f"motor holds its start speed), got ({low}, {high})")
         set_("omega0_range", (low, high))
         if self.ball_radii is not None:
             if not isinstance(self.ball_radii, (tuple, list)):
