@@ -235,3 +235,41 @@ def test_voltage_mode_options_are_checked():
         EnvConfig(action_mode="voltage", motor_gain=0.5, omega0_range=(15.0, 25.0))
     with pytest.raises(ValueError, match="action_mode must be one of"):
         EnvConfig(action_mode="current")
+
+
+# -- camera observations --------------------------------------------------------------------
+
+@pytest.mark.parametrize("kw", [dict(), dict(obs_frame="lab", observe_command=True),
+                                dict(observe_angle=True, observe_command=True, obs_history=2)])
+def test_a_camera_sees_the_positions_and_everything_else_but_the_velocities(kw):
+    full, cam = SaddleTrapEnv(**kw), SaddleTrapEnv(observe_velocity=False, **kw)
+    assert cam.observation_space.shape[0] == full.observation_space.shape[0] - 2 * (
+        kw.get("obs_history", 1))
+    a, _ = full.reset(seed=1)
+    b, _ = cam.reset(seed=1)
+    for k in range(5):
+        d = full.engine.frame_dim
+        keep = np.r_[0:2, 4:d]           # every column of a frame but the velocities
+        frames_full = a.reshape(-1, d)
+        frames_cam = b.reshape(-1, d - 2)
+        assert np.array_equal(frames_cam, frames_full[:, keep])
+        assert cam.observation_space.contains(b)
+        a, *_ = full.step(np.array([0.3], np.float32))
+        b, *_ = cam.step(np.array([0.3], np.float32))
+    assert cam.engine.layout.omega == full.engine.layout.omega - 2
+
+
+def test_position_quantum_rounds_positions_to_pixels_after_the_noise():
+    q, rim = 5e-4, 0.1
+    exact = SaddleTrapEnv(position_noise=1e-3, observe_velocity=False)
+    pix = SaddleTrapEnv(position_noise=1e-3, position_quantum=q, observe_velocity=False)
+    a, _ = exact.reset(seed=7)
+    b, _ = pix.reset(seed=7)
+    for _ in range(20):
+        assert np.allclose(b[:2] * rim, np.round(a[:2] * rim / q) * q, rtol=0, atol=1e-9)
+        assert np.allclose(b[:2] * rim / q, np.round(b[:2] * rim / q), atol=1e-4)  # on pixels
+        assert b[2] == a[2]   # the tachometer as it was
+        a, *_ = exact.step(np.array([0.1], np.float32))
+        b, *_ = pix.step(np.array([0.1], np.float32))
+    with pytest.raises(ValueError, match="position_quantum must be >= 0"):
+        EnvConfig(position_quantum=-1e-3)

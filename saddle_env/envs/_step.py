@@ -45,6 +45,8 @@ travel as the records `integrators.Tableau` and `integrators.StepControl`):
 | | ``C_LOSS``, ``C_DIST_COST``, ``C_EFFORT_COST`` | reward terms |
 | | ``C_LOCKSTEP`` | 1: step balls in SIMD blocks where they fit |
 | | ``C_OBS_OMEGA``, ``C_OBS_COMMAND``, ``C_OBS_COS`` | `observation.layout` columns (-1: none) |
+| | ``C_OBS_VEL`` | 1: velocities in columns 2, 3; 0: a camera, positions only |
+| | ``C_POS_QUANTUM`` | positions rounded to multiples of it / ``C_POS_SCALE`` (0: not) |
 """
 
 from __future__ import annotations
@@ -102,8 +104,9 @@ O_STATUS, O_TIME, O_NORMAL, O_REWARD, O_TRAPPED = range(5)
 OUT_WIDTH = 5
 (C_DT, C_MAX_ACCEL, C_OMEGA_MAX, C_TARGET_MODE, C_LAB_FRAME, C_POS_SCALE, C_VEL_SCALE,
  C_RIPPLE_AMP, C_RIPPLE_FREQ, C_LOSS, C_DIST_COST, C_EFFORT_COST, C_LOCKSTEP, C_OBS_OMEGA,
- C_OBS_COMMAND, C_OBS_COS, C_VOLTAGE_MODE, C_MOTOR_TOP, C_MOTOR_RATE, C_GIVEN) = range(20)
-CFG_WIDTH = 20
+ C_OBS_COMMAND, C_OBS_COS, C_VOLTAGE_MODE, C_MOTOR_TOP, C_MOTOR_RATE, C_GIVEN, C_OBS_VEL,
+ C_POS_QUANTUM) = range(22)
+CFG_WIDTH = 22
 
 MIN_BLOCK = 4  # fewest balls worth a SIMD block (measured crossover: 4-8 balls)
 
@@ -160,10 +163,15 @@ def observe_one(model, p, y, ball, cfg, noise, obs):
     if k_cos >= 0:
         obs[k_cos] = min(1.0, max(-1.0, ct + noise[k_cos]))
         obs[k_cos + 1] = min(1.0, max(-1.0, st + noise[k_cos + 1]))
-    obs[0] = min(POS_BOUND, max(-POS_BOUND, vals[0] / L + noise[0]))
-    obs[1] = min(POS_BOUND, max(-POS_BOUND, vals[1] / L + noise[1]))
-    obs[2] = min(VEL_BOUND, max(-VEL_BOUND, vals[2] / V + noise[2]))
-    obs[3] = min(VEL_BOUND, max(-VEL_BOUND, vals[3] / V + noise[3]))
+    px, py = vals[0] / L + noise[0], vals[1] / L + noise[1]
+    q = cfg[C_POS_QUANTUM]
+    if q > 0.0:  # a camera's pixels (q in units of C_POS_SCALE)
+        px, py = round(px / q) * q, round(py / q) * q
+    obs[0] = min(POS_BOUND, max(-POS_BOUND, px))
+    obs[1] = min(POS_BOUND, max(-POS_BOUND, py))
+    if cfg[C_OBS_VEL] != 0.0:
+        obs[2] = min(VEL_BOUND, max(-VEL_BOUND, vals[2] / V + noise[2]))
+        obs[3] = min(VEL_BOUND, max(-VEL_BOUND, vals[3] / V + noise[3]))
     k_omega = int(cfg[C_OBS_OMEGA])
     obs[k_omega] = min(OMEGA_HIGH, max(OMEGA_LOW, omega / cfg[C_OMEGA_MAX] + noise[k_omega]))
     k_cmd = int(cfg[C_OBS_COMMAND])

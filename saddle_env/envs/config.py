@@ -78,6 +78,9 @@ class EnvConfig:
     ``observe_command`` adds the commanded speed (exact: the motor controller's own
     set-point) and ``observe_angle`` the saddle's angle as cos θ, sin θ (the lab frame always
     has it); ``obs_history`` k (1-64) makes the observation the last k frames, newest first.
+    A camera: ``observe_velocity=False`` leaves the velocities out (positions only; the
+    ball's spin is never observed) and ``position_quantum`` [m] rounds the positions to a
+    pixel's size (0: not rounded).
     Layout: `saddle_env.envs.observation`.
 
     Episode start (the ball placed by hand near the centre): offset uniform in a disc of
@@ -133,6 +136,8 @@ class EnvConfig:
     omega_noise: float = 0.0
     observe_command: bool = False
     observe_angle: bool = False
+    observe_velocity: bool = True
+    position_quantum: float = 0.0
     obs_history: int = 1
     init_offset: float = 0.01
     init_start: str = "lab-rest"
@@ -183,7 +188,7 @@ class EnvConfig:
                 raise ValueError(f"{name} must be <= 10 s, got {getattr(self, name)}")
         if self.obs_frame not in ("rotating", "lab"):
             raise ValueError(f"obs_frame must be 'rotating' or 'lab', got {self.obs_frame!r}")
-        for name in ("observe_command", "observe_angle"):
+        for name in ("observe_command", "observe_angle", "observe_velocity"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
             set_(name, bool(getattr(self, name)))
@@ -193,7 +198,7 @@ class EnvConfig:
         set_("obs_history", int(k))
         for name in ("position_noise", "velocity_noise", "omega_noise", "init_offset",
                      "init_speed", "loss_penalty", "distance_cost", "effort_cost",
-                     "air_force", "ripple_amp", "ripple_freq"):
+                     "air_force", "ripple_amp", "ripple_freq", "position_quantum"):
             set_(name, _positive(name, getattr(self, name), allow_zero=True))
         set_("air_force_tau", _positive("air_force_tau", self.air_force_tau))
         if self.init_speed > self.max_start_speed:

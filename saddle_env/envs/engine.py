@@ -230,6 +230,8 @@ class TrapEngine:
         cfg[S.C_LOCKSTEP] = 1.0 if self._lockstep else 0.0
         lay = layout(c)
         cfg[S.C_OBS_OMEGA] = lay.omega
+        cfg[S.C_OBS_VEL] = 1.0 if lay.vx is not None else 0.0
+        cfg[S.C_POS_QUANTUM] = c.position_quantum / c.rim_radius
         cfg[S.C_OBS_COMMAND] = -1 if lay.command is None else lay.command
         # In the lab frame the angle is always observed; in the rotating frame on request.
         cfg[S.C_OBS_COS] = -1 if lay.cos is None else lay.cos
@@ -240,7 +242,8 @@ class TrapEngine:
             return None
         scale = np.zeros(self.frame_dim)
         scale[:2] = c.position_noise / c.rim_radius
-        scale[2:4] = c.velocity_noise / VELOCITY_SCALE
+        if self.layout.vx is not None:
+            scale[2:4] = c.velocity_noise / VELOCITY_SCALE
         scale[self.layout.omega] = c.omega_noise / c.omega_max
         return scale
 
