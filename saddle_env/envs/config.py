@@ -14,6 +14,18 @@ from ..scene import CONTACT_MODELS, Scene, _finite_number
 
 # The paper's three polyfoam balls [m].
 PAPER_BALL_RADII = (0.0223, 0.0265, 0.0330)
+# Still air at room temperature [kg/m³] and a smooth sphere's drag coefficient at the
+# Reynolds numbers of a ball on the saddle (|u| ~ 0.1-1 m/s, d ~ 5 cm: Re ~ 300-3000), for
+# ``ball_density``'s quadratic drag.
+AIR_DENSITY = 1.2
+SPHERE_DRAG_COEFFICIENT = 0.47
+
+
+def quadratic_drag(R: float, density: float) -> float:
+    """Quadratic air drag per unit mass [1/m] of a ball of radius ``R`` [m] and ``density``
+    [kg/m³]: ½ ρ_a C_d π R² |u| u / (ρ_b 4/3 π R³) = 3 C_d ρ_a / (8 ρ_b R) (`Scene`'s
+    ``drag_quadratic``)."""
+    return 3.0 * SPHERE_DRAG_COEFFICIENT * AIR_DENSITY / (8.0 * density * R)
 # Every physical parameter is a field of `Scene` and an option of the environment by the
 # same name; the scene validates them (tests/test_levels.py checks the two agree).
 SCENE_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Scene))
@@ -90,7 +102,9 @@ class EnvConfig:
     e.g. `PAPER_BALL_RADII`), ``a_range`` ((low, high) for the saddle length, b = a
     unless ``b`` is given), ``contact_models`` (a tuple to draw from) and ``mu_range``
     ((low, high): a coulomb ball's kinetic friction coefficient, uniform; its static one is
-    ``mu_static`` if given, else equal).
+    ``mu_static`` if given, else equal). ``ball_density`` [kg/m³] (None: off) gives every
+    ball, drawn or not, the quadratic air drag of its size (`quadratic_drag`: still air of
+    1.2 kg/m³, C_d 0.47) in place of ``drag_quadratic``.
 
     Reward per step: the fraction of the step the ball stayed trapped, minus
     ``distance_cost``·(r/rim)², minus ``effort_cost``·action², minus ``loss_penalty`` when the
@@ -147,6 +161,7 @@ class EnvConfig:
     a_range: tuple[float, float] | None = None
     contact_models: tuple[str, ...] | None = None
     mu_range: tuple[float, float] | None = None
+    ball_density: float | None = None
     loss_penalty: float = 10.0
     distance_cost: float = 0.0
     effort_cost: float = 0.0
@@ -159,9 +174,14 @@ class EnvConfig:
     substep: float | None = None
 
     def __post_init__(self) -> None:
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
+        if self.ball_density is not None:
+            set_("ball_density", _positive("ball_density", self.ball_density))
+            if self.drag_quadratic != 0.0:
+                raise ValueError("give drag_quadratic or ball_density (which sets each ball's "
+                                 "quadratic drag from its size), not both")
         # Scene parameters are validated by building the nominal scene.
         self.scene()
-        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
         # The friction coefficients reach only coulomb balls' scenes: check them here too.
         for name in ("mu", "mu_static"):
             if getattr(self, name) is not None:
@@ -278,6 +298,8 @@ class EnvConfig:
         """The nominal scene (or one with randomised parameters changed)."""
         kw = {name: getattr(self, name) for name in SCENE_FIELDS}
         kw.update(changes)
+        if self.ball_density is not None and isinstance(kw["R"], (int, float)) and kw["R"] > 0:
+            kw["drag_quadratic"] = quadratic_drag(float(kw["R"]), self.ball_density)
         if kw["contact"] != "coulomb":  # friction coefficients belong to coulomb balls only
             kw["mu"] = kw["mu_static"] = None
         elif kw["mu"] is None and self.mu_range is not None:
