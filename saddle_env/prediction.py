@@ -4,8 +4,8 @@ model every control step.
 
 `predict_batch` runs each of n balls from its own state through S segments. Segment j of
 run r lasts ``durations[r, j]`` seconds under the drive row ``drives[r, j]`` (`_kernels`'s
-DRIVE_* layout: Ω ramping linearly, ripple, lab-fixed force), its time starting at 0; the
-saddle angle carries over from segment to segment, so a lab-fixed force keeps its direction
+DRIVE_* layout: Ω ramping linearly or relaxing exponentially, ripple, lab-fixed force), its
+time starting at 0; the saddle angle carries over from segment to segment, so a lab-fixed force keeps its direction
 in the laboratory. The run is sampled ``ceil(duration / sample)`` times per segment, evenly,
 ending on the segment's end, and stops at the first event. It is `simulate`'s integrator
 (`integrators.integrate_h`), so a one-segment prediction is `simulate` on the same drive,
@@ -171,9 +171,13 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
 
 
 def _speed_bound(drives: np.ndarray, durations: np.ndarray) -> float:
-    """Largest |Ω| [rad/s] any segment reaches (linear ramp plus ripple amplitude)."""
-    w0 = drives[..., K.DRIVE_W0]
-    w1 = w0 + drives[..., K.DRIVE_RATE] * np.maximum(durations, 0.0)
+    """Largest |Ω| [rad/s] any segment reaches (linear ramp or a voltage-driven motor's
+    monotone relaxation, plus the ripple's amplitude: extremes at the segment's ends)."""
+    d = np.maximum(durations, 0.0)
+    decay = drives[..., K.DRIVE_DECAY]
+    w0 = drives[..., K.DRIVE_W0] + decay
+    w1 = drives[..., K.DRIVE_W0] + drives[..., K.DRIVE_RATE] * d + \
+        decay * np.exp(-drives[..., K.DRIVE_DECAY_RATE] * d)
     return float(np.max(np.maximum(np.abs(w0), np.abs(w1)) + np.abs(drives[..., K.DRIVE_AMP])))
 
 

@@ -39,6 +39,9 @@ def test_delay_plan_splits_a_period_where_a_sample_or_a_command_falls():
     plan = DelayPlan(EnvConfig(obs_delay=0.03))
     assert plan.obs_periods == 1 and plan.sample_at == pytest.approx(0.01)
     assert len(plan.segments) == 2 and not DelayPlan(EnvConfig()).active
+    # 0.03 - 0.02 = 0.009999999999999998: the sample and the switch are one cut, not two
+    plan = DelayPlan(EnvConfig(obs_delay=0.03, action_delay=0.01))
+    assert len(plan.segments) == 2 and plan.sample_at == plan.switch_at
 
 
 @pytest.mark.parametrize("model", MODELS, ids=lambda m: m["contact"])
@@ -273,3 +276,62 @@ def test_position_quantum_rounds_positions_to_pixels_after_the_noise():
         b, *_ = pix.step(np.array([0.1], np.float32))
     with pytest.raises(ValueError, match="position_quantum must be >= 0"):
         EnvConfig(position_quantum=-1e-3)
+
+
+# -- mpc on the rig ---------------------------------------------------------------------
+
+def _lab(**overrides):
+    from saddle_env.envs import level_config
+
+    # no draught or noise unless asked: what is tested is the estimator and the delays
+    base = dict(air_force=0.0, ripple_amp=0.0, position_noise=0.0, omega_noise=0.0,
+                position_quantum=0.0, ball_radii=None, obs_history=1)
+    return level_config("SaddleTrap-Lab-v0", **{**base, **overrides})
+
+
+def test_mpc_estimates_velocities_from_positions_through_the_camera_delay():
+    from agents.control.mpc import ModelPredictiveController
+    from saddle_env.envs.observation import VELOCITY_SCALE
+
+    config = _lab(obs_delay=0.04)   # two whole periods: the truth is the state two steps back
+    env = SaddleTrapEnv(**config.as_dict())
+    mpc = ModelPredictiveController(config, omega_ref=20.0)
+    obs, _ = env.reset(seed=3)
+    state, truth, errors = None, [], []
+    for k in range(40):
+        v = np.empty((1, 4))
+        from agents.control.mpc import _centre_states
+        _centre_states(int(env.engine.models[0]), env.engine.P[0], env.engine.Y[:1], v)
+        truth.append(v[0, 2:])
+        action, state = mpc.predict(obs, state, episode_start=np.array([k == 0]))
+        if k >= 2:
+            estimate = state[0, 1 + 2:1 + 4] * VELOCITY_SCALE
+            errors.append(np.abs(estimate - truth[k - 2]).max())
+        obs, _, te, _, _ = env.step(action)
+        assert not te
+    speed = np.abs(np.array(truth)).max()
+    assert speed > 0.05                           # the ball moves
+    assert max(errors[10:]) < 0.02 * speed        # and the estimate follows it
+
+
+def test_mpc_blind_and_aware_agree_without_delays_and_differ_with_them():
+    from agents.control.mpc import ModelPredictiveController
+
+    def actions(config):
+        env = SaddleTrapEnv(**config.as_dict())
+        out = []
+        for aware in (True, False):
+            mpc = ModelPredictiveController(config, omega_ref=20.0, delay_aware=aware)
+            obs, _ = env.reset(seed=5)
+            state, acts = None, []
+            for k in range(15):
+                a, state = mpc.predict(obs, state, episode_start=np.array([k == 0]))
+                obs, *_ = env.step(a)
+                acts.append(float(a[0]))
+            out.append(acts)
+        return out
+
+    aware, blind = actions(_lab(obs_delay=0.0))
+    assert aware == blind
+    aware, blind = actions(_lab(obs_delay=0.03, action_delay=0.01))
+    assert aware != blind

@@ -57,9 +57,16 @@ class DelayPlan:
         self.period = T
         self.obs_periods, obs_frac = _whole_and_fraction(config.obs_delay, T)
         self.act_periods, act_frac = _whole_and_fraction(config.action_delay, T)
-        self.sample_at = T - obs_frac      # offset of the period's sample (T: its end)
-        self.switch_at = act_frac          # offset where the next command takes effect
-        cuts = sorted({0.0, T, self.sample_at, self.switch_at})
+        # Cuts closer than 1e-9 periods are one (0.03 s − 0.02 s is 0.009999999999999998, and a
+        # 2e-18 s segment is no step an integrator can take).
+        cuts: list[float] = []
+        for cut in sorted({0.0, T, T - obs_frac, act_frac}):
+            if not cuts or cut - cuts[-1] > 1e-9 * T:
+                cuts.append(cut)
+        cuts[-1] = T
+        snap = lambda v: min(cuts, key=lambda cut: abs(cut - v))  # noqa: E731
+        self.sample_at = snap(T - obs_frac)   # offset of the period's sample (T: its end)
+        self.switch_at = snap(act_frac)       # offset where the next command takes effect
         self.segments = tuple(pairwise(cuts))
         self.active = config.obs_delay > 0 or config.action_delay > 0
 
