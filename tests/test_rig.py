@@ -335,3 +335,24 @@ def test_mpc_blind_and_aware_agree_without_delays_and_differ_with_them():
     assert aware == blind
     aware, blind = actions(_lab(obs_delay=0.03, action_delay=0.01))
     assert aware != blind
+
+
+def test_the_clairvoyant_copies_of_a_delayed_engine_carry_its_queues():
+    from agents.control.clairvoyant import BallState, copy_engine
+    from saddle_env.envs.vector import SaddleTrapVectorEnv
+
+    env = SaddleTrapVectorEnv(num_envs=2, max_episode_steps=None, obs_delay=0.03,
+                              action_delay=0.01)
+    env.reset(seed=1)
+    for a in (0.3, -0.4, 0.8):
+        env.step(np.full((2, 1), a, np.float32))
+    twin, rngs = copy_engine(env.engine, env._rngs)
+    other, other_rngs = copy_engine(env.engine, env._rngs)
+    other_rngs[1:] = BallState.capture(env.engine, env._rngs, 0).put(other, np.array([1]))
+    on = np.ones(2, dtype=bool)
+    for a in (0.5, -0.2, 0.1):
+        env.engine.step(np.full(2, a), on, env._rngs)
+        twin.step(np.full(2, a), on, rngs)
+        other.step(np.full(2, a), on, other_rngs)
+        assert np.array_equal(env.engine.obs, twin.obs) and np.array_equal(env.engine.Y, twin.Y)
+        assert np.array_equal(other.Y[1], env.engine.Y[0])   # ball 0's state, queues and all

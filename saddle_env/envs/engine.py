@@ -186,6 +186,12 @@ class TrapEngine:
         return (np.zeros((rows, S.scratch_size(self.method.stages))),
                 np.zeros((rows, 4 + S.LANES), dtype=np.int64))
 
+    @property
+    def delay_arrays(self) -> tuple[str, ...]:
+        """Names of the per-ball arrays (rows by ball) the delays keep beside the ball rows:
+        what a copy of a ball's state must carry too (the clairvoyant reference's copies)."""
+        return ("_commands", "_in_force", "_samples") if self.delays.active else ()
+
     def _init_delays(self) -> None:
         """The queues of the delayed step (`_step_delayed`): commands given, newest first
         (NaN: none yet, the motor holds its speed), the Ω̇ (or voltage) in force, and the
