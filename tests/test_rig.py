@@ -356,3 +356,40 @@ def test_the_clairvoyant_copies_of_a_delayed_engine_carry_its_queues():
         other.step(np.full(2, a), on, other_rngs)
         assert np.array_equal(env.engine.obs, twin.obs) and np.array_equal(env.engine.Y, twin.Y)
         assert np.array_equal(other.Y[1], env.engine.Y[0])   # ball 0's state, queues and all
+
+
+def test_delayed_engines_step_the_same_on_threads_and_pickled():
+    import pickle
+
+    from saddle_env.envs.engine import TrapEngine
+
+    config = EnvConfig(obs_delay=0.031, action_delay=0.012, action_mode="voltage",
+                       air_force=0.1, position_noise=1e-3)
+    engines = [TrapEngine(config, 64, parallel=p) for p in (False, True)]
+    rngs = [[np.random.default_rng(i) for i in range(64)] for _ in engines]
+    for e, r in zip(engines, rngs):
+        e.reset(np.arange(64), r)
+    on = np.ones(64, dtype=bool)
+    for k in range(6):
+        if k == 3:  # a pickled engine continues where it was
+            engines[1] = pickle.loads(pickle.dumps(engines[1]))
+        acts = np.random.default_rng(k).uniform(-1, 1, 64)
+        for e, r in zip(engines, rngs):
+            e.step(acts, on, r)
+        assert np.array_equal(engines[0].obs, engines[1].obs)
+        assert np.array_equal(engines[0].out, engines[1].out)
+
+
+def test_ball_density_gives_each_ball_the_drag_of_its_size():
+    from saddle_env.envs.config import quadratic_drag
+
+    c = EnvConfig(ball_radii=(0.0223, 0.033), ball_density=25.0)
+    assert c.scene().drag_quadratic == pytest.approx(3 * 0.47 * 1.2 / (8 * 25.0 * 0.0265))
+    env = SaddleTrapEnv(**c.as_dict())
+    seen = set()
+    for seed in range(8):
+        env.reset(seed=seed)
+        seen.add((env.scene.R, env.scene.drag_quadratic))
+    assert seen == {(R, quadratic_drag(R, 25.0)) for R in (0.0223, 0.033)}
+    with pytest.raises(ValueError, match="drag_quadratic or ball_density"):
+        EnvConfig(ball_density=25.0, drag_quadratic=0.2)
