@@ -393,3 +393,18 @@ def test_ball_density_gives_each_ball_the_drag_of_its_size():
     assert seen == {(R, quadratic_drag(R, 25.0)) for R in (0.0223, 0.033)}
     with pytest.raises(ValueError, match="drag_quadratic or ball_density"):
         EnvConfig(ball_density=25.0, drag_quadratic=0.2)
+
+
+def test_constant_speed_in_voltage_mode_is_the_voltage_of_that_steady_speed():
+    from agents.control.controllers import ConstantSpeed
+
+    config = EnvConfig(action_mode="voltage")
+    policy = ConstantSpeed(config, 30.0)
+    env = SaddleTrapEnv(**config.as_dict())
+    obs, _ = env.reset(seed=0, options={"omega": 20.0})
+    state = None
+    for _ in range(100):   # 2 s = 8 motor time constants
+        action, state = policy.predict(obs, state)
+        assert action[0] == pytest.approx(2 * 30.0 / 45.0 - 1)
+        obs, *_ = env.step(action)
+    assert env.omega == pytest.approx(30.0, abs=10 * np.exp(-8) + 1e-6)
