@@ -145,6 +145,8 @@ def best_constant(config: EnvConfig, episodes: int = SEARCH_EPISODES, seed: int 
     default = EnvConfig()
     entry["config"] = {k: v for k, v in config.as_dict().items()
                        if k not in _NOT_IN_KEY and v != getattr(default, k)}
+    if config.action_mode == "voltage":   # in the key too (`_search_key`)
+        entry["config"]["action_mode"] = "voltage"
     entry = json.loads(json.dumps(entry))  # as it reads back from the cache
     # SADDLE_ENV_BEST_CONST_CACHE names the one file new searches go to (the test suite
     # points it at a temporary file, so that tests never edit the shipped cache).
