@@ -238,6 +238,8 @@ def test_voltage_mode_options_are_checked():
         EnvConfig(action_mode="voltage", motor_gain=0.5, omega0_range=(15.0, 25.0))
     with pytest.raises(ValueError, match="action_mode must be one of"):
         EnvConfig(action_mode="current")
+    with pytest.raises(ValueError, match="observe_command needs a speed servo"):
+        EnvConfig(action_mode="voltage", observe_command=True)
 
 
 # -- camera observations --------------------------------------------------------------------

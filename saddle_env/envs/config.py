@@ -212,6 +212,11 @@ class EnvConfig:
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
             set_(name, bool(getattr(self, name)))
+        if self.observe_command and self.action_mode == "voltage":
+            # the column would hold the motor's true speed: no set-point exists to observe
+            raise ValueError("observe_command needs a speed servo (action_mode 'acceleration' "
+                             "or 'target'); a voltage-driven motor has no commanded speed (the "
+                             "controller knows the voltage it gave)")
         k = self.obs_history
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= 64:
             raise ValueError(f"obs_history must be an integer in [1, 64], got {k!r}")
