@@ -574,7 +574,8 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
     Parameters
     ----------
     model : int — ROLLING, SLIPPING or COULOMB (or an ion model, `saddle_env.iontrap`).
-    p : (N_PARAMS,) — packed scene parameters.  prof : (DRIVE_WIDTH,) — drive row (DRIVE_* in _kernels).
+    p : (N_PARAMS,) — packed scene parameters.
+    prof : (DRIVE_WIDTH,) — drive row (DRIVE_* in _kernels).
     y : (STATE_WIDTH,) — state at t0; on return, the state at the final time (or at the event).
     t0 : float.  t_out : (m,) ascending output times, all ≥ t0.
     tab : Tableau — the method (`Method.tableau`).

@@ -5,9 +5,9 @@ model every control step.
 `predict_batch` runs each of n balls from its own state through S segments. Segment j of
 run r lasts ``durations[r, j]`` seconds under the drive row ``drives[r, j]`` (`_kernels`'s
 DRIVE_* layout: Ω ramping linearly or relaxing exponentially, ripple, lab-fixed force), its
-time starting at 0; the saddle angle carries over from segment to segment, so a lab-fixed force keeps its direction
-in the laboratory. The run is sampled ``ceil(duration / sample)`` times per segment, evenly,
-ending on the segment's end, and stops at the first event. It is `simulate`'s integrator
+time starting at 0; the saddle angle carries over from segment to segment, so a lab-fixed
+force keeps its direction in the laboratory. The run is sampled ``ceil(duration / sample)``
+times per segment, evenly, ending on the segment's end, and stops at the first event. It is `simulate`'s integrator
 (`integrators.integrate_h`), so a one-segment prediction is `simulate` on the same drive,
 sample for sample.
 """

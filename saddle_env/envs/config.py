@@ -237,7 +237,8 @@ class EnvConfig:
         if high > self.omega_max:
             raise ValueError(f"omega0_range must lie within [0, omega_max = {self.omega_max}], "
                              f"got ({low}, {high})")
-        if self.action_mode == "voltage" and high > self.motor_gain * self.voltage_max * (1 + 1e-12):
+        top = self.motor_gain * self.voltage_max   # the voltage-driven motor's top speed
+        if self.action_mode == "voltage" and high > top * (1 + 1e-12):
             raise ValueError(f"omega0_range must lie within [0, motor_gain * voltage_max = "
                              f"{self.motor_gain * self.voltage_max:g}] in voltage mode (the "
                              f"motor holds its start speed), got ({low}, {high})")
