@@ -82,11 +82,16 @@ PHASE_SLOT = 8
 # be read off a slip velocity that small). Users see it as slip.
 STICK, SLIP, ONSET = 0.0, 1.0, 2.0
 
-# Layout of a drive row: the saddle speed Ω(t) = w0 + rate·t + amp·sin(freq·t + phase),
+# Layout of a drive row: the saddle speed
+# Ω(t) = w0 + rate·t + decay·exp(-decay_rate·t) + amp·sin(freq·t + phase),
 # the saddle angle θ0 at t = 0, and a horizontal force per unit mass (fx, fy) [m/s²] fixed
-# in the laboratory (air currents), which the rotating frame sees turn at -Ω.
-DRIVE_W0, DRIVE_RATE, DRIVE_AMP, DRIVE_FREQ, DRIVE_PHASE, DRIVE_THETA0, DRIVE_FX, DRIVE_FY = range(8)
-DRIVE_WIDTH = 8
+# in the laboratory (air currents), which the rotating frame sees turn at -Ω. The
+# exponential term is a DC motor driven by a constant voltage (τ Ω̇ = K V − Ω: w0 = K V,
+# decay = Ω(0) − K V, decay_rate = 1/τ), so the equations of motion see its exact Ω and Ω̇;
+# decay = 0 (every other caller) skips it.
+(DRIVE_W0, DRIVE_RATE, DRIVE_AMP, DRIVE_FREQ, DRIVE_PHASE, DRIVE_THETA0, DRIVE_FX, DRIVE_FY,
+ DRIVE_DECAY, DRIVE_DECAY_RATE) = range(10)
+DRIVE_WIDTH = 10
 
 # Layout of the per-row observables written by `observables`.
 OBS_VX, OBS_VY, OBS_N, OBS_H, OBS_CX, OBS_CY, OBS_CZ, OBS_OMEGA = range(8)
@@ -96,11 +101,16 @@ OBS_WIDTH = 8
 def omega_at(prof, t):
     """Saddle speed Ω(t) [rad/s] and its rate Ω̇(t) [rad/s²] from a profile row."""
     w0, rate, amp = prof[DRIVE_W0], prof[DRIVE_RATE], prof[DRIVE_AMP]
+    w, wd = w0 + rate * t, rate
+    decay = prof[DRIVE_DECAY]
+    if decay != 0.0:  # a voltage-driven motor relaxing to its steady speed w0
+        e = decay * math.exp(-prof[DRIVE_DECAY_RATE] * t)
+        w, wd = w + e, wd - prof[DRIVE_DECAY_RATE] * e
     if amp == 0.0:  # no ripple: skip the trigonometry (most calls)
-        return w0 + rate * t, rate
+        return w, wd
     freq = prof[DRIVE_FREQ]
     phase = freq * t + prof[DRIVE_PHASE]
-    return w0 + rate * t + amp * math.sin(phase), rate + amp * freq * math.cos(phase)
+    return w + amp * math.sin(phase), wd + amp * freq * math.cos(phase)
 
 
 @jit
@@ -108,6 +118,10 @@ def angle_at(prof, t):
     """Saddle angle θ(t) = θ0 + ∫₀ᵗ Ω dt' [rad]."""
     amp, freq, phase = prof[DRIVE_AMP], prof[DRIVE_FREQ], prof[DRIVE_PHASE]
     theta = prof[DRIVE_THETA0] + prof[DRIVE_W0] * t + 0.5 * prof[DRIVE_RATE] * t * t
+    decay = prof[DRIVE_DECAY]
+    if decay != 0.0:  # ∫ decay·e^{-k t'} dt' = decay (1 − e^{-k t}) / k
+        k = prof[DRIVE_DECAY_RATE]
+        theta -= decay * math.expm1(-k * t) / k
     if freq != 0.0:
         return theta + amp / freq * (math.cos(phase) - math.cos(freq * t + phase))
     return theta + amp * math.sin(phase) * t
@@ -670,7 +684,7 @@ def rhs(model, p, prof, t, y, dy, want_normal):
         (its phase in y[PHASE_SLOT]), or ``ION_RRF`` / ``ION_PAUL`` (state (x, y, vx, vy);
         no normal force: returns +inf).
     p : (N_PARAMS,) float64 — packed scene parameters (Scene.params()).
-    prof : (8,) float64 — drive row (Ω profile, θ0, external force).
+    prof : (DRIVE_WIDTH,) float64 — drive row (Ω profile, θ0, external force).
     t : float — time [s].
     y, dy : (STATE_WIDTH,) float64 — state and its derivative (the work slot's derivative
         is the dissipated power; 0 when nothing dissipates). A coulomb ball's phase slot

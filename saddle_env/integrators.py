@@ -575,7 +575,8 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
     Parameters
     ----------
     model : int — ROLLING, SLIPPING or COULOMB (or an ion model, `saddle_env.iontrap`).
-    p : (N_PARAMS,) — packed scene parameters.  prof : (8,) — drive row (DRIVE_* in _kernels).
+    p : (N_PARAMS,) — packed scene parameters.
+    prof : (DRIVE_WIDTH,) — drive row (DRIVE_* in _kernels).
     y : (STATE_WIDTH,) — state at t0; on return, the state at the final time (or at the event).
     t0 : float.  t_out : (m,) ascending output times, all ≥ t0.
     tab : Tableau — the method (`Method.tableau`).
@@ -823,7 +824,7 @@ def integrate_batch(lo, hi, models, P, profiles, Y, t0, t_out, tab, ctl, scales,
 
     All balls start at ``t0`` and share the output times and ``ctl``, except that ball i's
     largest step is ``max_step[i]``. Balls with ``active[i] == False`` are not touched.
-    Arrays are indexed by ball first: models (n,), P (n, N_PARAMS), profiles (n, 8) drive
+    Arrays are indexed by ball first: models (n,), P (n, N_PARAMS), profiles (n, DRIVE_WIDTH) drive
     rows, Y (n, STATE_WIDTH), scales (n, STATE_WIDTH), max_step (n,), Y_out (n, m,
     STATE_WIDTH), status (n,), t_final (n,), stats (n, 4).
     """

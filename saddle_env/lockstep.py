@@ -69,7 +69,7 @@ def take(buf, o, n):
 def carve_block(buf, stages):
     """Views into ``buf`` (at least `block_size` floats) for one block of `LANES` lanes, a
     `Block` ``(P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3)``:
-    parameters (7, L), drive rows (L, 8), start / end / stage states and state scales
+    parameters (7, L), drive rows (L, DRIVE_WIDTH), start / end / stage states and state scales
     (5, L), stages (s + 1, 5, L), frame terms (s + 1, 4, L), N/m at the start, at the current
     stage, the smallest over the stages and at the end, error norms, and three accumulators
     (L,). Carving a caller-owned buffer keeps allocation off the per-step path."""

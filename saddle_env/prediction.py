@@ -4,10 +4,10 @@ model every control step.
 
 `predict_batch` runs each of n balls from its own state through S segments. Segment j of
 run r lasts ``durations[r, j]`` seconds under the drive row ``drives[r, j]`` (`_kernels`'s
-DRIVE_* layout: Ω ramping linearly, ripple, lab-fixed force), its time starting at 0; the
-saddle angle carries over from segment to segment, so a lab-fixed force keeps its direction
-in the laboratory. The run is sampled ``ceil(duration / sample)`` times per segment, evenly,
-ending on the segment's end, and stops at the first event. It is `simulate`'s integrator
+DRIVE_* layout: Ω ramping linearly or relaxing exponentially, ripple, lab-fixed force), its
+time starting at 0; the saddle angle carries over from segment to segment, so a lab-fixed
+force keeps its direction in the laboratory. The run is sampled ``ceil(duration / sample)``
+times per segment, evenly, ending on the segment's end, and stops at the first event. It is `simulate`'s integrator
 (`integrators.integrate_h`), so a one-segment prediction is `simulate` on the same drive,
 sample for sample.
 """
@@ -117,7 +117,7 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
     P : (n, N_PARAMS) packed scene parameters (`Scene.params()`).
     Y0 : (n, k ≤ 7) start states (padded as in `simulate_batch`), or (n, STATE_WIDTH) kernel
         states (with the work slot, as `states_from_observations` builds them).
-    drives : (n, S, 8) drive rows (DRIVE_*); the angle θ0 of segments after the first is
+    drives : (n, S, DRIVE_WIDTH) drive rows (DRIVE_*); the angle θ0 of segments after the first is
         replaced by where the previous one ended.
     durations : (n, S) [s]; a segment of duration ≤ 0 is skipped.
     sample : float — largest spacing of the samples [s].
@@ -171,9 +171,13 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
 
 
 def _speed_bound(drives: np.ndarray, durations: np.ndarray) -> float:
-    """Largest |Ω| [rad/s] any segment reaches (linear ramp plus ripple amplitude)."""
-    w0 = drives[..., K.DRIVE_W0]
-    w1 = w0 + drives[..., K.DRIVE_RATE] * np.maximum(durations, 0.0)
+    """Largest |Ω| [rad/s] any segment reaches (linear ramp or a voltage-driven motor's
+    monotone relaxation, plus the ripple's amplitude: extremes at the segment's ends)."""
+    d = np.maximum(durations, 0.0)
+    decay = drives[..., K.DRIVE_DECAY]
+    w0 = drives[..., K.DRIVE_W0] + decay
+    w1 = drives[..., K.DRIVE_W0] + drives[..., K.DRIVE_RATE] * d + \
+        decay * np.exp(-drives[..., K.DRIVE_DECAY_RATE] * d)
     return float(np.max(np.maximum(np.abs(w0), np.abs(w1)) + np.abs(drives[..., K.DRIVE_AMP])))
 
 

@@ -189,7 +189,7 @@ for contact in ("rolling", "slipping", "coulomb"):
     starts = np.array([state * (1.0 + 0.1 * i) for i in range(3)])
     batch = se.simulate_batch(scene, starts, t_end=1.0, omega=[28.0, 30.0, 32.0], dt_out=0.05)
     out["batch " + contact] = np.nan_to_num(batch.state, nan=-1.0).tolist()
-    drives = np.zeros((3, 2, 8))
+    drives = np.zeros((3, 2, se._kernels.DRIVE_WIDTH))
     drives[:, :, 0] = [[28.0, 29.0], [30.0, 31.0], [32.0, 33.0]]
     pred = se.predict_batch(scene.model_code, np.repeat(scene.params()[None], 3, 0), starts,
                             drives, np.full((3, 2), 0.2), 0.02)  # mpc's look-ahead

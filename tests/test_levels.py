@@ -13,6 +13,9 @@ from saddle_env.envs import LEVEL_IDS, LEVELS, EnvConfig, SaddleTrapEnv, get_lev
 from saddle_env.envs.vector import SaddleTrapVectorEnv
 
 IDS = [level.id for level in LEVELS]
+# Registered, but the leaderboard (1,000 frozen test episodes per policy) has not been run on
+# it yet: its reward threshold is mpc's mean return on 200 design episodes (docs/levels.md).
+NOT_YET_ON_THE_LEADERBOARD = {"SaddleTrap-Lab-v0"}
 
 
 def test_levels_are_registered_unique_and_documented():
@@ -38,10 +41,18 @@ def test_calm_level_is_the_default_configuration():
 def test_non_calm_levels_differ_from_calm_and_observe_the_motor(env_id):
     config = level_config(env_id)
     assert config != EnvConfig()
-    # A controller needs what the motor controller knows: its set-point and the angle.
-    assert config.observe_command and config.observe_angle
+    # A controller needs what the motor controller knows: its set-point and the angle. A
+    # voltage-driven motor (the Lab level) has no set-point but the voltage the controller
+    # gave, and its camera sees positions only: x, y, the tachometer, cos θ, sin θ.
+    assert config.observe_angle
+    if config.action_mode == "voltage":
+        assert not config.observe_command and not config.observe_velocity
+        width = 5
+    else:
+        assert config.observe_command
+        width = 8
     env = gym.make(env_id)
-    assert env.observation_space.shape == (8 * config.obs_history,)
+    assert env.observation_space.shape == (width * config.obs_history,)
 
 
 @pytest.mark.parametrize("env_id", IDS)
@@ -203,6 +214,10 @@ def test_every_level_has_a_reward_threshold_at_mpcs_test_return():
     board = json.loads((Path(__file__).resolve().parents[1] / "docs" / "leaderboard.json")
                        .read_text())
     for level in LEVELS:
+        if level.id in NOT_YET_ON_THE_LEADERBOARD:
+            assert level.id not in board["levels"], "on the leaderboard now: check its threshold"
+            assert gym.spec(level.id).reward_threshold == level.reward_threshold is not None
+            continue
         threshold = gym.spec(level.id).reward_threshold
         assert threshold is not None and threshold == level.reward_threshold
         mpc = next(r for r in board["levels"][level.id]["policies"] if r["policy"] == "mpc")

@@ -175,10 +175,10 @@ def test_bad_shapes_are_refused():
     scene = Scene()
     with pytest.raises(ValueError, match="shapes disagree"):
         predict_batch(scene.model_code, scene.params()[None], np.zeros((2, 5)),
-                      np.zeros((1, 1, 8)), np.ones((1, 1)), 0.1)
+                      np.zeros((1, 1, K.DRIVE_WIDTH)), np.ones((1, 1)), 0.1)
     with pytest.raises(ValueError, match="sample"):
         predict_batch(scene.model_code, scene.params()[None], np.zeros((1, 5)),
-                      np.zeros((1, 1, 8)), np.ones((1, 1)), 0.0)
+                      np.zeros((1, 1, K.DRIVE_WIDTH)), np.ones((1, 1)), 0.0)
 
 
 def test_a_batch_compiled_for_its_own_contact_models_predicts_identically(monkeypatch):

@@ -42,6 +42,8 @@ def _search_key(config: EnvConfig, episodes: int, seed: int, max_episode_steps: 
     default = EnvConfig()
     d = {k: v for k, v in config.as_dict().items()
          if k not in _NOT_IN_KEY and v != getattr(default, k)}
+    if config.action_mode == "voltage":  # the one mode whose constant runs differ
+        d["action_mode"] = "voltage"
     if config.position_noise == config.velocity_noise == config.omega_noise == 0:
         d.pop("obs_frame", None)  # the frame matters only through the noise draws
     d.update(episodes=episodes, seed=seed, steps=max_episode_steps, grid=SEARCH_STEP)
@@ -65,17 +67,22 @@ def search_best_constant(config: EnvConfig, episodes: int = SEARCH_EPISODES,
     ``mean_time`` [s], ``kept`` (fraction kept for the whole episode), ``mean_r`` [m] and
     ``grid`` (every speed tried with its scores).
     """
-    c = EnvConfig.from_kwargs(**dict(config.as_dict(), action_mode="target"))
+    # A constant target speed; a voltage-driven motor keeps its own dynamics (a constant
+    # voltage: its action maps to the steady speed as a target's does when K·V_max is
+    # omega_max).
+    mode = "voltage" if config.action_mode == "voltage" else "target"
+    c = EnvConfig.from_kwargs(**dict(config.as_dict(), action_mode=mode))
+    top = c.motor_gain * c.voltage_max if mode == "voltage" else c.omega_max
     lows = [critical_omega(s) for s in c.extreme_scenes()]
     lo = 0.9 * min(w for w in lows if math.isfinite(w)) if any(map(math.isfinite, lows)) else 1.0
     seeds = np.arange(episodes) + seed
     results: dict[float, dict[str, float]] = {}
 
     def run(speeds: np.ndarray) -> None:
-        speeds = np.array([w for w in np.round(speeds, 6) if w not in results and 0 <= w <= c.omega_max])
+        speeds = np.array([w for w in np.round(speeds, 6) if w not in results and 0 <= w <= top])
         if len(speeds) == 0:
             return
-        action = np.repeat(2.0 * speeds / c.omega_max - 1.0, episodes)
+        action = np.repeat(2.0 * speeds / top - 1.0, episodes)
 
         def act(obs: np.ndarray, idx: np.ndarray) -> np.ndarray:
             return action[idx]
@@ -94,7 +101,7 @@ def search_best_constant(config: EnvConfig, episodes: int = SEARCH_EPISODES,
                 if v["mean_time"] >= top - TIME_TIE * max_episode_steps * c.control_period]
         return min(tied, key=lambda w: (results[w]["mean_r"], w))
 
-    run(np.append(np.arange(math.floor(lo), c.omega_max, SEARCH_STEP), c.omega_max))
+    run(np.append(np.arange(math.floor(lo), top, SEARCH_STEP), top))
     w0 = best()
     run(w0 + SEARCH_STEP / 4 * np.array([-3, -2, -1, 1, 2, 3]))
     w = best()
@@ -138,6 +145,8 @@ def best_constant(config: EnvConfig, episodes: int = SEARCH_EPISODES, seed: int 
     default = EnvConfig()
     entry["config"] = {k: v for k, v in config.as_dict().items()
                        if k not in _NOT_IN_KEY and v != getattr(default, k)}
+    if config.action_mode == "voltage":   # in the key too (`_search_key`)
+        entry["config"]["action_mode"] = "voltage"
     entry = json.loads(json.dumps(entry))  # as it reads back from the cache
     # SADDLE_ENV_BEST_CONST_CACHE names the one file new searches go to (the test suite
     # points it at a temporary file, so that tests never edit the shipped cache).

@@ -113,13 +113,15 @@ class BallState:
     noise: np.ndarray
     scene: Any
     rng: np.random.Generator      # a copy, never stepped itself
+    delays: dict[str, np.ndarray]  # the delays' queues (`TrapEngine.delay_arrays`)
 
     @classmethod
     def capture(cls, engine: TrapEngine, rngs: Any, i: int) -> BallState:
         return cls(int(engine.models[i]), engine.P[i].copy(), engine.scales[i].copy(),
                    engine.Y[i].copy(), engine.balls[i].copy(), engine.out[i].copy(),
                    engine.frame[i].copy(), engine.obs[i].copy(), engine.noise[i].copy(),
-                   engine.scenes[i], copy_rng(rngs[i]))
+                   engine.scenes[i], copy_rng(rngs[i]),
+                   {name: getattr(engine, name)[i].copy() for name in engine.delay_arrays})
 
     def put(self, engine: TrapEngine, rows: np.ndarray) -> list[np.random.Generator]:
         """Write this state into ``rows`` of ``engine``; returns a fresh generator copy per row."""
@@ -132,6 +134,8 @@ class BallState:
         engine.frame[rows] = self.frame
         engine.obs[rows] = self.obs
         engine.noise[rows] = self.noise
+        for name, value in self.delays.items():
+            getattr(engine, name)[rows] = value
         for r in rows:
             engine.scenes[r] = self.scene
         return [copy_rng(self.rng) for _ in rows]
@@ -140,7 +144,8 @@ class BallState:
 def copy_engine(engine: TrapEngine, rngs: Any) -> tuple[TrapEngine, list[np.random.Generator]]:
     """A new engine holding a copy of every ball of ``engine``, and copies of the generators."""
     twin = TrapEngine(engine.config, engine.n)
-    for name in ("models", "P", "scales", "Y", "balls", "out", "frame", "obs", "noise"):
+    for name in ("models", "P", "scales", "Y", "balls", "out", "frame", "obs", "noise",
+                 *engine.delay_arrays):
         getattr(twin, name)[:] = getattr(engine, name)
     twin.scenes = list(engine.scenes)
     return twin, [copy_rng(r) for r in rngs]

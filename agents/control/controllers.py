@@ -58,11 +58,13 @@ class Controller:
             raise TypeError(f"config must be an EnvConfig, got {type(config).__name__}")
         self.config = config
         # Controllers read the newest frame's camera and speed columns: the first 5, or 7 in
-        # the lab frame (`observation.layout`: x, y, vx, vy, [cos θ, sin θ,] measured Ω).
+        # the lab frame (`observation.layout`: x, y, vx, vy, [cos θ, sin θ,] measured Ω), two
+        # fewer from a camera that sees positions only (``observe_velocity=False``).
         # The observation may hold more (the commanded speed, the angle, older frames),
         # which they accept (``input_dim`` columns) and leave alone.
         self.layout = layout(config)
-        self.obs_dim = 7 if config.obs_frame == "lab" else 5
+        self.obs_dim = (7 if config.obs_frame == "lab" else 5) - \
+            (0 if config.observe_velocity else 2)
         if self.layout.omega != self.obs_dim - 1:  # the layout moved: the slice below is wrong
             raise RuntimeError(f"observation layout changed: measured speed at column "
                                f"{self.layout.omega}, controllers expect {self.obs_dim - 1}")
@@ -98,9 +100,12 @@ class Controller:
         return out[0] if single else out
 
     def motor_rate(self, omega: np.ndarray, action: np.ndarray) -> np.ndarray:
-        """Ω̇ the motor runs at for ``action`` from speed ``omega`` (the environment's rule)."""
+        """Ω̇ the motor runs at for ``action`` from speed ``omega`` (the environment's rule; a
+        voltage-driven motor's at this instant, (K·V − Ω)/τ)."""
         c = self.config
         dt = c.control_period
+        if c.action_mode == "voltage":
+            return (0.5 * (action + 1.0) * c.motor_gain * c.voltage_max - omega) / c.motor_tau
         if c.action_mode == "target":
             return np.clip((0.5 * (action + 1.0) * c.omega_max - omega) / dt, -c.max_accel,
                            c.max_accel)
@@ -111,11 +116,16 @@ class Controller:
         raise NotImplementedError
 
     def speed_action(self, omega: np.ndarray, target: np.ndarray | float) -> np.ndarray:
-        """The action that moves Ω from ``omega`` toward ``target`` as fast as the motor allows."""
+        """The action that moves Ω from ``omega`` toward ``target`` as fast as the motor allows
+        (a voltage-driven motor: the voltage whose steady speed is ``target``)."""
         c = self.config
         target = np.clip(target, 0.0, c.omega_max)
         if c.action_mode == "target":
             return np.broadcast_to(2.0 * target / c.omega_max - 1.0, np.shape(omega)).copy()
+        if c.action_mode == "voltage":
+            top = c.motor_gain * c.voltage_max
+            return np.broadcast_to(np.minimum(2.0 * target / top - 1.0, 1.0),
+                                   np.shape(omega)).copy()
         return np.clip((target - omega) / (c.max_accel * c.control_period), -1.0, 1.0)
 
     def __repr__(self) -> str:
@@ -148,7 +158,7 @@ class ConstantSpeed(Controller):
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
-        if self.config.action_mode == "target":
+        if self.config.action_mode in ("target", "voltage"):  # a constant action holds it
             return super().predict(observation, state, episode_start, deterministic)
         batch, single = self._batch(observation)
         n = len(batch)

@@ -18,7 +18,7 @@ from agents.control.best_constant import best_constant
 from agents.control.controllers import Controller
 from saddle_env import _kernels as Kn
 from saddle_env.envs import EnvConfig
-from saddle_env.envs.observation import states_from_observations
+from saddle_env.envs.observation import VELOCITY_SCALE, states_from_observations
 from saddle_env.integrators import state_scale
 from saddle_env.linear import abcd, critical_omega, is_stable
 from saddle_env.prediction import predict_batch
@@ -91,6 +91,40 @@ def _candidate_drives(omega0, force, omega_ref, low, high, rates, ramps, amax, t
         drives[q, BACK, Kn.DRIVE_RATE] = (w_ref - w1) / t_back if t_back > 0 else 0.0
         drives[q, HOLD, Kn.DRIVE_W0] = w_ref
         durations[q, RAMP], durations[q, BACK], durations[q, HOLD] = t_ramp, t_back, t_hold
+
+
+@nb.njit(cache=True)
+def _candidate_drives_voltage(omega0, force, targets, omega_ref, ramps, tau, t_hold, drives,
+                              durations):
+    """`_candidate_drives` for a voltage-driven motor: candidate k of ball i holds the voltage
+    whose steady speed is ``targets[i, k]`` for ``ramps[k]`` s, then the reference's voltage
+    for ``t_hold`` s (a motor relaxing with time constant ``tau``: the drive rows' exponential
+    term carries it exactly; the back segment is empty)."""
+    n, K = omega0.shape[0], ramps.shape[0]
+    for q in range(n * K):
+        i, k = q // K, q % K
+        w_ref, w_k = omega_ref[i], targets[i, k]
+        t_ramp = ramps[k]
+        w1 = w_k + (omega0[i] - w_k) * math.exp(-t_ramp / tau)
+        for seg in range(3):
+            drives[q, seg, :] = 0.0
+            drives[q, seg, Kn.DRIVE_FX], drives[q, seg, Kn.DRIVE_FY] = force[i, 0], force[i, 1]
+            drives[q, seg, Kn.DRIVE_DECAY_RATE] = 1.0 / tau
+        drives[q, RAMP, Kn.DRIVE_W0] = w_k
+        drives[q, RAMP, Kn.DRIVE_DECAY] = omega0[i] - w_k
+        for seg in (BACK, HOLD):
+            drives[q, seg, Kn.DRIVE_W0] = w_ref
+            drives[q, seg, Kn.DRIVE_DECAY] = w1 - w_ref
+        durations[q, RAMP], durations[q, BACK], durations[q, HOLD] = t_ramp, 0.0, t_hold
+
+
+@nb.njit(cache=True)
+def _centre_states(model, p, Y, out):
+    """Centre position and velocity (n, 4) [m, m/s] in the saddle's axes of states ``Y``."""
+    for i in range(Y.shape[0]):
+        g = Kn.geometry(p[P_A], p[P_B], p[P_R], Y[i, 0], Y[i, 1])
+        out[i, 0], out[i, 1] = g.cx, g.cy
+        out[i, 2], out[i, 3] = _centre_velocity(model, p, Y[i])
 
 
 @nb.njit(cache=True)
@@ -192,6 +226,19 @@ class ModelPredictiveController(Controller):
     ``omega_ref`` defaults to the ``best-const`` speed of the config (searched and cached
     on first use), kept ≥ 1.05·Ω_crt of the estimated ball and ≤ ``omega_max − band``
     (room to modulate both ways).
+
+    **The rig** (a voltage-driven motor, ``obs_delay`` / ``action_delay``, a camera without
+    velocities; `_predict_rig`): the estimate is of the state the observation shows, carried
+    from step to step by the exact model through the commands then in force (the controller
+    keeps its last commands) and corrected by each observation; velocities the camera does
+    not give are estimated from the positions' prediction errors (``position_gain``,
+    ``velocity_gain``), the motor's speed from its model and the tachometer
+    (``speed_gain``). With ``delay_aware`` (default) the estimate is then carried through
+    the camera's and the command's delays, so the plan starts where the coming command will
+    act; ``delay_aware=False`` (the ``mpc-blind`` baseline) plans from the estimate as if it
+    were now. In voltage mode a candidate holds the voltage of the steady speed
+    ``omega_ref`` + level × ``voltage_span`` for its ramp, then the reference's voltage.
+    Configurations without these parts take the path above unchanged.
     """
 
     name = "mpc"
@@ -200,7 +247,10 @@ class ModelPredictiveController(Controller):
                  levels: tuple[float, ...] = (-1.0, -0.5, 0.5, 1.0, 0.0),
                  ramps: tuple[int, ...] = (1, 5, 10), hold: float = 0.2, sample: float = 0.025,
                  margin: float = 0.3, band: float = 3.0, observer_gain: float = 0.2,
-                 id_time: float = 0.5, rtol: float = 1e-6, name: str = "mpc"):
+                 id_time: float = 0.5, rtol: float = 1e-6, name: str = "mpc",
+                 delay_aware: bool = True, position_gain: float = 0.5,
+                 velocity_gain: float = 0.3, speed_gain: float = 0.2,
+                 voltage_span: float = 10.0):
         super().__init__(config)
         c = config
         self.name = name
@@ -244,6 +294,35 @@ class ModelPredictiveController(Controller):
         self._cmd = self.layout.command
         self._d = self.obs_dim + (self._cmd is not None)   # columns kept per observation
         self.state_size = self._d + 2 + 4 * len(self.radii)
+        # The rig (issue 42): a voltage-driven motor, delays, a camera without velocities.
+        # Such configurations take `_predict_rig`; every other keeps the path above, step for
+        # step as before.
+        self._voltage = c.action_mode == "voltage"
+        self._camera = not c.observe_velocity
+        self.delay_aware = bool(delay_aware)
+        self._rig = self._voltage or self._camera or c.obs_delay > 0 or c.action_delay > 0
+        self._obs_config = c
+        if self._rig:
+            if c.obs_frame != "rotating":
+                raise ValueError("mpc on a rig configuration (voltage mode, delays or a "
+                                 "positions-only camera) needs obs_frame='rotating'")
+            # The estimate is kept as a full observation of one frame (x, y, vx, vy, Ω),
+            # read back by `states_from_observations` with this configuration.
+            self._obs_config = EnvConfig.from_kwargs(**dict(
+                c.as_dict(), observe_velocity=True, observe_command=False, observe_angle=False,
+                obs_history=1))
+            self.position_gain, self.velocity_gain = position_gain, velocity_gain
+            self.speed_gain, self.voltage_span = speed_gain, voltage_span
+            d_obs, d_act = (c.obs_delay, c.action_delay) if self.delay_aware else (0.0, 0.0)
+            self._obs_delay, self._act_delay = d_obs, d_act
+            T = c.control_period
+            # commands given up to this many periods ago can be in force between the
+            # previous observation's time and the moment the next command takes effect
+            self._history = math.ceil((d_obs + d_act) / T + 1e-9) + 2
+            self._d = 5
+            self._hist_at = 2 + self._d + 4 * len(self.radii)
+            self.state_size = self._hist_at + self._history
+            self._top = c.motor_gain * c.voltage_max
 
     # -- estimation ----------------------------------------------------------------------
     def states(self, obs: np.ndarray, radius: int | None = None,
@@ -252,7 +331,7 @@ class ModelPredictiveController(Controller):
         observations, for the candidate radius ``radius`` (default: the nominal one) and
         spins about the normal ``spin`` (n,) [rad/s] (default 0, as at a reset)."""
         j = self.nominal if radius is None else radius
-        return states_from_observations(self.config, self._model, self._P[j], obs, spin)
+        return states_from_observations(self._obs_config, self._model, self._P[j], obs, spin)
 
     def _block(self, j: int) -> int:
         return 2 + self._d + 4 * j
@@ -324,8 +403,7 @@ class ModelPredictiveController(Controller):
         for balls of candidate radius index ``radius`` (n,) with spin ``spin`` (n,) about the
         normal, under the lab-fixed ``force`` (n, 2) [m/s², saddle axes now]; defaults: the
         nominal radius, no spin, no force."""
-        c = self.config
-        n, K = len(obs), len(self.levels)
+        n = len(obs)
         radius = np.full(n, self.nominal) if radius is None else np.asarray(radius, np.int64)
         spin = np.zeros(n) if spin is None else np.asarray(spin, float)
         Y = np.zeros((n, Kn.STATE_WIDTH))
@@ -333,11 +411,23 @@ class ModelPredictiveController(Controller):
         for j in np.unique(radius):
             sel = radius == j
             Y[sel], omega[sel] = self.states(obs[sel], int(j), spin[sel])
+        return self.plan_states(Y, omega, force, radius)
+
+    def plan_states(self, Y: np.ndarray, omega: np.ndarray, force: np.ndarray | None,
+                    radius: np.ndarray) -> dict[str, np.ndarray]:
+        """`plan` from physics states ``Y`` (n, STATE_WIDTH) and motor speeds ``omega`` (n,)
+        [rad/s] (estimated, or predicted through a delay) rather than observations."""
+        c = self.config
+        n, K = len(Y), len(self.levels)
         force = np.zeros((n, 2)) if force is None else np.ascontiguousarray(force, float)
         drives, durations = np.empty((n * K, 3, Kn.DRIVE_WIDTH)), np.empty((n * K, 3))
-        _candidate_drives(omega, force, self._ref[radius], self._low[radius], self._high[radius],
-                          self.levels * c.max_accel, self.ramps, c.max_accel, self.hold, drives,
-                          durations)
+        if self._voltage:
+            _candidate_drives_voltage(omega, force, self._targets(radius), self._ref[radius],
+                                      self.ramps, c.motor_tau, self.hold, drives, durations)
+        else:
+            _candidate_drives(omega, force, self._ref[radius], self._low[radius],
+                              self._high[radius], self.levels * c.max_accel, self.ramps,
+                              c.max_accel, self.hold, drives, durations)
         pred = predict_batch(self._model, np.repeat(self._P[radius], K, 0), np.repeat(Y, K, 0),
                              drives, durations, self.sample, method=METHOD, rtol=self.rtol,
                              max_step=self._max_step, scales=np.repeat(self._scales[radius], K, 0))
@@ -357,8 +447,11 @@ class ModelPredictiveController(Controller):
             # No safe candidate: no predicted loss first, then the most support.
             choice[i] = min(range(len(self.levels)),
                             key=lambda k: (status[i, k] != 0, -normal[i, k], abs(self.levels[k])))
-        rate = self.levels[choice] * c.max_accel
         j = plan["radius"]
+        if self._voltage:  # the voltage of the chosen candidate's steady speed
+            steady = self._targets(j)[np.arange(len(choice)), choice]
+            return 2.0 * steady / self._top - 1.0
+        rate = self.levels[choice] * c.max_accel
         start = plan.get("command", plan["omega"])   # the set-point the motor ramps from
         target = np.clip(start + rate * c.control_period, self._low[j], self._high[j])
         return self.speed_action(start, target)
@@ -376,6 +469,10 @@ class ModelPredictiveController(Controller):
         if episode_start is not None:
             start = np.asarray(episode_start, dtype=bool).reshape(n)
             state[start] = 0.0
+        if self._rig:
+            act, state = self._predict_rig(batch, state)
+            out = act.astype(np.float32).reshape(-1, 1)
+            return (out[0] if single else out), state
         state = self._update(batch, state)
         blocks = state[:, 2 + d:].reshape(n, len(self.radii), 4)
         radius = np.where(state[:, 0] > 0, np.argmin(blocks[:, :, 2], axis=1), self.nominal)
@@ -400,12 +497,208 @@ class ModelPredictiveController(Controller):
         out = act.astype(np.float32).reshape(-1, 1)
         return (out[0] if single else out), state
 
+    # -- the rig: a voltage-driven motor, delays, a camera without velocities ------------
+    def _targets(self, radius: np.ndarray) -> np.ndarray:
+        """(n, K) steady speeds [rad/s] of the candidates' voltages (voltage mode): the
+        reference plus level × ``voltage_span``, within what the motor can reach."""
+        return np.clip(self._ref[radius][:, None] + self.levels[None, :] * self.voltage_span,
+                       0.0, self._top)
+
+    def _segments(self, t0: float, t1: float) -> list[tuple[int, float]]:
+        """The pieces of [t0, t1] (seconds from now) by the command in force, oldest first:
+        (j, length) for the command given j control periods ago, which is in force from
+        ``action_delay`` − j·T for one period (the delays as this controller knows them)."""
+        T, a = self.config.control_period, self._act_delay
+        out = []
+        for j in range(self._history, 0, -1):
+            lo, hi = max(t0, a - j * T), min(t1, a - (j - 1) * T)
+            if hi - lo > 1e-12:
+                out.append((j, hi - lo))
+        return out
+
+    def _drive_chain(self, omega: np.ndarray, force: np.ndarray, history: np.ndarray,
+                     segments: list[tuple[int, float]]
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Drive rows (n, S, DRIVE_WIDTH) and durations (n, S) of the commands in force over
+        ``segments`` (`_segments`) from motor speed ``omega`` (n,), with the lab-fixed
+        ``force`` (n, 2) in the saddle's axes at the start; the motor's speed at the end and
+        the angle the saddle turned (n,). A NaN command (none given yet) holds the speed."""
+        c = self.config
+        n, S = len(omega), len(segments)
+        drives, durations = np.zeros((n, S, Kn.DRIVE_WIDTH)), np.zeros((n, S))
+        w, turned = np.array(omega, dtype=float), np.zeros(n)
+        for s, (j, length) in enumerate(segments):
+            cmd = history[:, j - 1]
+            hold = np.isnan(cmd)
+            cmd = np.nan_to_num(cmd)
+            row = drives[:, s]
+            row[:, Kn.DRIVE_FX], row[:, Kn.DRIVE_FY] = force[:, 0], force[:, 1]
+            if self._voltage:
+                steady = np.where(hold, w, 0.5 * (cmd + 1.0) * self._top)
+                row[:, Kn.DRIVE_W0], row[:, Kn.DRIVE_DECAY] = steady, w - steady
+                row[:, Kn.DRIVE_DECAY_RATE] = 1.0 / c.motor_tau
+                e = math.exp(-length / c.motor_tau)
+                turned += steady * length + (w - steady) * (1.0 - e) * c.motor_tau
+                w = steady + (w - steady) * e
+            else:
+                rate = np.where(hold, 0.0, self.motor_rate(w, cmd))
+                row[:, Kn.DRIVE_W0], row[:, Kn.DRIVE_RATE] = w, rate
+                turned += w * length + 0.5 * rate * length * length
+                w = w + rate * length
+            durations[:, s] = length
+        return drives, durations, w, turned
+
+    def _advance(self, radius: np.ndarray, Y: np.ndarray, drives: np.ndarray,
+                 durations: np.ndarray) -> np.ndarray:
+        """States ``Y`` (balls of candidate radius index ``radius``) carried through the
+        drive chain by the exact model (no events): the final states."""
+        return predict_batch(self._model, self._P[radius], np.ascontiguousarray(Y), drives,
+                             durations, float(durations[0].sum()) or 1.0, method=METHOD,
+                             rtol=self.rtol, events=(), max_step=self._max_step,
+                             scales=self._scales[radius]).final_state
+
+    def _carry(self, Y: np.ndarray, radius: np.ndarray, omega: np.ndarray, force: np.ndarray,
+               history: np.ndarray, t0: np.ndarray, t1: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """States ``Y``, motor speeds and the angle turned, carried from ``t0[i]`` to
+        ``t1[i]`` (seconds from now, per row; rows with the same pair go together) through
+        the commands in force (`_drive_chain`). Before the episode's start the camera shows
+        the starting state, so no time is carried from before it."""
+        Y, omega, turned = Y.copy(), np.array(omega, dtype=float), np.zeros(len(Y))
+        keys = np.round(np.column_stack([t0, t1]), 12)
+        for key in np.unique(keys, axis=0):
+            if key[1] - key[0] <= 1e-12:
+                continue
+            sel = np.flatnonzero((keys == key).all(axis=1))
+            drives, durations, omega[sel], turned[sel] = self._drive_chain(
+                omega[sel], force[sel], history[sel], self._segments(key[0], key[1]))
+            end = self._advance(radius[sel], Y[sel], drives, durations)
+            Y[sel, :end.shape[1]] = end
+        return Y, omega, turned
+
+    def _predict_rig(self, raw: np.ndarray, state: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        """`predict` on a rig configuration. The estimate is the ball's state at the time the
+        observation shows (``obs_delay`` ago): each step the last estimate is carried one
+        period forward through the commands then in force and corrected by the new
+        observation (positions by ``position_gain``, velocities by ``velocity_gain`` × the
+        position error / T when the camera gives no velocities, the motor's speed by
+        ``speed_gain`` × the tachometer's error, the force as in `_update`); the candidate
+        radius whose predictions fit the positions best is used. Then, ``delay_aware``, the
+        estimate is carried through the delays (``obs_delay`` + ``action_delay``, the
+        commands given meanwhile in force) to when the next command takes effect, and the
+        plan starts there; delay-blind, it starts from the estimate as if it were now.
+        ``state[:, 0]`` counts the observations of the episode before this one."""
+        c = self.config
+        T, L, d, nR, H = c.control_period, c.rim_radius, self._d, len(self.radii), self._history
+        n = len(raw)
+        count = state[:, 0].copy()
+        has = count > 0
+        start = -count * T   # the episode's start, seconds from now
+        history = state[:, self._hist_at:self._hist_at + H].copy()
+        history[~has] = np.nan
+        pos = raw[:, :2] * L
+        w_meas = raw[:, self.obs_dim - 1] * c.omega_max
+        vel = None if self._camera else raw[:, 2:4] * VELOCITY_SCALE
+        new = state.copy()
+        pseudo = np.zeros((n, 5))
+        # A new episode: the ball as placed (at rest in the laboratory unless the config
+        # starts it at rest on the saddle), the tachometer's speed.
+        fresh = np.flatnonzero(~has)
+        if len(fresh):
+            w = w_meas[fresh]
+            if vel is not None:
+                v = vel[fresh]
+            elif c.init_start == "lab-rest":
+                v = np.column_stack([w * pos[fresh, 1], -w * pos[fresh, 0]])
+            else:
+                v = np.zeros((len(fresh), 2))
+            pseudo[fresh] = np.column_stack([pos[fresh] / L, v / VELOCITY_SCALE,
+                                             w / c.omega_max])
+            new[fresh, 2 + d:self._hist_at] = 0.0
+        radius = np.full(n, self.nominal)
+        rows = np.flatnonzero(has)
+        if len(rows):
+            m = len(rows)
+            prev = state[rows, 1:1 + d]
+            t0 = np.maximum(start[rows], -T - self._obs_delay)
+            t1 = np.maximum(start[rows], -self._obs_delay)
+            decay = math.exp(-T / self.id_time)
+            cands = np.zeros((nR, m, 4))   # per radius: the corrected centre and velocity
+            scores = np.zeros((nR, m))
+            w_pred = None
+            for j in range(nR):
+                o = self._block(j)
+                f0, spin0 = state[rows, o:o + 2], state[rows, o + 3]
+                Yp, wp = self.states(prev, j, spin0)
+                Ypred, w_pred, turned = self._carry(
+                    Yp, np.full(m, j), wp, f0 if self.estimate_force else np.zeros((m, 2)),
+                    history[rows], t0, t1)
+                cs = np.empty((m, 4))
+                _centre_states(self._model, self._P[j], Ypred, cs)
+                vp, spin1 = np.empty((m, 2)), np.empty(m)
+                _centre_velocities(self._model, self._P[j], Ypred, vp, spin1)
+                err = pos[rows] - cs[:, :2]
+                if vel is None:
+                    v = cs[:, 2:] + self.velocity_gain * err / T
+                    centre = cs[:, :2] + self.position_gain * err
+                else:
+                    v, centre = vel[rows], pos[rows]
+                dv = v - cs[:, 2:]
+                f1 = _rotate(f0, -turned)
+                if self.estimate_force:
+                    f1 = f1 + self.observer_gain * (1.0 + self._alpha) * dv / T
+                scores[j] = decay * state[rows, o + 2] + np.sum((err / T) ** 2, 1)
+                new[rows, o:o + 2] = f1
+                new[rows, o + 2] = scores[j]
+                new[rows, o + 3] = spin1
+                cands[j] = np.column_stack([centre, v])
+            best = np.argmin(scores, axis=0)
+            radius[rows] = best
+            pick = cands[best, np.arange(m)]
+            assert w_pred is not None  # set by the loop over the nR >= 1 radii
+            w_est = w_pred + self.speed_gain * (w_meas[rows] - w_pred)
+            pseudo[rows] = np.column_stack([pick[:, :2] / L, pick[:, 2:] / VELOCITY_SCALE,
+                                            w_est / c.omega_max])
+        blocks = new[:, 2 + d:self._hist_at].reshape(n, nR, 4)
+        mine = blocks[np.arange(n), radius]
+        force = mine[:, :2].copy() if self.estimate_force else np.zeros((n, 2))
+        Y = np.zeros((n, Kn.STATE_WIDTH))
+        for j in np.unique(radius):
+            sel = radius == j
+            Y[sel], _ = self.states(pseudo[sel], int(j), mine[sel, 3])
+        omega = pseudo[:, 4] * c.omega_max
+        if self._obs_delay + self._act_delay > 0:  # to when the coming command takes effect
+            Y, omega, turned = self._carry(Y, radius, omega, force, history,
+                                           np.maximum(start, -self._obs_delay),
+                                           np.full(n, self._act_delay))
+            force = _rotate(force, -turned)
+        act = self.speed_action(omega, self._ref[radius])
+        near = np.flatnonzero((omega >= self._low[radius] - 1e-9) &
+                              (omega <= self._high[radius] + 1e-9))
+        if len(near):
+            plan = self.plan_states(Y[near], omega[near],
+                                    force[near] if self.estimate_force else None, radius[near])
+            plan["command"] = omega[near]
+            act[near] = self.choose(plan)
+        act = np.clip(act, -1.0, 1.0).astype(np.float32).astype(np.float64)
+        new[:, 0] = count + 1
+        new[:, 1:1 + d] = pseudo
+        new[:, 1 + d] = act
+        hist = new[:, self._hist_at:self._hist_at + H]
+        hist[:, 1:] = history[:, :-1]
+        hist[:, 0] = act
+        return act, new
+
     def executed(self, state: np.ndarray, actions: Any) -> np.ndarray:
         """``state`` (from `predict`) told that the environment received ``actions`` (n,)
         instead of the ones this controller chose: when another policy drives and mpc only
         watches (imitation labels), its estimators must predict the step the motor took."""
         state = np.array(state, dtype=np.float64)
-        state[:, 1 + self._d] = np.asarray(actions, dtype=np.float32).astype(np.float64).reshape(-1)
+        sent = np.asarray(actions, dtype=np.float32).astype(np.float64).reshape(-1)
+        state[:, 1 + self._d] = sent
+        if self._rig:
+            state[:, self._hist_at] = sent
         return state
 
 

@@ -54,6 +54,9 @@ BASELINES: dict[str, Callable[..., Controller]] = {
     "masspoint": mass_point,
     "best-const": best_const,
     "mpc": ModelPredictiveController,
+    # mpc that ignores the delays (issue 42): what ignoring a camera's latency costs
+    "mpc-blind": lambda config: ModelPredictiveController(config, delay_aware=False,
+                                                         name="mpc-blind"),
     "clairvoyant": lambda config: _clairvoyant(config, loader=load_policy),
     "zero": ZeroAction,
     "random": UniformRandom,

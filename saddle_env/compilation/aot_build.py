@@ -238,8 +238,10 @@ def _build_one(flags: tuple[str, ...], spec: BuildSpec, out_dir: str) -> dict:
         # types are predict_batch's own, whatever the values
         rows = np.array([sc.model_code for sc in scenes] * 2)
         P = np.array([sc.params() for sc in scenes] * 2)
-        drives = np.zeros((len(rows), 2, 8))
-        drives[:, :, 0] = 30.0
+        from .._kernels import DRIVE_W0, DRIVE_WIDTH
+
+        drives = np.zeros((len(rows), 2, DRIVE_WIDTH))
+        drives[:, :, DRIVE_W0] = 30.0
         predict_batch(rows, P, np.concatenate([starts, starts]), drives,
                       np.full((len(rows), 2), 0.01), 0.005)
         exports["saddle_env.prediction"] = ["integrate_segments"]

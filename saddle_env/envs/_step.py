@@ -4,7 +4,11 @@ single environment and the vector environment both call it; nothing here re-impl
 the physics.
 
 Within a control step the motor ramps Ω linearly (finite Ω̇, so the Euler force is
-defined), optionally with a sinusoidal ripple, and an optional lab-fixed force acts.
+defined) or, driven by a voltage, relaxes exponentially to K·V (`_kernels.omega_at`),
+optionally with a sinusoidal ripple, and an optional lab-fixed force acts. The engine may
+split a control period into segments (delays, `engine.DelayPlan`): it then calls the step
+once per segment with ``C_DT`` the segment's length and ``C_GIVEN`` set, the actions being
+the motor's Ω̇ (or the voltage command) in force during the segment.
 
 Two paths, one result: a ball whose adaptive integrator will cover the control period in a
 single step (nearly every step after an episode's first) is gathered with others of its
@@ -32,12 +36,17 @@ travel as the records `integrators.Tableau` and `integrators.StepControl`):
 | ``cfg`` (CFG_WIDTH,) | ``C_DT`` | control period [s] |
 | | ``C_MAX_ACCEL``, ``C_OMEGA_MAX`` | motor limits [rad/s², rad/s] |
 | | ``C_TARGET_MODE`` | 1: the action is a target speed; 0: an acceleration |
+| | ``C_VOLTAGE_MODE`` | 1: the action is a voltage; Ω relaxes to K·V with time constant τ |
+| | ``C_MOTOR_TOP``, ``C_MOTOR_RATE`` | K·V_max [rad/s] and 1/τ [1/s] (voltage mode) |
+| | ``C_GIVEN`` | 1: the actions are Ω̇ [rad/s²] as given (voltage: the command); see above |
 | | ``C_LAB_FRAME`` | 1: observe in the laboratory frame |
 | | ``C_POS_SCALE``, ``C_VEL_SCALE`` | observation scales [m, m/s] |
 | | ``C_RIPPLE_AMP``, ``C_RIPPLE_FREQ`` | the motor's ripple [rad/s, rad/s] |
 | | ``C_LOSS``, ``C_DIST_COST``, ``C_EFFORT_COST`` | reward terms |
 | | ``C_LOCKSTEP`` | 1: step balls in SIMD blocks where they fit |
 | | ``C_OBS_OMEGA``, ``C_OBS_COMMAND``, ``C_OBS_COS`` | `observation.layout` columns (-1: none) |
+| | ``C_OBS_VEL`` | 1: velocities in columns 2, 3; 0: a camera, positions only |
+| | ``C_POS_QUANTUM`` | positions rounded to multiples of it / ``C_POS_SCALE`` (0: not) |
 """
 
 from __future__ import annotations
@@ -50,6 +59,8 @@ import numpy as np
 
 from .._kernels import (
     DRIVE_AMP,
+    DRIVE_DECAY,
+    DRIVE_DECAY_RATE,
     DRIVE_FREQ,
     DRIVE_FX,
     DRIVE_FY,
@@ -93,8 +104,9 @@ O_STATUS, O_TIME, O_NORMAL, O_REWARD, O_TRAPPED = range(5)
 OUT_WIDTH = 5
 (C_DT, C_MAX_ACCEL, C_OMEGA_MAX, C_TARGET_MODE, C_LAB_FRAME, C_POS_SCALE, C_VEL_SCALE,
  C_RIPPLE_AMP, C_RIPPLE_FREQ, C_LOSS, C_DIST_COST, C_EFFORT_COST, C_LOCKSTEP, C_OBS_OMEGA,
- C_OBS_COMMAND, C_OBS_COS) = range(16)
-CFG_WIDTH = 16
+ C_OBS_COMMAND, C_OBS_COS, C_VOLTAGE_MODE, C_MOTOR_TOP, C_MOTOR_RATE, C_GIVEN, C_OBS_VEL,
+ C_POS_QUANTUM) = range(22)
+CFG_WIDTH = 22
 
 MIN_BLOCK = 4  # fewest balls worth a SIMD block (measured crossover: 4-8 balls)
 
@@ -105,7 +117,11 @@ ScalarScratch = namedtuple("ScalarScratch", "t_out Y_out stats dy work drive")
 
 @jit
 def omega_rate(cfg, omega, action):
-    """Ω̇ for this step: the motor's response to the action, keeping Ω in [0, omega_max]."""
+    """Ω̇ for this step: the motor's response to the action, keeping Ω in [0, omega_max]
+    (with ``C_GIVEN`` the action is Ω̇ itself, worked out by `command_rates` when the
+    command took effect)."""
+    if cfg[C_GIVEN] != 0.0:
+        return action
     dt = cfg[C_DT]
     amax = cfg[C_MAX_ACCEL]
     wmax = cfg[C_OMEGA_MAX]
@@ -147,10 +163,15 @@ def observe_one(model, p, y, ball, cfg, noise, obs):
     if k_cos >= 0:
         obs[k_cos] = min(1.0, max(-1.0, ct + noise[k_cos]))
         obs[k_cos + 1] = min(1.0, max(-1.0, st + noise[k_cos + 1]))
-    obs[0] = min(POS_BOUND, max(-POS_BOUND, vals[0] / L + noise[0]))
-    obs[1] = min(POS_BOUND, max(-POS_BOUND, vals[1] / L + noise[1]))
-    obs[2] = min(VEL_BOUND, max(-VEL_BOUND, vals[2] / V + noise[2]))
-    obs[3] = min(VEL_BOUND, max(-VEL_BOUND, vals[3] / V + noise[3]))
+    px, py = vals[0] / L + noise[0], vals[1] / L + noise[1]
+    q = cfg[C_POS_QUANTUM]
+    if q > 0.0:  # a camera's pixels (q in units of C_POS_SCALE)
+        px, py = round(px / q) * q, round(py / q) * q
+    obs[0] = min(POS_BOUND, max(-POS_BOUND, px))
+    obs[1] = min(POS_BOUND, max(-POS_BOUND, py))
+    if cfg[C_OBS_VEL] != 0.0:
+        obs[2] = min(VEL_BOUND, max(-VEL_BOUND, vals[2] / V + noise[2]))
+        obs[3] = min(VEL_BOUND, max(-VEL_BOUND, vals[3] / V + noise[3]))
     k_omega = int(cfg[C_OBS_OMEGA])
     obs[k_omega] = min(OMEGA_HIGH, max(OMEGA_LOW, omega / cfg[C_OMEGA_MAX] + noise[k_omega]))
     k_cmd = int(cfg[C_OBS_COMMAND])
@@ -161,9 +182,19 @@ def observe_one(model, p, y, ball, cfg, noise, obs):
 @jit
 def _drive(ball, cfg, action, drive):
     """Fill this control step's drive row (Ω ramping at the motor's response to the action,
-    ripple, saddle angle, air force) and return the ramp rate Ω̇."""
-    rate = omega_rate(cfg, ball[B_OMEGA], action)
-    drive[DRIVE_W0] = ball[B_OMEGA]
+    ripple, saddle angle, air force) and return the ramp rate Ω̇ (0 for a voltage, whose
+    exponential approach to K·V the row carries)."""
+    if cfg[C_VOLTAGE_MODE] != 0.0:
+        steady = 0.5 * (action + 1.0) * cfg[C_MOTOR_TOP]   # K·V, V = (action + 1)/2 · V_max
+        rate = 0.0
+        drive[DRIVE_W0] = steady
+        drive[DRIVE_DECAY] = ball[B_OMEGA] - steady
+        drive[DRIVE_DECAY_RATE] = cfg[C_MOTOR_RATE]
+    else:
+        rate = omega_rate(cfg, ball[B_OMEGA], action)
+        drive[DRIVE_W0] = ball[B_OMEGA]
+        drive[DRIVE_DECAY] = 0.0
+        drive[DRIVE_DECAY_RATE] = 0.0
     drive[DRIVE_RATE] = rate
     drive[DRIVE_AMP] = cfg[C_RIPPLE_AMP]
     drive[DRIVE_FREQ] = cfg[C_RIPPLE_FREQ]
@@ -181,7 +212,11 @@ def _finish(model, p, y, ball, cfg, events, action, drive, rate, status, t_end, 
     reward and observation. ``normal``: N/m at the final state as the integrator left it
     (used when the step completed with detachment ``events`` on)."""
     dt = cfg[C_DT]
-    ball[B_OMEGA] += rate * t_end
+    if drive[DRIVE_DECAY] != 0.0:  # the voltage-driven motor: closed form, as the ODE saw it
+        ball[B_OMEGA] = drive[DRIVE_W0] + drive[DRIVE_DECAY] * math.exp(
+            -drive[DRIVE_DECAY_RATE] * t_end)
+    else:
+        ball[B_OMEGA] += rate * t_end
     ball[B_THETA] = angle_at(drive, t_end)
     ball[B_PHASE] += cfg[C_RIPPLE_FREQ] * t_end
     ball[B_TIME] += t_end
@@ -564,6 +599,24 @@ def episode_flags(active, out, steps, max_steps, terminated, truncated, rewards)
             terminated[i] = False
             truncated[i] = False
             rewards[i] = 0.0
+
+
+@jit
+def command_rates(cfg, balls, commands, active, rates):
+    """When commands take effect (delays: `engine.DelayPlan`): ``rates[i]`` is what the
+    segments of a split control period pass the step with ``C_GIVEN`` until the next command:
+    Ω̇ for the whole control period from Ω now (`omega_rate` with ``cfg``, the undelayed
+    configuration), 0 for a NaN command (before the first command arrives the motor holds its
+    speed); in voltage mode the command itself."""
+    for i in range(balls.shape[0]):
+        if active[i]:
+            a = commands[i]
+            if cfg[C_VOLTAGE_MODE] != 0.0:
+                rates[i] = a
+            elif math.isnan(a):
+                rates[i] = 0.0
+            else:
+                rates[i] = omega_rate(cfg, balls[i, B_OMEGA], a)
 
 
 @jit

@@ -14,11 +14,24 @@ from ..scene import CONTACT_MODELS, Scene, _finite_number
 
 # The paper's three polyfoam balls [m].
 PAPER_BALL_RADII = (0.0223, 0.0265, 0.0330)
+# Still air at room temperature [kg/m³] and a smooth sphere's drag coefficient at the
+# Reynolds numbers of a ball on the saddle (|u| ~ 0.1-1 m/s, d ~ 5 cm: Re ~ 300-3000), for
+# ``ball_density``'s quadratic drag.
+AIR_DENSITY = 1.2
+SPHERE_DRAG_COEFFICIENT = 0.47
+
+
+def quadratic_drag(R: float, density: float) -> float:
+    """Quadratic air drag per unit mass [1/m] of a ball of radius ``R`` [m] and ``density``
+    [kg/m³]: ½ ρ_a C_d π R² |u| u / (ρ_b 4/3 π R³) = 3 C_d ρ_a / (8 ρ_b R) (`Scene`'s
+    ``drag_quadratic``)."""
+    return 3.0 * SPHERE_DRAG_COEFFICIENT * AIR_DENSITY / (8.0 * density * R)
 # Every physical parameter is a field of `Scene` and an option of the environment by the
 # same name; the scene validates them (tests/test_levels.py checks the two agree).
 SCENE_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Scene))
 
-ActionMode = Literal["acceleration", "target"]
+ActionMode = Literal["acceleration", "target", "voltage"]
+ACTION_MODES = ("acceleration", "target", "voltage")
 ObsFrame = Literal["rotating", "lab"]
 
 
@@ -49,14 +62,37 @@ class EnvConfig:
     Control: ``control_period`` [s] (20 ms); ``max_accel`` [rad/s²], the motor's limit on
     |Ω̇| (20: 0 → 45 s⁻¹ in 2.25 s); ``omega_max`` [rad/s], the motor's top speed (45, about
     what the paper's apparatus reached); ``action_mode``: ``"acceleration"`` (action × max_accel
-    is Ω̇) or ``"target"`` (the action picks a target speed in [0, omega_max], approached at
-    up to max_accel).
+    is Ω̇), ``"target"`` (the action picks a target speed in [0, omega_max], approached at
+    up to max_accel) or ``"voltage"`` (a DC motor: the action picks a voltage
+    V = (action + 1)/2 · ``voltage_max`` and Ω follows τ Ω̇ = K V − Ω, τ = ``motor_tau`` [s],
+    K = ``motor_gain`` [rad/s/V]; K · voltage_max must not exceed omega_max).
+
+    The motor's defaults are estimates for the paper's rig (a 24 V DC motor turning a
+    3D-printed saddle; the paper gives neither its inertia nor the motor's data):
+    ``voltage_max`` = 24 V (the paper's 0-24 V); ``motor_gain`` = 45 / 24 = 1.875 rad/s/V:
+    about the top speed the apparatus reached (43.6 s⁻¹ in the paper's detachment snapshots;
+    ``omega_max`` = 45) at 24 V, taking Ω proportional to V (no dead band);
+    ``motor_tau`` = 0.25 s, the mechanical time constant τ = J ω_nl / T_stall of a small
+    24 V gearmotor (no-load 45 rad/s, stall torque about 1 N·m at the output) driving
+    J ≈ 5.5e-3 kg·m² (a 0.4 kg PLA saddle of radius 0.15 m as a disc, ½ m r² = 4.5e-3, plus
+    about 1e-3 of rotor inertia reflected through the gearbox): an estimate good to a factor
+    of two, not a measurement.
+
+    Delays (0 by default; any non-negative value, exact, not rounded to a control period):
+    ``obs_delay`` [s], the camera's latency: the observation after a step is the state at
+    t − obs_delay (before the episode's start, the starting state); ``action_delay`` [s]: a
+    command takes effect that long after it is given (until the first does, the motor holds
+    its starting speed). The integration of a control period is split where a sample is
+    taken or a command takes effect (`engine.DelayPlan`).
 
     Observation: ``obs_frame`` ``"rotating"`` or ``"lab"``; sensor noise standard deviations
     ``position_noise`` [m], ``velocity_noise`` [m/s], ``omega_noise`` [rad/s];
     ``observe_command`` adds the commanded speed (exact: the motor controller's own
     set-point) and ``observe_angle`` the saddle's angle as cos θ, sin θ (the lab frame always
     has it); ``obs_history`` k (1-64) makes the observation the last k frames, newest first.
+    A camera: ``observe_velocity=False`` leaves the velocities out (positions only; the
+    ball's spin is never observed) and ``position_quantum`` [m] rounds the positions to a
+    pixel's size (0: not rounded).
     Layout: `saddle_env.envs.observation`.
 
     Episode start (the ball placed by hand near the centre): offset uniform in a disc of
@@ -66,7 +102,9 @@ class EnvConfig:
     e.g. `PAPER_BALL_RADII`), ``a_range`` ((low, high) for the saddle length, b = a
     unless ``b`` is given), ``contact_models`` (a tuple to draw from) and ``mu_range``
     ((low, high): a coulomb ball's kinetic friction coefficient, uniform; its static one is
-    ``mu_static`` if given, else equal).
+    ``mu_static`` if given, else equal). ``ball_density`` [kg/m³] (None: off) gives every
+    ball, drawn or not, the quadratic air drag of its size (`quadratic_drag`: still air of
+    1.2 kg/m³, C_d 0.47) in place of ``drag_quadratic``.
 
     Reward per step: the fraction of the step the ball stayed trapped, minus
     ``distance_cost``·(r/rim)², minus ``effort_cost``·action², minus ``loss_penalty`` when the
@@ -101,12 +139,19 @@ class EnvConfig:
     max_accel: float = 20.0
     omega_max: float = 45.0
     action_mode: str = "acceleration"
+    voltage_max: float = 24.0
+    motor_gain: float = 1.875
+    motor_tau: float = 0.25
+    obs_delay: float = 0.0
+    action_delay: float = 0.0
     obs_frame: str = "rotating"
     position_noise: float = 0.0
     velocity_noise: float = 0.0
     omega_noise: float = 0.0
     observe_command: bool = False
     observe_angle: bool = False
+    observe_velocity: bool = True
+    position_quantum: float = 0.0
     obs_history: int = 1
     init_offset: float = 0.01
     init_start: str = "lab-rest"
@@ -116,6 +161,7 @@ class EnvConfig:
     a_range: tuple[float, float] | None = None
     contact_models: tuple[str, ...] | None = None
     mu_range: tuple[float, float] | None = None
+    ball_density: float | None = None
     loss_penalty: float = 10.0
     distance_cost: float = 0.0
     effort_cost: float = 0.0
@@ -128,9 +174,14 @@ class EnvConfig:
     substep: float | None = None
 
     def __post_init__(self) -> None:
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
+        if self.ball_density is not None:
+            set_("ball_density", _positive("ball_density", self.ball_density))
+            if self.drag_quadratic != 0.0:
+                raise ValueError("give drag_quadratic or ball_density (which sets each ball's "
+                                 "quadratic drag from its size), not both")
         # Scene parameters are validated by building the nominal scene.
         self.scene()
-        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
         # The friction coefficients reach only coulomb balls' scenes: check them here too.
         for name in ("mu", "mu_static"):
             if getattr(self, name) is not None:
@@ -142,21 +193,37 @@ class EnvConfig:
             raise ValueError(f"control_period must be <= 1 s, got {self.control_period}")
         set_("max_accel", _positive("max_accel", self.max_accel))
         set_("omega_max", _positive("omega_max", self.omega_max))
-        if self.action_mode not in ("acceleration", "target"):
-            raise ValueError(f"action_mode must be 'acceleration' or 'target', got {self.action_mode!r}")
+        if self.action_mode not in ACTION_MODES:
+            raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {self.action_mode!r}")
+        for name in ("voltage_max", "motor_gain", "motor_tau"):
+            set_(name, _positive(name, getattr(self, name)))
+        if self.action_mode == "voltage" and \
+                self.motor_gain * self.voltage_max > self.omega_max * (1 + 1e-12):
+            raise ValueError(f"motor_gain * voltage_max (the motor's top speed, "
+                             f"{self.motor_gain * self.voltage_max:g} rad/s) must be <= "
+                             f"omega_max = {self.omega_max:g} in voltage mode")
+        for name in ("obs_delay", "action_delay"):
+            set_(name, _positive(name, getattr(self, name), allow_zero=True))
+            if getattr(self, name) > 10.0:
+                raise ValueError(f"{name} must be <= 10 s, got {getattr(self, name)}")
         if self.obs_frame not in ("rotating", "lab"):
             raise ValueError(f"obs_frame must be 'rotating' or 'lab', got {self.obs_frame!r}")
-        for name in ("observe_command", "observe_angle"):
+        for name in ("observe_command", "observe_angle", "observe_velocity"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
             set_(name, bool(getattr(self, name)))
+        if self.observe_command and self.action_mode == "voltage":
+            # the column would hold the motor's true speed: no set-point exists to observe
+            raise ValueError("observe_command needs a speed servo (action_mode 'acceleration' "
+                             "or 'target'); a voltage-driven motor has no commanded speed (the "
+                             "controller knows the voltage it gave)")
         k = self.obs_history
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= 64:
             raise ValueError(f"obs_history must be an integer in [1, 64], got {k!r}")
         set_("obs_history", int(k))
         for name in ("position_noise", "velocity_noise", "omega_noise", "init_offset",
                      "init_speed", "loss_penalty", "distance_cost", "effort_cost",
-                     "air_force", "ripple_amp", "ripple_freq"):
+                     "air_force", "ripple_amp", "ripple_freq", "position_quantum"):
             set_(name, _positive(name, getattr(self, name), allow_zero=True))
         set_("air_force_tau", _positive("air_force_tau", self.air_force_tau))
         if self.init_speed > self.max_start_speed:
@@ -170,6 +237,11 @@ class EnvConfig:
         if high > self.omega_max:
             raise ValueError(f"omega0_range must lie within [0, omega_max = {self.omega_max}], "
                              f"got ({low}, {high})")
+        top = self.motor_gain * self.voltage_max   # the voltage-driven motor's top speed
+        if self.action_mode == "voltage" and high > top * (1 + 1e-12):
+            raise ValueError(f"omega0_range must lie within [0, motor_gain * voltage_max = "
+                             f"{self.motor_gain * self.voltage_max:g}] in voltage mode (the "
+                             f"motor holds its start speed), got ({low}, {high})")
         set_("omega0_range", (low, high))
         if self.ball_radii is not None:
             if not isinstance(self.ball_radii, (tuple, list)):
@@ -232,6 +304,8 @@ class EnvConfig:
         """The nominal scene (or one with randomised parameters changed)."""
         kw = {name: getattr(self, name) for name in SCENE_FIELDS}
         kw.update(changes)
+        if self.ball_density is not None and isinstance(kw["R"], (int, float)) and kw["R"] > 0:
+            kw["drag_quadratic"] = quadratic_drag(float(kw["R"]), self.ball_density)
         if kw["contact"] != "coulomb":  # friction coefficients belong to coulomb balls only
             kw["mu"] = kw["mu_static"] = None
         elif kw["mu"] is None and self.mu_range is not None:

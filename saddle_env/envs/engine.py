@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from itertools import pairwise
 from typing import Literal, TypedDict, cast
 
 import numba
@@ -33,6 +34,52 @@ from ..simulate import SimulationError, default_max_step
 from . import _step as S
 from .config import EnvConfig
 from .observation import VELOCITY_SCALE, layout
+
+
+class DelayPlan:
+    """Where a control period is split so that delays are exact.
+
+    With period T, a delay d = m·T + f (0 <= f < T) is m whole periods plus a fraction:
+
+    * ``obs_delay``: the observation after period j is the state at (j + 1)·T − d, which lies
+      in period j − m at offset T − f; each period takes a sample there (the end of the
+      period when f = 0) and the observation is the sample taken m periods before.
+    * ``action_delay``: the command given at the start of period j takes effect at offset f
+      of period j + m and stays in force for one control period, so a period runs the
+      command given m + 1 periods before until f and the one given m before after it.
+
+    ``segments`` are the (start, end) offsets of the pieces a period is integrated in; the
+    integrator restarts at each cut, which is exact to its tolerance. A delay within 1e-9 of
+    a whole number of periods counts as whole (0.06 s / 0.02 s is 2.9999999999999996).
+    """
+
+    def __init__(self, config: EnvConfig):
+        T = config.control_period
+        self.period = T
+        self.obs_periods, obs_frac = _whole_and_fraction(config.obs_delay, T)
+        self.act_periods, act_frac = _whole_and_fraction(config.action_delay, T)
+        # Cuts closer than 1e-9 periods are one (0.03 s − 0.02 s is 0.009999999999999998, and a
+        # 2e-18 s segment is no step an integrator can take).
+        cuts: list[float] = []
+        for cut in sorted({0.0, T, T - obs_frac, act_frac}):
+            if not cuts or cut - cuts[-1] > 1e-9 * T:
+                cuts.append(cut)
+        cuts[-1] = T
+        snap = lambda v: min(cuts, key=lambda cut: abs(cut - v))  # noqa: E731
+        self.sample_at = snap(T - obs_frac)   # offset of the period's sample (T: its end)
+        self.switch_at = snap(act_frac)       # offset where the next command takes effect
+        self.segments = tuple(pairwise(cuts))
+        self.active = config.obs_delay > 0 or config.action_delay > 0
+
+
+def _whole_and_fraction(delay: float, period: float) -> tuple[int, float]:
+    q = delay / period
+    m = round(q)
+    if abs(q - m) <= 1e-9:
+        return int(m), 0.0
+    m = math.floor(q)
+    return int(m), delay - m * period
+
 
 RESET_OPTION_KEYS = ("x", "y", "vx", "vy", "omega", "R", "a", "contact", "start", "spin_normal")
 MAX_STEPS_PER_CONTROL_STEP = 100_000  # integrator steps before a control step counts as failed
@@ -107,6 +154,9 @@ class TrapEngine:
         self._scene_cache: dict[tuple, tuple[Scene, np.ndarray, np.ndarray]] = {}
         self._noise_scale = self._build_noise_scale(config)
         self._air_decay = math.exp(-config.control_period / config.air_force_tau)
+        self.delays = DelayPlan(config)
+        if self.delays.active:
+            self._init_delays()
         # Scratch memory for the compiled step, allocated once rather than on every step: one
         # row for the serial step, one per chunk in parallel.
         self._scratch, self._iscratch = (a[0] for a in self._new_scratch(1))
@@ -141,7 +191,8 @@ class TrapEngine:
     @lockstep.setter
     def lockstep(self, on: bool) -> None:
         self._lockstep = bool(on)
-        self.cfg[S.C_LOCKSTEP] = 1.0 if on else 0.0
+        for cfg in (self.cfg, *getattr(self, "_seg_cfgs", ())):
+            cfg[S.C_LOCKSTEP] = 1.0 if on else 0.0
 
     def _chunks(self) -> int:
         """Up to four chunks per thread for load balance, each at least one full SIMD block."""
@@ -150,6 +201,33 @@ class TrapEngine:
     def _new_scratch(self, rows: int) -> tuple[np.ndarray, np.ndarray]:
         return (np.zeros((rows, S.scratch_size(self.method.stages))),
                 np.zeros((rows, 4 + S.LANES), dtype=np.int64))
+
+    @property
+    def delay_arrays(self) -> tuple[str, ...]:
+        """Names of the per-ball arrays (rows by ball) the delays keep beside the ball rows:
+        what a copy of a ball's state must carry too (the clairvoyant reference's copies)."""
+        return ("_commands", "_in_force", "_samples") if self.delays.active else ()
+
+    def _init_delays(self) -> None:
+        """The queues of the delayed step (`_step_delayed`): commands given, newest first
+        (NaN: none yet, the motor holds its speed), the Ω̇ (or voltage) in force, and the
+        observation samples, newest first."""
+        plan = self.delays
+        self._commands = np.full((self.n, plan.act_periods + 2), np.nan)
+        self._in_force = np.zeros(self.n)
+        self._samples = np.zeros((self.n, plan.obs_periods + 1, self.frame_dim),
+                                 dtype=np.float32)
+        self._covered = np.zeros(self.n)
+        self._seg_active = np.zeros(self.n, dtype=bool)
+        # One configuration vector per segment: its length as the period, the actions given
+        # as Ω̇ (`_step.C_GIVEN`); the effort is charged once per period on the command.
+        self._seg_cfgs = []
+        for lo, hi in plan.segments:
+            cfg = self.cfg.copy()
+            cfg[S.C_DT] = hi - lo
+            cfg[S.C_GIVEN] = 1.0
+            cfg[S.C_EFFORT_COST] = 0.0
+            self._seg_cfgs.append(cfg)
 
     # -- configuration -------------------------------------------------------------------
     @staticmethod
@@ -167,6 +245,9 @@ class TrapEngine:
         cfg[S.C_MAX_ACCEL] = c.max_accel
         cfg[S.C_OMEGA_MAX] = c.omega_max
         cfg[S.C_TARGET_MODE] = 1.0 if c.action_mode == "target" else 0.0
+        cfg[S.C_VOLTAGE_MODE] = 1.0 if c.action_mode == "voltage" else 0.0
+        cfg[S.C_MOTOR_TOP] = c.motor_gain * c.voltage_max
+        cfg[S.C_MOTOR_RATE] = 1.0 / c.motor_tau
         cfg[S.C_LAB_FRAME] = 1.0 if c.obs_frame == "lab" else 0.0
         cfg[S.C_POS_SCALE] = c.rim_radius
         cfg[S.C_VEL_SCALE] = VELOCITY_SCALE
@@ -178,6 +259,8 @@ class TrapEngine:
         cfg[S.C_LOCKSTEP] = 1.0 if self._lockstep else 0.0
         lay = layout(c)
         cfg[S.C_OBS_OMEGA] = lay.omega
+        cfg[S.C_OBS_VEL] = 1.0 if lay.vx is not None else 0.0
+        cfg[S.C_POS_QUANTUM] = c.position_quantum / c.rim_radius
         cfg[S.C_OBS_COMMAND] = -1 if lay.command is None else lay.command
         # In the lab frame the angle is always observed; in the rotating frame on request.
         cfg[S.C_OBS_COS] = -1 if lay.cos is None else lay.cos
@@ -188,7 +271,8 @@ class TrapEngine:
             return None
         scale = np.zeros(self.frame_dim)
         scale[:2] = c.position_noise / c.rim_radius
-        scale[2:4] = c.velocity_noise / VELOCITY_SCALE
+        if self.layout.vx is not None:
+            scale[2:4] = c.velocity_noise / VELOCITY_SCALE
         scale[self.layout.omega] = c.omega_noise / c.omega_max
         return scale
 
@@ -257,6 +341,8 @@ class TrapEngine:
         args = (idx, self.models, self.P, self.Y, self.balls, self.cfg, x, y, vx, vy, lab_rest,
                 spin, self.noise, self.frame, self.out)
         self._entry("place", args)(*args)
+        if self.delays.active:
+            self._reset_delays(idx)
         if self.obs is not self.frame:  # a new episode's history: its first frame, k times
             self.obs[idx] = np.tile(self.frame[idx], self.layout.frames)
         bad = ~np.isfinite(self.Y[idx]).all(axis=1)
@@ -279,6 +365,20 @@ class TrapEngine:
                 f"(x = {x[j]:g}, y = {y[j]:g} m, vx = {vx[j]:g}, vy = {vy[j]:g} m/s, omega = "
                 f"{self.balls[i, S.B_OMEGA]:g} rad/s): the ball would leave the surface at "
                 f"once; start nearer the centre, slower, or at a lower omega")
+
+    def _reset_delays(self, idx: np.ndarray) -> None:
+        """Empty queues for a new episode: no command given yet (a voltage-driven motor
+        holds its start speed on the voltage that keeps it there) and every sample the
+        starting state (what the camera shows of times before the start)."""
+        c = self.config
+        hold = np.nan
+        for i in idx:
+            if c.action_mode == "voltage":
+                top = c.motor_gain * c.voltage_max
+                hold = min(1.0, 2.0 * self.balls[i, S.B_OMEGA] / top - 1.0)
+            self._commands[i] = hold
+            self._in_force[i] = 0.0 if math.isnan(hold) else hold
+            self._samples[i] = self.frame[i]
 
     def _draw_scene(self, rng: np.random.Generator,
                     opts: Mapping[str, object]) -> tuple[Scene, np.ndarray, np.ndarray]:
@@ -336,7 +436,52 @@ class TrapEngine:
                 f[:] = self._air_decay * f + rngs[int(i)].normal(0.0, kick_std, size=2)
         if self._noise_scale is not None:
             self._draw_noise(rngs, active)
-        args = (self.models, self.P, self.scales, self.Y, self.balls, self.cfg, actions, active,
+        if self.delays.active:
+            self._step_delayed(actions, active)
+        else:
+            self._run(self.cfg, actions, active)
+        if self.obs is not self.frame:
+            self._push_frames(active)
+
+    def _step_delayed(self, actions: np.ndarray, active: np.ndarray) -> None:
+        """One control period in the segments of `DelayPlan`: the command queue advanced,
+        each segment stepped with the Ω̇ (or voltage) in force, the sample taken where it
+        falls, the outputs of the segments combined into the period's (trapped fraction,
+        reward), and the observation the sample of ``obs_periods`` periods before."""
+        plan, c = self.delays, self.config
+        cmds = self._commands
+        rows = np.flatnonzero(active)
+        cmds[rows, 1:] = cmds[rows, :-1]
+        cmds[rows, 0] = actions[rows]
+        seg_active = self._seg_active
+        seg_active[:] = active
+        covered = self._covered
+        covered[:] = 0.0
+        for (lo, hi), cfg in zip(plan.segments, self._seg_cfgs):
+            if lo == plan.switch_at:  # the next command takes effect
+                S.command_rates(self.cfg, self.balls, np.ascontiguousarray(
+                    cmds[:, plan.act_periods]), seg_active, self._in_force)
+            if seg_active.any():
+                self._run(cfg, self._in_force, seg_active)
+                covered[seg_active] += self.out[seg_active, S.O_TIME]
+            if hi == plan.sample_at:
+                samples = self._samples
+                samples[rows, 1:] = samples[rows, :-1]
+                samples[rows, 0] = self.frame[rows]
+            # A ball lost in this segment is not stepped further this period.
+            seg_active &= self.out[:, S.O_STATUS] == 0
+        out = self.out[rows]
+        lost = out[:, S.O_STATUS] != 0
+        trapped = np.where(lost, covered[rows] / plan.period, 1.0)
+        out[:, S.O_REWARD] += trapped - out[:, S.O_TRAPPED] - c.effort_cost * actions[rows] ** 2
+        out[:, S.O_TRAPPED] = trapped
+        out[:, S.O_TIME] = covered[rows]
+        self.out[rows] = out
+        self.frame[rows] = self._samples[rows, plan.obs_periods]
+
+    def _run(self, cfg: np.ndarray, actions: np.ndarray, active: np.ndarray) -> None:
+        """The compiled step of the ``active`` balls over ``cfg``'s period."""
+        args = (self.models, self.P, self.scales, self.Y, self.balls, cfg, actions, active,
                 *self._record_fields, self.noise, self.frame, self.out)
         if self.parallel and threads_usable():
             chunks = self._chunks()
@@ -356,8 +501,6 @@ class TrapEngine:
             raise SimulationError(
                 f"ball {bad}: integration failed at t = {self.balls[bad, S.B_TIME]:.6f} s "
                 f"({why}); scene {self.scenes[bad]}")
-        if self.obs is not self.frame:
-            self._push_frames(active)
 
     def _per_ball(self, name: str, values, dtype) -> np.ndarray:
         """``values`` as a contiguous vector of ``dtype``, one per ball (what the compiled

@@ -17,6 +17,11 @@ reads them back into physics states (the model-predictive controller's state est
 "Measured" Ω carries the motor's ripple and the tachometer's noise; the commanded speed is
 what the motor controller asked for, which it knows exactly.
 
+A camera (``observe_velocity=False``) sees positions only: columns 2 and 3 are left out and
+every later column moves two to the left (the ball's own spin is never observed). With
+``position_quantum`` q [m] the positions, noise included, are rounded to multiples of q (a
+pixel's size on the saddle) before scaling.
+
 With ``obs_history`` k > 1 the observation is the last k such frames, newest first
 (k·d columns; a new episode starts with its first frame repeated): a controller that must
 infer what it cannot see (a steady air current, the ball's size) gets a short memory
@@ -53,8 +58,10 @@ class ObsLayout:
     cos: int | None            # saddle angle θ: cos θ at ``cos``, sin θ at ``cos + 1``
     command: int | None        # commanded speed / omega_max
     lab_frame: bool
+    vx: int | None = 2         # centre velocity (None: a camera, positions only)
+    vy: int | None = 3
 
-    x, y, vx, vy = 0, 1, 2, 3
+    x, y = 0, 1
 
     @property
     def dim(self) -> int:
@@ -78,17 +85,19 @@ class ObsLayout:
 def layout(config: EnvConfig) -> ObsLayout:
     """The observation layout of ``config`` (see the module's table)."""
     lab = config.obs_frame == "lab"
+    vel = 0 if config.observe_velocity else -2   # a camera: no columns 2, 3
     if lab:
-        omega, cos, k = 6, 4, 7
+        omega, cos, k = 6 + vel, 4 + vel, 7 + vel
     else:
-        omega, cos, k = 4, None, 5
+        omega, cos, k = 4 + vel, None, 5 + vel
     command = None
     if config.observe_command:
         command, k = k, k + 1
     if config.observe_angle and not lab:
         cos, k = k, k + 2
     return ObsLayout(frame_dim=k, frames=config.obs_history, omega=omega, cos=cos,
-                     command=command, lab_frame=lab)
+                     command=command, lab_frame=lab, vx=2 if vel == 0 else None,
+                     vy=3 if vel == 0 else None)
 
 
 def observation_space(config: EnvConfig) -> spaces.Box:
@@ -97,7 +106,8 @@ def observation_space(config: EnvConfig) -> spaces.Box:
     low = np.empty(lay.frame_dim, dtype=np.float32)
     high = np.empty(lay.frame_dim, dtype=np.float32)
     low[:2], high[:2] = -POS_BOUND, POS_BOUND
-    low[2:4], high[2:4] = -VEL_BOUND, VEL_BOUND
+    if lay.vx is not None:
+        low[2:4], high[2:4] = -VEL_BOUND, VEL_BOUND
     low[lay.omega], high[lay.omega] = OMEGA_LOW, OMEGA_HIGH
     if lay.cos is not None:
         low[lay.cos:lay.cos + 2], high[lay.cos:lay.cos + 2] = -1.0, 1.0
@@ -163,6 +173,10 @@ def states_from_observations(config: EnvConfig, model: int, params: np.ndarray,
     the environment places balls). A noise-free, unclipped observation gives back the state
     up to its float32 rounding."""
     lay = layout(config)
+    if lay.vx is None:
+        raise ValueError("states_from_observations needs velocities: this configuration "
+                         "observes positions only (observe_velocity=False); estimate them "
+                         "from successive positions first")
     n = len(obs)
     Y = np.zeros((n, K.STATE_WIDTH))
     omega = np.zeros(n)
