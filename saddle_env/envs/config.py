@@ -90,8 +90,8 @@ class EnvConfig:
     ``observe_command`` adds the commanded speed (exact: the motor controller's own
     set-point) and ``observe_angle`` the saddle's angle as cos θ, sin θ (the lab frame always
     has it); ``obs_history`` k (1-64) makes the observation the last k frames, newest first.
-    A camera: ``observe_velocity=False`` leaves the velocities out (positions only; the
-    ball's spin is never observed) and ``position_quantum`` [m] rounds the positions to a
+    A camera: ``observe_velocity`` (True) set False leaves the velocities out (positions
+    only; the ball's spin is never observed) and ``position_quantum`` [m] rounds the positions to a
     pixel's size (0: not rounded).
     Layout: `saddle_env.envs.observation`.
 
