@@ -137,7 +137,7 @@ ENTRY_POINTS = {
 MUST_REJECT = {"nan", "inf", "-inf", "str", "object", "dict", "complex", "nan-array", "bool"}
 OPTIONAL = {"b", "dt_out", "method", "rtol", "atol", "dt", "max_step", "start", "omega_max",
             "tol", "ball_radii", "a_range", "contact_models", "substep", "mu", "mu_static",
-            "mu_range"}  # None: the default
+            "mu_range", "ball_density"}  # None: the default
 SEQUENCES = {"omega", "force", "events", "state", "states", "t", "centre_state",
              "omega0_range", "ball_radii", "a_range"}
 VALID_SPECIAL = {("Scene", "rim_radius", "inf"),        # an unbounded saddle

@@ -19,6 +19,7 @@ PAPER_BALL_RADII = (0.0223, 0.0265, 0.0330)
 # ``ball_density``'s quadratic drag.
 AIR_DENSITY = 1.2
 SPHERE_DRAG_COEFFICIENT = 0.47
+BALL_DENSITY_RANGE = (1.0, 25_000.0)  # kg/m³ a ball may have (ball_density)
 
 
 def quadratic_drag(R: float, density: float) -> float:
@@ -176,7 +177,12 @@ class EnvConfig:
     def __post_init__(self) -> None:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
         if self.ball_density is not None:
-            set_("ball_density", _positive("ball_density", self.ball_density))
+            density = _positive("ball_density", self.ball_density)
+            # From aerogel to tungsten: outside it the drag formula over- or underflows.
+            if not BALL_DENSITY_RANGE[0] <= density <= BALL_DENSITY_RANGE[1]:
+                raise ValueError(f"ball_density must be in [{BALL_DENSITY_RANGE[0]:g}, "
+                                 f"{BALL_DENSITY_RANGE[1]:g}] kg/m^3, got {density}")
+            set_("ball_density", density)
             if self.drag_quadratic != 0.0:
                 raise ValueError("give drag_quadratic or ball_density (which sets each ball's "
                                  "quadratic drag from its size), not both")
