@@ -30,7 +30,7 @@ import numpy as np
 from agents.benchmark.report import clairvoyant_reference
 from agents.evaluation.model_files import TRUST_FLAG
 from agents.evaluation.policies import is_exported_folder, load_policy
-from agents.evaluation.user_code import source_digest
+from agents.evaluation.user_code import parse_policy_kwargs, source_digest
 from agents.paths import DOCS_DIR, MODELS_DIR, REPO_ROOT
 from agents.seeds import SEARCH_SEED, TEST_SEED, VALIDATION_SEED
 from saddle_env.envs import LEVELS, EnvConfig, get_level
@@ -276,14 +276,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
-    policy_kwargs = None
-    if args.policy_kwargs is not None:
-        try:
-            policy_kwargs = json.loads(args.policy_kwargs)
-        except ValueError as exc:
-            parser.error(f"--policy-kwargs: not JSON ({exc})")
-        if not isinstance(policy_kwargs, dict):
-            parser.error(f"--policy-kwargs: expected a JSON object, got {args.policy_kwargs!r}")
+    try:
+        policy_kwargs = parse_policy_kwargs(args.policy_kwargs)
+    except ValueError as exc:
+        parser.error(str(exc))
     for spec in args.policy:  # a bad class fails before an hour of baselines, not after
         try:
             load_policy(spec, EnvConfig(), trust=args.trust_model, policy_kwargs=policy_kwargs)

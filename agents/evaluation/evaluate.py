@@ -67,7 +67,7 @@ from agents.evaluation.policies import (  # noqa: F401
     model_sidecar,
     policy_sidecar,
 )
-from agents.evaluation.user_code import is_controller_spec
+from agents.evaluation.user_code import is_controller_spec, parse_policy_kwargs
 from agents.seeds import TEST_SEED
 from saddle_env.envs import DEFAULT_EPISODE_STEPS, ENV_ID, LEVEL_IDS, EnvConfig, get_level
 from saddle_env.envs.observation import layout
@@ -438,15 +438,11 @@ def main(argv: Sequence[str] | None = None) -> int:
               file=sys.stderr)
         progress = False
 
-    policy_kwargs = None
-    if args.policy_kwargs is not None:
-        try:
-            policy_kwargs = json.loads(args.policy_kwargs)
-        except ValueError as exc:
-            parser.error(f"--policy-kwargs: not JSON ({exc})")
-        if not isinstance(policy_kwargs, dict):
-            parser.error("--policy-kwargs: expected a JSON object such as '{\"gain\": 2}', "
-                         f"got {args.policy_kwargs!r}")
+    try:
+        policy_kwargs = parse_policy_kwargs(args.policy_kwargs)
+    except ValueError as exc:
+        parser.error(str(exc))
+    if policy_kwargs is not None:
         if not any(is_controller_spec(s) for s in args.policy):
             parser.error("--policy-kwargs: no --policy names a controller class "
                          "(path/to/file.py:ClassName) to build with them")

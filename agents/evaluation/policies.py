@@ -47,7 +47,7 @@ from agents.evaluation.model_files import (
 )
 from agents.evaluation.user_code import is_controller_spec, load_controller
 from saddle_env.envs import EnvConfig
-from saddle_env.envs.observation import observation_space
+from saddle_env.envs.observation import observation_space, stack_frames
 
 BASELINES: dict[str, Callable[..., Controller]] = {
     **{f"const-{k:.1f}": constant_multiple(k) for k in CONST_MULTIPLES},
@@ -209,17 +209,9 @@ class WrappedModel:
         obs = np.asarray(observation, dtype=np.float32)
         single = obs.ndim == 1
         batch = self._normalise(obs.reshape(1, -1) if single else obs)
-        n, d = batch.shape
         k = self.frame_stack
         if k > 1:
-            stack = np.zeros((n, k * d), np.float32) if state is None else \
-                np.array(state, dtype=np.float32).reshape(n, k * d)
-            start = np.ones(n, bool) if episode_start is None or state is None else \
-                np.asarray(episode_start, dtype=bool).reshape(n)
-            stack[start] = 0.0
-            stack[:, :-d] = stack[:, d:].copy()   # drop the oldest frame
-            stack[:, -d:] = batch
-            inputs, state = stack, stack
+            inputs, state = stack_frames(batch, state, episode_start, k)
         else:
             inputs = batch
         actions, _ = self.model.predict(inputs, deterministic=deterministic)

@@ -24,6 +24,7 @@ import hashlib
 import importlib
 import importlib.util
 import inspect
+import json
 import re
 import sys
 from pathlib import Path
@@ -126,3 +127,18 @@ def source_digest(spec: str) -> str | None:
         return None
     path = Path(m.group("source")).expanduser()
     return hashlib.sha256(path.read_bytes()).hexdigest()[:12] if path.is_file() else None
+
+
+def parse_policy_kwargs(text: str | None) -> dict[str, Any] | None:
+    """``--policy-kwargs``: a JSON object (read as data), or None when not given. Raises
+    ValueError saying what is wrong."""
+    if text is None:
+        return None
+    try:
+        kwargs = json.loads(text)
+    except ValueError as exc:
+        raise ValueError(f"--policy-kwargs: not JSON ({exc})") from None
+    if not isinstance(kwargs, dict):
+        raise ValueError("--policy-kwargs: expected a JSON object such as '{\"gain\": 2}', "
+                         f"got {text!r}")
+    return kwargs

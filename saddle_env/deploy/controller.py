@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from ..envs.observation import stack_frames
 from .folder import INPUT_NAME, OUTPUT_NAME, PolicySpec, _require, read_graph, read_spec
 
 
@@ -134,17 +135,9 @@ class Controller:
         self._check(obs, "observation")
         single = obs.ndim == 1
         batch = self._normalise(obs.reshape(1, -1) if single else obs)
-        n, d = batch.shape
         k = self.spec.frame_stack
         if k > 1:
-            stack = np.zeros((n, k * d), np.float32) if state is None else \
-                np.array(state, dtype=np.float32).reshape(n, k * d)
-            start = np.ones(n, bool) if episode_start is None or state is None else \
-                np.asarray(episode_start, dtype=bool).reshape(n)
-            stack[start] = 0.0
-            stack[:, :-d] = stack[:, d:].copy()   # drop the oldest frame
-            stack[:, -d:] = batch
-            inputs, state = stack, stack
+            inputs, state = stack_frames(batch, state, episode_start, k)
         else:
             inputs = np.ascontiguousarray(batch, dtype=np.float32)
         actions = self._run(inputs)

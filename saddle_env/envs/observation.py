@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numba as nb
 import numpy as np
@@ -189,3 +190,21 @@ def states_from_observations(config: EnvConfig, model: int, params: np.ndarray,
 
 __all__ = ["OBS_MAX", "OMEGA_HIGH", "OMEGA_LOW", "POS_BOUND", "VELOCITY_SCALE", "VEL_BOUND",
            "ObsLayout", "layout", "observation_space", "states_from_observations"]
+
+
+def stack_frames(batch: np.ndarray, state: Any, episode_start: Any, k: int
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """A policy's input over its last ``k`` observations, as SB3's VecFrameStack builds it
+    (oldest first, zeros at an episode's start): ``batch`` (n, d) the newest observations,
+    ``state`` the previous stack (n, k·d) or None, ``episode_start`` which rows begin an
+    episode. Returns (inputs, new state), the same array: shipped models trained with
+    ``frame_stack`` and their exported folders both act on it."""
+    n, d = batch.shape
+    stack = np.zeros((n, k * d), np.float32) if state is None else \
+        np.array(state, dtype=np.float32).reshape(n, k * d)
+    start = np.ones(n, bool) if episode_start is None or state is None else \
+        np.asarray(episode_start, dtype=bool).reshape(n)
+    stack[start] = 0.0
+    stack[:, :-d] = stack[:, d:].copy()   # drop the oldest frame
+    stack[:, -d:] = batch
+    return stack, stack
