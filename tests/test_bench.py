@@ -27,15 +27,20 @@ def test_peer_rhs_agrees_with_the_kernels(contact):
         sc = Scene(a=rng.uniform(0.1, 0.3), b=rng.uniform(0.08, 0.3), R=0.02,
                    alpha=rng.uniform(0.3, 0.7), contact=contact,
                    drilling_friction=rng.uniform(0, 2))
+        # the last two: a voltage-driven motor's relaxation (decay, 1/τ), zero in half the draws
         om = (rng.uniform(-30, 30), rng.uniform(-5, 5), rng.uniform(0, 3), rng.uniform(0, 10),
-              rng.uniform(0, 6))
+              rng.uniform(0, 6), rng.uniform(-10, 10) * rng.integers(0, 2), rng.uniform(1, 20))
         force, theta0, t = tuple(rng.uniform(-1, 1, 2)), rng.uniform(0, 6), rng.uniform(0, 3)
+        drive = np.zeros(K.DRIVE_WIDTH)  # the full row: a short one is read past its end
+        drive[[K.DRIVE_W0, K.DRIVE_RATE, K.DRIVE_AMP, K.DRIVE_FREQ, K.DRIVE_PHASE, K.DRIVE_DECAY,
+               K.DRIVE_DECAY_RATE]] = om
+        drive[K.DRIVE_THETA0], drive[[K.DRIVE_FX, K.DRIVE_FY]] = theta0, force
         n = sc.state_size
         y = np.zeros(K.STATE_WIDTH)
         y[:2] = rng.uniform(-0.04, 0.04, 2)
         y[2:n] = rng.uniform(-3, 3, n - 2) if sc.rolling else rng.uniform(-0.3, 0.3, 2)
         dy = np.zeros(K.STATE_WIDTH)
-        N = K.rhs(sc.model_code, sc.params(), np.array([*om, theta0, *force]), t, y, dy, True)
+        N = K.rhs(sc.model_code, sc.params(), drive, t, y, dy, True)
         peer_dy, peer_N = PeerModel.from_scene(sc, om, force, theta0).derivatives(t, y[:n])
         scale = np.abs(dy[:n]) + 1e-3
         worst = max(worst, float(np.max(np.abs(peer_dy - dy[:n]) / scale)),

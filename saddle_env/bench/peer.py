@@ -32,7 +32,9 @@ class PeerModel:
     ----------
     a, b, R, alpha, g : scene parameters (``R = 0`` for the mass point).
     rolling : bool — pure rolling (5 states) or frictionless slipping (4 states).
-    omega : (w0, rate, amp, freq, phase) — Ω(t) = w0 + rate·t + amp·sin(freq·t + phase).
+    omega : (w0, rate, amp, freq, phase[, decay, decay_rate]) —
+        Ω(t) = w0 + rate·t + amp·sin(freq·t + phase) + decay·exp(−decay_rate·t), the last term
+        being a voltage-driven motor relaxing to its steady speed.
     drilling_friction : float — rate [1/s] relaxing the spin about the normal (rolling).
     force, theta0 : lab-frame horizontal force per unit mass [m/s²] and the saddle angle at t = 0.
     """
@@ -43,7 +45,8 @@ class PeerModel:
                  theta0: float = 0.0) -> None:
         self.a, self.b, self.R, self.alpha, self.g = a, b, R, alpha, g
         self.rolling = rolling
-        self.w0, self.rate, self.amp, self.freq, self.phase = (list(omega) + [0.0] * 5)[:5]
+        (self.w0, self.rate, self.amp, self.freq, self.phase, self.decay,
+         self.decay_rate) = (list(omega) + [0.0] * 7)[:7]
         self.drill = drilling_friction
         self.force = np.array([force[0], force[1], 0.0])
         self.theta0 = theta0
@@ -57,11 +60,14 @@ class PeerModel:
     # -- the saddle's motion -----------------------------------------------------------
     def Omega(self, t: float) -> tuple[float, float]:
         ph = self.freq * t + self.phase
-        return (self.w0 + self.rate * t + self.amp * np.sin(ph),
-                self.rate + self.amp * self.freq * np.cos(ph))
+        motor = self.decay * np.exp(-self.decay_rate * t)
+        return (self.w0 + self.rate * t + self.amp * np.sin(ph) + motor,
+                self.rate + self.amp * self.freq * np.cos(ph) - self.decay_rate * motor)
 
     def angle(self, t: float) -> float:
         th = self.theta0 + self.w0 * t + 0.5 * self.rate * t * t
+        if self.decay != 0.0:  # ∫₀ᵗ decay·e^{−k s} ds
+            th += self.decay * (1.0 - np.exp(-self.decay_rate * t)) / self.decay_rate
         if self.freq != 0.0:
             return th - self.amp / self.freq * (np.cos(self.freq * t + self.phase) - np.cos(self.phase))
         return th + self.amp * np.sin(self.phase) * t
