@@ -106,7 +106,8 @@ def run(rig: Rig, controller: Any, seconds: float, period: float | None = None, 
     releases : stop after this many releases (default: as many as fit in ``seconds``).
     lost_after : seconds of frames without the ball that end a release.
     clock : the loop's clock (default the rig's ``clock`` attribute, else `time.monotonic`).
-    progress : called with a line of text at the end of each release (e.g. ``print``).
+    progress : called with a line of text at the end of each release and every few seconds
+        (e.g. ``print``).
     """
     cfg = _resolve_config(rig, config, period)
     T = cfg.control_period
@@ -128,7 +129,8 @@ def run(rig: Rig, controller: Any, seconds: float, period: float | None = None, 
     try:
         with _sigterm_raises():
             while clk.now() < end - TIME_TOLERANCE and (releases is None or len(recorder.releases) < releases):
-                rel = _release(rig, policy, observer, recorder, cfg, clk, end, lost_after)
+                rel = _release(rig, policy, observer, recorder, cfg, clk, end, lost_after,
+                               progress)
                 if progress is not None:
                     progress(f"release {rel['index']}: {rel['seconds']:.2f} s, ended by "
                              f"{rel['cause']}; {rel['periods']} periods, {rel['misses']} "
@@ -148,7 +150,7 @@ def run(rig: Rig, controller: Any, seconds: float, period: float | None = None, 
 
 def _release(rig: Rig, policy: Callable[[Any, bool], float], observer: Observer,
              recorder: RunRecorder, cfg: EnvConfig, clk: Clock, end: float,
-             lost_after: float) -> dict[str, Any]:
+             lost_after: float, progress: Callable[[str], None] | None) -> dict[str, Any]:
     """One release of the ball: the periods until it is lost or the run's time is up."""
     T = cfg.control_period
     rig.release()
@@ -206,7 +208,9 @@ def _release(rig: Rig, policy: Callable[[Any, bool], float], observer: Observer,
         if due > k:   # whole periods passed while this one ran: skip to the present one
             recorder.skip(due - k)
             k = due
-        recorder.maybe_write_summary(now)
+        if recorder.maybe_write_summary(now) and progress is not None and k > 1:
+            progress(f"release {len(recorder.releases) + 1}: {now - t0:.1f} s; run: "
+                     f"{recorder.periods} periods, {recorder.misses} missed")
     return recorder.end_release(clk.now(), cause)
 
 

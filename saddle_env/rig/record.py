@@ -189,10 +189,13 @@ class RunRecorder:
         self._rows = []
 
     # -- the summary ---------------------------------------------------------------------
-    def maybe_write_summary(self, now: float) -> None:
+    def maybe_write_summary(self, now: float) -> bool:
+        """Rewrite summary.json if `SUMMARY_EVERY` seconds have passed; whether it did."""
         if now - self._last_summary >= SUMMARY_EVERY:
             self._last_summary = now
             self.write_summary()
+            return True
+        return False
 
     def summary(self) -> dict[str, Any]:
         releases = list(self.releases)
