@@ -5,6 +5,8 @@ tracks that the track format reads back."""
 import csv
 import json
 import math
+import os
+import signal
 
 import numpy as np
 import pytest
@@ -238,6 +240,78 @@ def test_the_physics_thread_stops_on_close_and_on_an_exception_in_the_controller
     assert not rig.running
 
 
+class Acting:
+    """An exported policy's shape: act(observation) and reset()."""
+
+    def __init__(self):
+        self.resets, self.calls = 0, 0
+
+    def reset(self):
+        self.resets += 1
+
+    def act(self, obs):
+        self.calls += 1
+        return np.array([-0.35], np.float32)
+
+
+class Predicting:
+    """SB3's shape: predict(observation, state, episode_start, deterministic) -> (action, state)."""
+
+    def __init__(self):
+        self.starts, self.states = [], []
+
+    def predict(self, obs, state=None, episode_start=None, deterministic=True):
+        self.starts.append(bool(episode_start[0]))
+        self.states.append(state)
+        return np.array([-0.35], np.float32), (0 if state is None else state + 1)
+
+
+def test_the_loop_takes_act_predict_and_plain_controllers():
+    for controller in (Acting(), Predicting(), lambda obs: -0.35):
+        with SimulatedRig(LAB, seed=6, clock=VirtualClock(), **QUIET) as rig:
+            summary = run(rig, controller, 0.5)
+        assert summary["periods"] == 25 and summary["misses"] == 0
+    acting, predicting = Acting(), Predicting()
+    for controller in (acting, predicting):
+        with SimulatedRig(LAB, seed=6, clock=VirtualClock()) as rig:
+            summary = run(rig, constant_voltage(rig.config, 24.0), 3.0)   # lose the ball
+            assert summary["releases"][0]["cause"] == "lost"
+            summary = run(rig, controller, 3.0)
+        if controller is acting:
+            # called every period but those that found the ball gone; reset at each release
+            gone = sum(r["cause"] != "time" for r in summary["releases"])
+            assert acting.resets == len(summary["releases"]) >= 1
+            assert acting.calls == summary["periods"] - gone
+    # the state is carried within a release and dropped at the next one
+    assert predicting.starts.count(True) == len(summary["releases"])
+    assert all(st is None for st, first in zip(predicting.states, predicting.starts) if first)
+    assert predicting.states[1] == 0 and predicting.states[2] == 1
+
+
+def test_sigterm_and_ctrl_c_write_what_ran_and_close_the_rig(tmp_path):
+    for stop, reason, folder in ((lambda: os.kill(os.getpid(), signal.SIGTERM), "SIGTERM",
+                                  tmp_path / "term"),
+                                 (lambda: (_ for _ in ()).throw(KeyboardInterrupt), "Ctrl-C",
+                                  tmp_path / "int")):
+        calls = []
+
+        def controller(obs, stop=stop, calls=calls):
+            calls.append(1)
+            if len(calls) == 20:
+                stop()
+            return -0.35
+
+        rig = SimulatedRig(LAB, seed=0, clock=VirtualClock(), **QUIET)
+        with pytest.raises(KeyboardInterrupt):
+            run(rig, controller, 5.0, log_dir=folder)
+        assert not rig.running
+        summary = json.loads((folder / "summary.json").read_text())
+        assert summary["stopped"] == reason and summary["periods"] == 19
+        track = read_track(folder / "release_001.csv")
+        assert len(track) >= 15 and track.t[-1] <= 20 * T
+    assert signal.getsignal(signal.SIGTERM) is not None   # the handler was put back
+
+
 def test_bad_input_is_refused_with_the_allowed_range(tmp_path):
     with pytest.raises(ValueError, match="action_mode='voltage'"):
         SimulatedRig("SaddleTrap-v0", threaded=False)
@@ -279,3 +353,16 @@ def test_in_real_time_a_constant_voltage_keeps_the_ball_and_misses_are_reported(
     assert isinstance(summary["misses"], int) and summary["lateness_ms"]["median"] is not None
     track = read_track(tmp_path / "release_001.csv")
     assert len(track) > 150 and np.all(np.hypot(track.x, track.y) < rig.config.rim_radius)
+
+
+@pytest.mark.slow
+def test_mpc_keeps_the_ball_on_the_simulated_rig():
+    # The shipped model-predictive controller, passed in (saddle_env does not import agents),
+    # through SB3's predict; on the virtual clock, so its compute time cannot make it late.
+    from agents.control.mpc import ModelPredictiveController
+
+    with SimulatedRig(LAB, seed=1, clock=VirtualClock()) as rig:
+        summary = run(rig, ModelPredictiveController(rig.config), 5.0)
+        lost = list(rig.lost)
+    assert lost == [] and [r["cause"] for r in summary["releases"]] == ["time"]
+    assert summary["periods"] == 250 and summary["misses"] == 0

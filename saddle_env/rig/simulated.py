@@ -105,7 +105,9 @@ class SimulatedRig:
         self._theta_last: float | None = None
         self.releases = 0
         self.lost: list[dict[str, Any]] = []   # per loss: cause, time (the truth, for tests)
-        self.max_lag = 0.0                  # [s] the most the physics fell behind the clock
+        # [s] the most the physics fell behind a real clock (a virtual one jumps ahead by
+        # design, so there it says nothing)
+        self.max_lag = 0.0
         self._thread: threading.Thread | None = None
         if threaded:
             self._thread = threading.Thread(target=self._run, name="SimulatedRig physics",
