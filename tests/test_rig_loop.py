@@ -169,6 +169,7 @@ def test_the_loop_logs_tracks_of_the_simulated_ball_and_shows_the_controller_the
     assert track.t[0] >= 0.0 and np.all(np.diff(track.t) == pytest.approx(T))
     written = json.loads((tmp_path / "summary.json").read_text())
     assert written["periods"] == 150 and written["frame_age_ms"]["median"] == pytest.approx(30)
+    assert level_config(LAB, **written["env_options"]) == level_config(LAB, **QUIET)
 
 
 def test_a_controller_slower_than_the_period_misses_deadlines_and_they_are_counted(tmp_path):
@@ -366,3 +367,42 @@ def test_mpc_keeps_the_ball_on_the_simulated_rig():
         lost = list(rig.lost)
     assert lost == [] and [r["cause"] for r in summary["releases"]] == ["time"]
     assert summary["periods"] == 250 and summary["misses"] == 0
+
+
+@pytest.mark.slow
+def test_an_exported_lab_policy_runs_on_the_simulated_rig(tmp_path):
+    # saddle-export's folder of a (barely trained) Lab-level model, run by the torch-free
+    # runtime through act(): what the loop gives it is what the model was trained on.
+    sb3 = pytest.importorskip("stable_baselines3")
+    pytest.importorskip("onnxruntime")
+    from agents.evaluation.export import export_policy
+    from saddle_env.deploy import Controller
+    from saddle_env.envs import get_level
+    from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
+
+    model = sb3.PPO("MlpPolicy", SaddleTrapSB3VecEnv(num_envs=2, **get_level(LAB).options),
+                    n_steps=8, batch_size=16, seed=0, policy_kwargs={"net_arch": [8, 8]},
+                    device="cpu")
+    path = tmp_path / "lab.zip"
+    model.save(path)
+    path.with_suffix(".json").write_text(json.dumps(
+        {"algo": "ppo", "env_id": LAB, "env_kwargs": {}, "frame_stack": 1, "normalize": False}))
+    controller = Controller.from_dir(export_policy(path, tmp_path / "exported"))
+    assert controller.spec.layout["vx"] is None   # a camera: positions only
+    seen = []
+
+    class Recording:
+        def reset(self):
+            controller.reset()
+
+        def act(self, obs):
+            seen.append(np.array(obs))
+            return controller.act(obs)
+
+    with SimulatedRig(LAB, seed=0, clock=VirtualClock()) as rig:
+        summary = run(rig, Recording(), 1.0, log_dir=tmp_path / "logs")
+    assert summary["periods"] == 50 and len(seen) >= 49
+    for obs in seen:   # the model's own answer to each observation the loop gave
+        want, _ = model.predict(obs, deterministic=True)
+        assert np.allclose(controller.predict(obs)[0], want, atol=1e-5)
+    assert read_tracks(tmp_path / "logs")

@@ -124,7 +124,8 @@ def run(rig: Rig, controller: Any, seconds: float, period: float | None = None, 
     observer = Observer(cfg)
     recorder = RunRecorder(log_dir, cfg, T, meta={
         "rig": type(rig).__name__, "controller": getattr(controller, "name", None) or
-        type(controller).__name__, "seconds": seconds, "lost_after_s": lost_after})
+        type(controller).__name__, "seconds": seconds, "lost_after_s": lost_after,
+        "env_options": cfg.as_dict()})
     end = clk.now() + seconds
     try:
         with _sigterm_raises():

@@ -15,8 +15,9 @@ In the log folder:
   written, whether the deadline (the next period's start) was missed, the voltage and the
   age of the frame it acted on; appended at the end of each release.
 * ``summary.json``: the counts and the timing statistics (median, p99, max, in ms) over the
-  whole run, and one entry per release; rewritten whole (atomically) after every release,
-  every few seconds, and when the run stops, by its end, Ctrl-C, SIGTERM or an exception.
+  whole run, one entry per release, and the level's options the controller was run for;
+  rewritten whole (atomically) after every release, every few seconds, and when the run
+  stops, by its end, Ctrl-C, SIGTERM or an exception.
 """
 
 from __future__ import annotations
