@@ -333,6 +333,25 @@ def test_bad_input_is_refused_with_the_allowed_range(tmp_path):
     with SimulatedRig(LAB, clock=VirtualClock(), threaded=False) as rig:
         with pytest.raises(FileExistsError, match="already holds a run"):
             run(rig, lambda o: 0.0, 1.0, log_dir=tmp_path)
+    class Tuples:   # a rig giving plain tuples is fine; a time that is not a number is not
+        def __init__(self, t):
+            self.t, self.clock = t, VirtualClock()
+
+        def read(self):
+            return (self.t, 0.01, 0.0, 20.0, 0.0)
+
+        def write(self, voltage):
+            pass
+
+        def release(self):
+            pass
+
+        def close(self):
+            pass
+
+    assert run(Tuples(-0.03), lambda o: 0.0, 0.1)["periods"] == 5
+    with pytest.raises(ValueError, match="a frame's time t must be a finite number"):
+        run(Tuples(math.nan), lambda o: 0.0, 0.1)
     obs = Observer(level_config(LAB))
     with pytest.raises(ValueError, match="need theta"):
         obs.push(Frame(0.0, 0.01, 0.0, 20.0))

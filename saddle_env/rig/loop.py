@@ -37,7 +37,7 @@ from typing import Any
 
 from ..envs import EnvConfig, level_config
 from .clock import Clock, MonotonicClock
-from .interface import Rig
+from .interface import Frame, Rig
 from .observe import Observer, as_policy
 from .record import RunRecorder
 
@@ -62,8 +62,8 @@ def _sigterm_raises() -> Iterator[None]:
     previous = signal.signal(signal.SIGTERM, on_term)
     try:
         yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    finally:   # None: a handler not set from Python; the default then
+        signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
 def _resolve_config(rig: Rig, config: EnvConfig | str | None, period: float | None) -> EnvConfig:
@@ -149,6 +149,27 @@ def run(rig: Rig, controller: Any, seconds: float, period: float | None = None, 
     return recorder.summary()
 
 
+def _as_frame(frame: Any) -> Frame | None:
+    """A rig's frame as a `Frame` (a plain tuple ``(t, x, y, omega[, theta])`` is one too),
+    its time checked."""
+    if frame is None:
+        return None
+    if not isinstance(frame, Frame):
+        try:
+            frame = Frame(*frame)
+        except TypeError:
+            raise TypeError(f"Rig.read() must return a Frame, a tuple (t, x, y, omega[, theta]) "
+                            f"or None, got {frame!r}") from None
+    try:
+        t = float(frame.t)
+    except (TypeError, ValueError):
+        t = math.nan
+    if not math.isfinite(t):
+        raise ValueError(f"a frame's time t must be a finite number of seconds on the loop's "
+                         f"clock, got {frame.t!r}")
+    return frame
+
+
 def _release(rig: Rig, policy: Callable[[Any, bool], float], observer: Observer,
              recorder: RunRecorder, cfg: EnvConfig, clk: Clock, end: float,
              lost_after: float, progress: Callable[[str], None] | None) -> dict[str, Any]:
@@ -171,7 +192,7 @@ def _release(rig: Rig, policy: Callable[[Any, bool], float], observer: Observer,
             break
         clk.sleep_until(start)
         woke = clk.now()
-        frame = rig.read()
+        frame = _as_frame(rig.read())
         age = None
         if frame is not None and frame.t > last_t:
             last_t, last_new = frame.t, woke
