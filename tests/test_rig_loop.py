@@ -7,6 +7,7 @@ import json
 import math
 import os
 import signal
+import time
 
 import numpy as np
 import pytest
@@ -236,9 +237,15 @@ def test_the_physics_thread_stops_on_close_and_on_an_exception_in_the_controller
     assert summary["periods"] == 4 and summary["releases"][0]["cause"] == "stopped"
     with pytest.raises(RuntimeError, match="closed"):
         rig.read()
-    with SimulatedRig(LAB, seed=0) as rig:
+    with SimulatedRig(LAB, seed=0) as rig:   # wall-clock time: the thread steps unread
         assert rig.running
+        rig.release()
+        time.sleep(0.2)
+        assert rig.frames > 0
     assert not rig.running
+    stepped = rig.frames
+    time.sleep(0.05)
+    assert rig.frames == stepped
 
 
 class Acting:

@@ -176,6 +176,12 @@ class SimulatedRig:
         return self._thread is not None and self._thread.is_alive()
 
     @property
+    def frames(self) -> int:
+        """Camera frames (physics steps) taken since the first release."""
+        with self._lock:
+            return self._k
+
+    @property
     def ball_on(self) -> bool:
         """Whether the simulated ball is on the saddle (the truth, which a real rig's loop
         infers from the frames)."""
