@@ -87,6 +87,7 @@ CLIS: dict[str, Callable[[], argparse.ArgumentParser]] = {
     "python -m saddle_env.envs.benchmark": _from_main("saddle_env.envs.benchmark"),
     "python -m saddle_env.compilation.profile": _build_parser("saddle_env.compilation.profile"),
     "python -m saddle_env.compilation.precompile": _build_parser("saddle_env.compilation.precompile"),
+    "python -m saddle_env.rig": _build_parser("saddle_env.rig.__main__"),
 }
 
 

@@ -508,6 +508,21 @@ def test_a_crafted_policy_json_is_a_one_line_error(exported_folder, tmp_path, ca
     assert not no_session
 
 
+def test_a_positions_only_layout_has_no_velocity_columns_and_is_read(exported_folder, tmp_path):
+    # A level whose camera sees positions only (the Lab level) exports vx, vy as null; any
+    # other non-integer is still refused.
+    from saddle_env.deploy import PolicyFolderError, read_spec
+
+    def camera(data):
+        data["observation"]["layout"].update(vx=None, vy=None)
+
+    spec = read_spec(_folder(exported_folder, tmp_path / "camera", spec=camera))
+    assert spec.layout["vx"] is None and spec.layout["vy"] is None
+    with pytest.raises(PolicyFolderError, match="observation.layout.vx must be int"):
+        read_spec(_folder(exported_folder, tmp_path / "bad", spec=_set("observation.layout.vx",
+                                                                        "2")))
+
+
 def test_policy_json_that_is_not_json_or_too_large_is_refused(exported_folder, tmp_path,
                                                               no_session):
     from saddle_env.deploy import Controller, PolicyFolderError

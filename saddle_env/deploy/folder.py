@@ -206,9 +206,10 @@ def read_spec(folder: str | os.PathLike, limits: Limits = LIMITS) -> PolicySpec:
     low = _floats(obs, "low", dim, folder, "observation.", finite=False)
     high = _floats(obs, "high", dim, folder, "observation.", finite=False)
     layout = _get(obs, "layout", dict, folder, "observation.")
-    for key in ("frame_dim", "frames", "omega", "x", "y", "vx", "vy"):
+    for key in ("frame_dim", "frames", "omega", "x", "y"):
         _int(layout, key, 0, limits.observation_dim, folder, "observation.layout.")
-    for key in ("cos", "command"):
+    # vx, vy are null on a level whose camera sees positions only (the Lab level)
+    for key in ("cos", "command", "vx", "vy"):
         _int(layout, key, 0, limits.observation_dim, folder, "observation.layout.", optional=True)
     _get(layout, "lab_frame", bool, folder, "observation.layout.")
     if layout["frame_dim"] * layout["frames"] != dim:

@@ -306,6 +306,24 @@ class EnvConfig:
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
 
+    def voltage_of_action(self, action: float) -> float:
+        """The motor voltage [V] of an action in voltage mode: V = (a + 1)/2 · ``voltage_max``
+        with the action clipped to [-1, 1], as the environment's step applies it (its steady
+        speed is ``motor_gain`` · V). A rig's loop writes this to the motor driver."""
+        a = float(action)
+        if not math.isfinite(a):
+            raise ValueError(f"action must be finite (in [-1, 1]), got {action!r}")
+        return 0.5 * (min(1.0, max(-1.0, a)) + 1.0) * self.voltage_max
+
+    def action_of_voltage(self, voltage: float) -> float:
+        """The action whose voltage is ``voltage`` [V] (the inverse of `voltage_of_action`);
+        ValueError outside [0, ``voltage_max``]."""
+        v = float(voltage)
+        if not 0.0 <= v <= self.voltage_max:
+            raise ValueError(f"voltage must be in [0, voltage_max = {self.voltage_max:g}] V, "
+                             f"got {voltage!r}")
+        return 2.0 * v / self.voltage_max - 1.0
+
     def scene(self, **changes: object) -> Scene:
         """The nominal scene (or one with randomised parameters changed)."""
         kw = {name: getattr(self, name) for name in SCENE_FIELDS}
