@@ -105,7 +105,7 @@ class Controller:
         c = self.config
         dt = c.control_period
         if c.action_mode == "voltage":
-            return (0.5 * (action + 1.0) * c.motor_gain * c.voltage_max - omega) / c.motor_tau
+            return (c.motor_gain * c.voltage_of_action(action) - omega) / c.motor_tau
         if c.action_mode == "target":
             return np.clip((0.5 * (action + 1.0) * c.omega_max - omega) / dt, -c.max_accel,
                            c.max_accel)

@@ -306,14 +306,16 @@ class EnvConfig:
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
 
-    def voltage_of_action(self, action: float) -> float:
+    def voltage_of_action(self, action: Any) -> Any:
         """The motor voltage [V] of an action in voltage mode: V = (a + 1)/2 · ``voltage_max``
         with the action clipped to [-1, 1], as the environment's step applies it (its steady
-        speed is ``motor_gain`` · V). A rig's loop writes this to the motor driver."""
-        a = float(action)
-        if not math.isfinite(a):
+        speed is ``motor_gain`` · V). A rig's loop writes this to the motor driver; a float
+        for a number, an array for an array (the controllers' batches)."""
+        a = np.asarray(action, dtype=float)
+        if not np.isfinite(a).all():
             raise ValueError(f"action must be finite (in [-1, 1]), got {action!r}")
-        return 0.5 * (min(1.0, max(-1.0, a)) + 1.0) * self.voltage_max
+        v = 0.5 * (np.clip(a, -1.0, 1.0) + 1.0) * self.voltage_max
+        return float(v) if v.ndim == 0 else v
 
     def action_of_voltage(self, voltage: float) -> float:
         """The action whose voltage is ``voltage`` [V] (the inverse of `voltage_of_action`);
