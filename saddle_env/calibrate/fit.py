@@ -205,7 +205,7 @@ def initial_vector(model: Model, progress: Callable[[str], None]) -> np.ndarray:
     over [0, π) (the saddle looks the same turned by π), each track taking its best."""
     lay = model.layout
     v = np.zeros(lay.size)
-    values = model.values(v)
+    values = model.defaults()
     for i, n in enumerate(lay.names):
         lo, hi = PARAMETERS[n][1], PARAMETERS[n][2]
         v[i] = min(max(values[n], lo), hi)
@@ -374,6 +374,10 @@ def fit_tracks(tracks: Sequence[Track], config: EnvConfig, fit: Sequence[str], *
     if model.layout.size > MAX_UNKNOWNS:
         raise ValueError(f"{model.layout.size:,} unknowns (segment starts' states): at most "
                          f"{MAX_UNKNOWNS:,}; fit fewer or shorter tracks, or longer segments")
+    # The fit's linear algebra is a few hundred columns while numba integrates in threads: a
+    # threaded OpenBLAS waking its workers on a busy machine took 4 s per SVD instead of 0.1.
+    from ..bench.blas import limit_blas_threads
+    limit_blas_threads(1)
     n_frames = sum(len(p.t) for p in plans)
     say(f"fitting {list(names)} to {len(tracks)} track(s), {n_frames} frames, drive "
         f"{drive!r}, {sum(p.segments for p in plans)} segments of ~{segment:g} s, "
@@ -419,7 +423,10 @@ def summarise(model: Model, v: np.ndarray, v0: np.ndarray, obj: _Objective,
     for i, n in enumerate(names):
         unit, low_b, high_b, typical, _ = PARAMETERS[n]
         std = math.sqrt(var[i]) if math.isfinite(var[i]) else math.inf
-        ok = math.isfinite(std)
+        # an interval wider than every value the parameter may take says nothing
+        ok = math.isfinite(std) and Z95 * std < high_b - low_b
+        if not ok:
+            std = math.inf
         low = max(v[i] - Z95 * std, low_b) if ok else -math.inf
         high = min(v[i] + Z95 * std, high_b) if ok else math.inf
         est = Estimate(n, float(v[i]), std, low, high, unit, float(start[n]), ok)

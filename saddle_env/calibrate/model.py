@@ -244,13 +244,18 @@ class Model:
     # ---------------------------------------------------------------- parameters
     def values(self, v: np.ndarray) -> dict[str, float]:
         """Every model parameter (fitted or fixed) at the vector ``v``."""
+        out = self.defaults()
+        for i, name in enumerate(self.names):
+            out[name] = float(v[i])
+        return out
+
+    def defaults(self) -> dict[str, float]:
+        """Every model parameter at the configuration's value (the axis offset at 0)."""
         c = self.config
         out = {"obs_delay": c.obs_delay, "motor_tau": c.motor_tau, "motor_gain": c.motor_gain,
                "x0": 0.0, "y0": 0.0}
         for name in SCENE_PARAMETERS:
             out[name] = float(getattr(self.scene, name) or 0.0)
-        for i, name in enumerate(self.names):
-            out[name] = float(v[i])
         return out
 
     def scene_at(self, values: dict[str, float]) -> Scene:
@@ -291,8 +296,11 @@ class Model:
             w_at = np.interp(B, plan.knot_t, plan.knot_v)
         _drive_chain(B, voltage, w_at, kv, 1.0 / values["motor_tau"], omega0, theta0, rows,
                      omega, theta)
-        if plan.theta is not None:  # the encoder's angle, read between its readings
-            theta = np.interp(B, *plan.theta)
+        if plan.theta is not None:
+            # the encoder's angle between its readings; before the first (a frame's instant
+            # is obs_delay earlier than its stamp) and after the last, carried by Ω
+            c = np.clip(B, plan.theta[0][0], plan.theta[0][-1])
+            theta = theta + (np.interp(c, *plan.theta) - np.interp(c, B, theta))
         return B, frames, knot_index, rows, np.stack([omega, theta])
 
     # ---------------------------------------------------------------- residuals
