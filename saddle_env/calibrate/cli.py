@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import signal
 import sys
 import warnings
 from collections.abc import Sequence
@@ -145,6 +146,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except TrackError as exc:
         parser.error(str(exc))
     names = [n for n in args.fit.split(",") if n.strip()]
+
+    def _stop(signum: int, frame: object) -> None:   # SIGTERM as Ctrl-C: results kept
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _stop)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", FitWarning)   # printed by the fit itself
@@ -154,6 +160,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 max_iterations=args.max_iterations, progress=say)
     except ValueError as exc:
         parser.error(str(exc))
+    except KeyboardInterrupt:
+        print("saddle-fit: interrupted before the first evaluation; nothing written",
+              file=sys.stderr)
+        return 130
     try:
         level.config(**result.env_options)   # what gym.make will be given
     except (ValueError, TypeError) as exc:

@@ -432,7 +432,8 @@ def summarise(model: Model, v: np.ndarray, v0: np.ndarray, obj: _Objective,
         est = Estimate(n, float(v[i]), std, low, high, unit, float(start[n]), ok)
         estimates[n] = est
         if not ok:
-            msg = (f"{n} is not identifiable from these tracks (no interval): "
+            msg = (f"{n} is not identifiable from these tracks (no interval; left at "
+                   f"{start[n]:.6g} {unit} in the environment's options): "
                    f"{HINTS.get(n, 'the residuals do not change with it')}")
         elif Z95 * std > max(abs(v[i]), typical):
             msg = (f"{n} is poorly determined: {v[i]:.4g} ± {Z95 * std:.3g} {unit} (95 %); "
@@ -474,8 +475,8 @@ def env_options_of(config: EnvConfig, estimates: dict[str, Estimate],
     out: dict[str, Any] = {"R": config.R, "ball_radii": None}
     if config.ball_density is None:
         out["ball_density"] = None
-    for n in estimates:
-        if PARAMETERS[n][4]:
+    for n, e in estimates.items():
+        if PARAMETERS[n][4] and e.identifiable:   # an unidentifiable value is no estimate
             out[n] = values[n]
     if "mu" in out and config.mu_static is not None and config.mu_static < out["mu"]:
         out["mu_static"] = out["mu"]
