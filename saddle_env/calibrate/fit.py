@@ -34,6 +34,7 @@ Z95 = 1.959963984540054
 MIN_FRAMES = 6        # tracked frames a track needs: two segments of three
 RCOND = 1e-9          # singular values below this fraction of the largest: no information
 MAX_UNKNOWNS = 20_000
+REWEIGHTS = 2         # refits with the noise re-estimated from the residuals
 
 
 class FitWarning(UserWarning):
@@ -194,6 +195,18 @@ def _initial_nodes(model: Model, v: np.ndarray) -> None:
         block[:, 2:4] = vel[plan.nodes]
 
 
+def noise_spread(model: Model, v: np.ndarray) -> tuple[float, float]:
+    """The RMS of the position and of the tachometer residuals at ``v``, in units of their
+    assumed noise (1: as assumed; 1.0 for a kind with no residuals)."""
+    r = model.residuals(v)
+    kinds = model.row_kinds()
+    out = []
+    for kind in (0, 2):
+        rows = r[kinds == kind]
+        out.append(float(np.sqrt(np.mean(rows ** 2))) if rows.size else 1.0)
+    return out[0], out[1]
+
+
 def _track_costs(model: Model, v: np.ndarray) -> np.ndarray:
     r = model.residuals(v)
     return np.array([float(np.sum(r[rows] ** 2)) for rows in model.track_rows()])
@@ -341,9 +354,10 @@ def fit_tracks(tracks: Sequence[Track], config: EnvConfig, fit: Sequence[str], *
     fit : the parameters to fit.
     drive : 'omega', 'voltage' or None/'auto' (`choose_drive`).
     segment : shooting segments' length [s], 0.02-2.
-    position_noise, omega_noise : the residuals' weights [m], [rad/s] (default: the config's
-        noise, else 1 mm and 0.2 rad/s); the intervals are scaled by the residuals' own
-        spread, so only their ratio matters.
+    position_noise, omega_noise : the camera's and the tachometer's noise [m], [rad/s], the
+        residuals' starting weights (default: the config's noise, else 1 mm and 0.2 rad/s);
+        after a first fit each is re-estimated from its residuals' spread and the fit
+        repeated (up to twice), so the intervals follow the data's own noise.
     max_iterations : Jacobian evaluations at most (1-1000).
     progress : called with a line per iteration (default: silent).
     """
@@ -388,13 +402,25 @@ def fit_tracks(tracks: Sequence[Track], config: EnvConfig, fit: Sequence[str], *
     status = "converged"
     iterations = 0
     try:
-        sol = least_squares(obj.fun, v0, jac=obj.jac, bounds=(lo, hi), x_scale="jac",
-                            method="trf", tr_solver="exact", max_nfev=max_iterations * 4,
-                            xtol=1e-10, ftol=1e-10, gtol=1e-10)
-        v = sol.x
+        v = v0
+        for rounds in range(REWEIGHTS + 1):
+            sol = least_squares(obj.fun, v, jac=obj.jac, bounds=(lo, hi), x_scale="jac",
+                                method="trf", tr_solver="exact", max_nfev=max_iterations * 4,
+                                xtol=1e-10, ftol=1e-10, gtol=1e-10)
+            v = sol.x
+            if sol.status <= 0:
+                status = f"stopped: {sol.message}"
+                break
+            # the weights from the residuals' own spread (camera and tachometer apart), so
+            # that neither is trusted more than it earned and the intervals follow the data
+            spread = noise_spread(model, v)
+            if rounds == REWEIGHTS or all(abs(f - 1.0) < 0.1 for f in spread):
+                break
+            model.set_noise(model.sigma * spread[0], model.sigma_omega * spread[1])
+            obj.best_cost, obj.best_x = math.inf, None
+            say(f"reweighting: camera noise {model.sigma * 1e3:.3g} mm, tachometer "
+                f"{model.sigma_omega:.3g} rad/s (from the residuals)")
         iterations = obj.iteration
-        if sol.status <= 0:
-            status = f"stopped: {sol.message}"
     except KeyboardInterrupt:
         if obj.best_x is None:
             raise

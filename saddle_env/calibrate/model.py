@@ -232,14 +232,18 @@ class Model:
         self.names = names
         width = 5 if self.code in (ROLLING, COULOMB) else 4
         self.layout = Layout(names, plans, width)
+        self.rtol = rtol
+        self.set_noise(position_noise, omega_noise)
+
+    def set_noise(self, position_noise: float, omega_noise: float) -> None:
+        """The residuals' weights: the camera's noise [m] and the tachometer's [rad/s]. The
+        defects' scales follow the camera's: a position to a tenth of its noise, a velocity to
+        that over 50 ms, a spin to that velocity over the ball's radius."""
         self.sigma = position_noise
         self.sigma_omega = omega_noise
-        self.rtol = rtol
-        # Defect scales: a position to a tenth of the noise, a velocity to that over 50 ms,
-        # a spin to that velocity over the ball's radius.
         vel = position_noise / 0.05
         scale = [position_noise, position_noise, vel, vel, vel / max(self.scene.radius, 1e-3)]
-        self.defect_scale = np.array(scale[:width]) / DEFECT_WEIGHT
+        self.defect_scale = np.array(scale[:self.layout.width]) / DEFECT_WEIGHT
 
     # ---------------------------------------------------------------- parameters
     def values(self, v: np.ndarray) -> dict[str, float]:
@@ -407,6 +411,17 @@ class Model:
                 if cols:
                     groups.append(np.array(cols))
         return groups
+
+    def row_kinds(self) -> np.ndarray:
+        """Each residual's kind: 0 a frame's position, 1 a continuity defect, 2 a
+        tachometer reading."""
+        kinds = []
+        for plan in self.layout.plans:
+            kinds.append(np.zeros(2 * len(plan.t), dtype=np.int8))
+            kinds.append(np.ones(plan.segments * self.layout.width, dtype=np.int8))
+            if plan.omega_obs is not None:
+                kinds.append(np.full(len(plan.omega_obs[0]), 2, dtype=np.int8))
+        return np.concatenate(kinds)
 
     def measurement_rows(self) -> np.ndarray:
         """True at the residuals that are measurements (frames, tachometer), False at the
