@@ -37,7 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "camera's latency, the motor, the axis offset) to tracked orbits of the "
                     "ball, by least squares with multiple shooting. Writes env_options.json "
                     "(options for gym.make, train.py --env-kwargs, saddle-eval --env-kwargs), "
-                    "results.json (each value with its 95 %% interval, residuals per track) "
+                    "results.json (each value with its 95 % interval, residuals per track) "
                     "and orbits.png.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("tracks", nargs="+", metavar="TRACK",
@@ -124,8 +124,10 @@ def report(result: FitResult) -> str:
     lines.append(f"{'track':<40} {'frames':>7} {'rms [mm]':>9}")
     for t in result.tracks:
         lines.append(f"{Path(t['source']).name:<40} {t['frames']:>7} {t['rms_m'] * 1e3:>9.3f}")
-    lines.append(f"status: {result.status}; residual spread {result.sigma_scale:.3g} x the "
-                 f"assumed noise")
+    noise = result.noise
+    lines.append(f"noise from the residuals: camera {noise.get('position_m', math.nan) * 1e3:.3g} "
+                 f"mm, tachometer {noise.get('omega_rad_s', math.nan):.3g} rad/s")
+    lines.append(f"status: {result.status}")
     return "\n".join(lines)
 
 

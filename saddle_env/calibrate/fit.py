@@ -34,6 +34,7 @@ Z95 = 1.959963984540054
 MIN_FRAMES = 6        # tracked frames a track needs: two segments of three
 RCOND = 1e-9          # singular values below this fraction of the largest: no information
 MAX_UNKNOWNS = 20_000
+ODD_TRACK = 1.2      # a track's residual this many times the others' median is flagged
 REWEIGHTS = 2         # refits with the noise re-estimated from the residuals
 
 
@@ -80,6 +81,7 @@ class FitResult:
     iterations: int
     status: str
     warnings: list[str] = field(default_factory=list)
+    noise: dict[str, float] = field(default_factory=dict)
     model: Model | None = field(default=None, repr=False)
     x: np.ndarray | None = field(default=None, repr=False)
 
@@ -87,7 +89,7 @@ class FitResult:
         return {"estimates": {k: e.as_dict() for k, e in self.estimates.items()},
                 "tracks": self.tracks, "env_options": self.env_options, "drive": self.drive,
                 "cost": self.cost, "noise_scale": self.sigma_scale,
-                "iterations": self.iterations, "status": self.status,
+                "noise": self.noise, "iterations": self.iterations, "status": self.status,
                 "warnings": self.warnings}
 
 
@@ -328,9 +330,10 @@ def covariance(J: np.ndarray, scale2: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 HINTS = {
-    "obs_delay": "with a constant saddle speed and no theta column the scene looks the same at "
-                 "every moment in the saddle's frame, so a latency trades against the saddle's "
-                 "start angle: record the encoder's angle (theta) or vary the speed",
+    "obs_delay": "while the saddle's speed stays constant the scene looks the same at every "
+                 "moment in the saddle's frame, so without a theta column a latency trades "
+                 "against each track's start angle: record the encoder's angle (theta) or vary "
+                 "the speed",
     "motor_tau": "the motor's lag shows only while the voltage changes: vary it",
     "motor_gain": "needs a tachometer column or a speed that changes the ball's motion",
     "x0": "the axis offset trades against the orbit's own centre when few turns are seen",
@@ -488,9 +491,27 @@ def summarise(model: Model, v: np.ndarray, v0: np.ndarray, obj: _Objective,
         if "omega0" in slots:
             row["omega0"] = float(v[slots["omega0"]])
         per_track.append(row)
+    rms = np.array([t["rms_m"] for t in per_track])
+    if len(rms) >= 3:
+        for t, r_k in zip(per_track, rms):
+            others = float(np.median(rms[rms != r_k])) if np.any(rms != r_k) else r_k
+            if r_k > ODD_TRACK * others:
+                msg = (f"{t['source']}: residual {r_k * 1e3:.3g} mm, {r_k / others:.2g}x the "
+                       f"other tracks': mistracked, or the fit sits in a wrong minimum (the "
+                       f"intervals assume it does not); look at it in the plot, fit without "
+                       f"it, or start from other values (--set)")
+                messages.append(msg)
+                warnings.warn(msg, FitWarning, stacklevel=3)
+                say("warning: " + msg)
+    if ev.failed:
+        msg = (f"{ev.failed} segment(s) failed to integrate at the fitted point; their "
+               f"residuals are placeholders: check the scene's known parameters")
+        messages.append(msg)
+        warnings.warn(msg, FitWarning, stacklevel=3)
     env_options = env_options_of(model.config, estimates, values)
+    noise = {"position_m": model.sigma, "omega_rad_s": model.sigma_omega}
     return FitResult(estimates, per_track, env_options, model.drive, 0.5 * float(r @ r),
-                     math.sqrt(scale2), iterations, status, messages, model, v)
+                     math.sqrt(scale2), iterations, status, messages, noise, model, v)
 
 
 def env_options_of(config: EnvConfig, estimates: dict[str, Estimate],
