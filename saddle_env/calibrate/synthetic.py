@@ -20,6 +20,7 @@ import argparse
 import json
 import sys
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -126,7 +127,9 @@ def synthetic_tracks(env_id: str = "SaddleTrap-Lab-v0", n_tracks: int = 3,
         tracks.append(Track(data[:, 0], x, y, source=f"<synthetic {env_id} episode {ep}>",
                             **extra))
     env.close()
-    return tracks, config
+    # the configuration that made them, with the camera's and the tachometer's noise the
+    # tracks carry (added here rather than by the environment, whose noise is off above)
+    return tracks, replace(config, position_noise=position_noise, omega_noise=omega_noise)
 
 
 __all__ = ["synthetic_tracks"]
