@@ -73,6 +73,8 @@ CLIS: dict[str, Callable[[], argparse.ArgumentParser]] = {
     "train.py": _build_parser("train"),
     "saddle-eval": _build_parser("agents.evaluation.evaluate"),
     "saddle-export": _build_parser("agents.evaluation.export"),
+    "saddle-fit": _build_parser("saddle_env.calibrate.cli"),
+    "python -m saddle_env.calibrate.synthetic": _build_parser("saddle_env.calibrate.synthetic"),
     "saddle-sim": _build_parser("saddle_env.cli"),
     "saddle-bench": _build_parser("saddle_env.bench"),
     "saddle-reproduce": _build_parser("saddle_env.reproduce.cli"),

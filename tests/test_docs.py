@@ -40,7 +40,7 @@ USER_PAGES = sorted(p for p in DOCS.rglob("*.md") if NOTES not in p.parents)
 NOTE_PAGES = sorted(NOTES.glob("*.md"))
 PAGES = [ROOT / "README.md", *USER_PAGES]
 PENDING: set[str] = set()  # pages another change still has to write (none now)
-TOOLS = ("saddle-sim", "saddle-eval", "saddle-export", "saddle-bench", "saddle-reproduce")
+TOOLS = ("saddle-sim", "saddle-eval", "saddle-export", "saddle-bench", "saddle-reproduce", "saddle-fit")
 
 
 def _load_hooks():

@@ -1,0 +1,7 @@
+"""``python -m saddle_env.calibrate``: the ``saddle-fit`` command."""
+
+import sys
+
+from .cli import main
+
+sys.exit(main())
