@@ -59,6 +59,7 @@ def test_a_latency_with_a_constant_speed_and_no_angle_is_reported_unidentifiable
         res = fit_tracks(tracks, replace(truth, obs_delay=0.01), ["obs_delay"])
     e = res.estimates["obs_delay"]
     assert not e.identifiable and e.interval == (-math.inf, math.inf)
+    assert "obs_delay" not in res.env_options     # no number for gym.make to trust
     assert res.as_dict()["estimates"]["obs_delay"]["high"] == "inf"
     # with the encoder's angle the same tracks pin it
     tracks, truth = synthetic_tracks("SaddleTrap-v0", n_tracks=2, seconds=1.0, fps=60, R=R,
@@ -135,6 +136,22 @@ def test_bad_arguments_are_refused_naming_the_option_and_its_range(tmp_path, cap
     err = capsys.readouterr().err
     assert message in err, err
     assert not (tmp_path / "o").exists()
+
+
+def test_the_synthetic_command_writes_tracks_that_read_back_and_their_truth(tmp_path, capsys):
+    from saddle_env.calibrate import read_tracks
+    from saddle_env.calibrate.synthetic import main as synthetic_main
+    assert synthetic_main([str(tmp_path / "run"), "--tracks", "2", "--seconds", "0.3", "--fps",
+                           "90", "--columns", "omega,voltage,theta", "--set", "R=0.0223",
+                           "obs_delay=0.02"]) == 0
+    tracks = read_tracks(tmp_path / "run")
+    assert len(tracks) == 2 and tracks[0].channels == ("t", "x", "y", "omega", "voltage", "theta")
+    assert np.allclose(np.diff(tracks[0].t), 1 / 90) and tracks[0].t[0] >= 0.02
+    truth = json.loads((tmp_path / "run" / "truth.json").read_text())
+    assert truth["R"] == 0.0223 and truth["obs_delay"] == 0.02 and truth["drag_quadratic"] > 0
+    with pytest.raises(SystemExit):
+        synthetic_main([str(tmp_path / "bad"), "--fps", "0.5"])
+    assert "fps must be in [1, 10000]" in capsys.readouterr().err
 
 
 def test_too_few_frames_are_refused_naming_the_file(tmp_path):
