@@ -58,6 +58,9 @@ def test_the_runner_trains_the_algorithm_asked_for(tmp_path, monkeypatch):
         run.mkdir(parents=True)
         (run / "evaluations_wall.csv").write_text(
             "timesteps,wall_seconds,mean_return,mean_trapping_time\n100,1.5,10.0,0.4\n")
+        from agents.training.selection import validation_set
+
+        (run / "curve_episodes.json").write_text(json.dumps(validation_set(settings)))
         return run
 
     monkeypatch.setattr("agents.training.trainer.train", fake_train)
