@@ -180,3 +180,49 @@ def test_a_run_scores_its_curve_on_the_episodes_evaluate_runs(tmp_path):
     curve = np.load(run / "evaluations.npz")
     i = list(curve["timesteps"]).index(pick["steps"])
     assert float(curve["results"][i].mean()) == pytest.approx(pick["mean_return"], rel=1e-9)
+
+
+def test_selection_bias_compares_both_rules_on_unseen_episodes(tmp_path, monkeypatch):
+    """agents.benchmark.selection_bias: each rule's recorded score against the same
+    network's score on unseen episodes (COMPARE_SEED), per run and as mean ± SE."""
+    from agents.benchmark import selection_bias as sb
+    from agents.training import selection
+
+    settings = _settings(tmp_path)
+    runs = []
+    for seed, (max_steps, new_steps) in enumerate([(200, 300), (400, 400)]):
+        run = tmp_path / f"r{seed}"
+        (run / "candidates").mkdir(parents=True)
+        (run / "config.json").write_text(json.dumps({"env_id": "SaddleTrap-v0",
+                                                     "eval_episodes": 4,
+                                                     "max_episode_steps": 10}))
+        cands = []
+        for steps in (200, 300, 400):
+            (run / "candidates" / f"snapshot_{steps}_steps.zip").write_bytes(b"")
+            cands.append({"steps": steps, "mean_return": steps / 10.0,
+                          "mean_trapping_time": steps / 100.0,
+                          "fresh_mean_return": steps / 10.0 - 5,
+                          "fresh_mean_trapping_time": steps / 100.0 - 0.05})
+        (run / "selection.json").write_text(json.dumps(
+            {"candidates": cands, "max_rule_at_steps": max_steps,
+             "selected_at_steps": new_steps}))
+        runs.append(run)
+    unseen_seeds = []
+
+    def fake_score(path, s, episodes):
+        unseen_seeds.append(episodes["seed"])
+        steps = int(Path(path).stem.split("_")[1])
+        return {"mean_return": steps / 10.0 - 6, "mean_trapping_time": steps / 100.0 - 0.1}
+
+    monkeypatch.setattr(selection, "score", fake_score)
+    rows = sb.run_rows(runs[0], 8) + sb.run_rows(runs[1], 8)
+    assert set(unseen_seeds) == {COMPARE_SEED} and settings.eval_episodes == 4
+    by_rule = {(r["run"], r["rule"]): r for r in rows}
+    assert by_rule[("r0", "max")]["bias_trapping_time"] == pytest.approx(0.1)
+    assert by_rule[("r0", "top-k re-evaluated")]["bias_trapping_time"] == pytest.approx(0.05)
+    assert by_rule[("r0", "top-k re-evaluated")]["selected_at_steps"] == 300
+    summary = {e["rule"]: e for e in sb.summarise(rows)}
+    assert summary["max"]["runs"] == 2
+    assert summary["top-k re-evaluated"]["bias_return"]["mean"] == pytest.approx(1.0)
+    assert summary["max"]["bias_return"]["se"] == pytest.approx(0.0)
+    assert "top-k re-evaluated" in sb.markdown(sb.summarise(rows))
