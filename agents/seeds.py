@@ -5,11 +5,14 @@ training or model selection.
 |---|---|
 | ``s .. s + n_envs − 1`` (s = ``--seed``, 0-99) | a training run's balls (each ball's |
 | | generator carries on across its resets) |
-| ``SEARCH_SEED ..`` (64 episodes) | the best-constant search, also the warm start's target |
+| ``SEARCH_SEED ..`` (64 episodes) | the best-constant grid search, also the warm start's |
+| | target and ``mpc``'s reference speed |
+| ``SEARCH_SEED + 64 ..`` (512) | best-const's paired comparison of the grid's best speeds |
 | ``VALIDATION_SEED ..`` | the validation curve of every training run (the same episodes |
 | | for every seed) and the reference lines drawn beside it |
-| ``RESELECT_SEED ..`` | the fresh episodes on which a run's best snapshots are |
-| | re-evaluated before one is shipped (`agents.training.selection`) |
+| ``RESELECT_SEED + s·n ..`` | the fresh episodes on which run s's best snapshots are |
+| | re-evaluated before one is shipped (n = its validation episodes, |
+| | `agents.training.selection`) |
 | ``TEST_SEED ..`` | the leaderboard's frozen test set, nothing else |
 | ``COMPARE_SEED ..`` | the comparison ``train.py`` prints at the end of a run |
 | ``IMITATION_SEED + s·k ..`` | run s's imitation warm start (k = its episodes, `agents.training.imitation`) |

@@ -42,6 +42,13 @@ def test_the_seed_ranges_of_selection_never_meet_each_other_or_the_test_set():
 
     with pytest.raises(ValueError, match="--eval-episodes must be at most"):
         TrainSettings(env_id="SaddleTrap-v0", eval_episodes=MAX_EVAL_EPISODES + 1).validate()
+    from agents.training.selection import fresh_set
+
+    sets = [fresh_set(TrainSettings(env_id="SaddleTrap-v0", eval_episodes=256, seed=s).validate())
+            for s in (0, 1, 99)]
+    assert [f["seed"] for f in sets] == [RESELECT_SEED, RESELECT_SEED + 256, RESELECT_SEED + 99 * 256]
+    with pytest.raises(ValueError, match="must end before the test set"):
+        fresh_set(TrainSettings(env_id="SaddleTrap-v0", eval_episodes=256, seed=1954).validate())
 
 
 def test_evaluate_records_the_episode_set_it_ran():
@@ -205,7 +212,7 @@ def test_selection_bias_compares_both_rules_on_unseen_episodes(tmp_path, monkeyp
                           "fresh_mean_trapping_time": steps / 100.0 - 0.05})
         (run / "selection.json").write_text(json.dumps(
             {"candidates": cands, "max_rule_at_steps": max_steps,
-             "selected_at_steps": new_steps}))
+             "selected_at_steps": new_steps, "fresh_episodes": selection.fresh_set(settings)}))
         runs.append(run)
     unseen_seeds = []
 
@@ -219,6 +226,8 @@ def test_selection_bias_compares_both_rules_on_unseen_episodes(tmp_path, monkeyp
     assert set(unseen_seeds) == {COMPARE_SEED} and settings.eval_episodes == 4
     by_rule = {(r["run"], r["rule"]): r for r in rows}
     assert by_rule[("r0", "max")]["bias_trapping_time"] == pytest.approx(0.1)
+    assert by_rule[("r0", "top-k re-evaluated")]["set_offset_trapping_time"] == \
+        pytest.approx(0.05)
     assert by_rule[("r0", "top-k re-evaluated")]["bias_trapping_time"] == pytest.approx(0.05)
     assert by_rule[("r0", "top-k re-evaluated")]["selected_at_steps"] == 300
     summary = {e["rule"]: e for e in sb.summarise(rows)}

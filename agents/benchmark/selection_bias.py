@@ -12,7 +12,8 @@ applied to the same run's snapshots:
   fresh re-selection episodes (the score its sidecar records).
 
 The bias of a rule is its recorded score minus the same network's score on the unseen
-episodes (mean trapping time [s]; the mean return beside it). The report gives, per level,
+episodes (mean trapping time [s]; the mean return beside it), and beside it the part of it
+that is the scoring episodes' own offset, not the choice (`run_rows`). The report gives, per level,
 the mean bias over runs ± its standard error (SD over runs / sqrt(runs)), and each run's
 row. Writes ``<out>.json`` and ``<out>.csv`` (a row per run, written as each run is done).
 
@@ -33,17 +34,24 @@ from typing import Any
 from agents.seeds import COMPARE_SEED
 
 FIELDS = ["env_id", "run", "rule", "selected_at_steps", "recorded_trapping_time",
-          "unseen_trapping_time", "bias_trapping_time", "recorded_return", "unseen_return",
-          "bias_return"]
+          "unseen_trapping_time", "bias_trapping_time", "set_offset_trapping_time",
+          "recorded_return", "unseen_return", "bias_return", "set_offset_return"]
 
 
 def run_rows(run_dir: Path, episodes: int) -> list[dict[str, Any]]:
-    """The two rules' rows of one run (its candidates scored on the unseen episodes)."""
-    from agents.control.rollout import episode_set
-    from agents.training.runs import settings_for_resume
-    from agents.training.selection import SELECTION_JSON, score
+    """The two rules' rows of one run: every candidate and the final network scored on the
+    unseen episodes. ``set_offset``: how much the rule's scoring episodes flatter a network
+    they did not choose, against the unseen ones (the validation set: the final network,
+    whose curve point is no choice; the fresh set: the mean over the candidates, which the
+    validation set chose); the episode sets are the same for every run of a level, so this
+    part of a bias does not average out over seeds."""
+    import numpy as np
 
-    record = json.loads((run_dir / SELECTION_JSON).read_text())
+    from agents.control.rollout import episode_set
+    from agents.training import selection
+    from agents.training.runs import settings_for_resume
+
+    record = json.loads((run_dir / selection.SELECTION_JSON).read_text())
     path = {int(c["steps"]): run_dir / "candidates" / f"snapshot_{c['steps']}_steps.zip"
             for c in record["candidates"]}
     settings = settings_for_resume(next(iter(path.values())))
@@ -51,22 +59,47 @@ def run_rows(run_dir: Path, episodes: int) -> list[dict[str, Any]]:
     assert settings.max_episode_steps is not None
     unseen_set = episode_set(config, COMPARE_SEED, episodes, settings.max_episode_steps)
     by_steps = {int(c["steps"]): c for c in record["candidates"]}
+    fresh = selection.fresh_set(settings)
+    if record["fresh_episodes"] != fresh:
+        # A run from before each run had fresh episodes of its own: its candidates are
+        # scored on the set the trainer now gives this seed, and the choice is made again.
+        for steps, c in by_steps.items():
+            again = selection.score(path[steps], settings, fresh)
+            c["fresh_mean_return"] = again["mean_return"]
+            c["fresh_mean_trapping_time"] = again["mean_trapping_time"]
+        record["selected_at_steps"] = max(by_steps, key=lambda k: (
+            by_steps[k]["fresh_mean_return"], k))
+    for steps, c in by_steps.items():
+        c["unseen"] = selection.score(path[steps], settings, unseen_set)
+    offsets = {"mean_trapping_time": 0.0, "mean_return": 0.0}
+    fresh_offsets = {k: float(np.mean([c[f"fresh_{k}"] - c["unseen"][k]
+                                       for c in by_steps.values()])) for k in offsets}
+    final = run_dir / "final_model.zip"
+    curve = run_dir / "evaluations.npz"
+    if final.is_file() and curve.is_file():
+        data = np.load(curve)
+        unseen_final = selection.score(final, settings, unseen_set)
+        offsets = {"mean_trapping_time": float(data["trapping_times"][-1].mean())
+                   - unseen_final["mean_trapping_time"],
+                   "mean_return": float(data["results"][-1].mean())
+                   - unseen_final["mean_return"]}
     rows = []
-    for rule, steps, recorded_t, recorded_r in (
-            ("max", record["max_rule_at_steps"], "mean_trapping_time", "mean_return"),
-            ("top-k re-evaluated", record["selected_at_steps"], "fresh_mean_trapping_time",
-             "fresh_mean_return")):
+    for rule, steps, prefix, offset in (
+            ("max", record["max_rule_at_steps"], "", offsets),
+            ("top-k re-evaluated", record["selected_at_steps"], "fresh_", fresh_offsets)):
         c = by_steps[int(steps)]
-        if "unseen" not in c:
-            c["unseen"] = score(path[int(steps)], settings, unseen_set)
         u = c["unseen"]
         rows.append({"env_id": settings.env_id, "run": run_dir.name, "rule": rule,
                      "selected_at_steps": int(steps),
-                     "recorded_trapping_time": c[recorded_t],
+                     "recorded_trapping_time": c[prefix + "mean_trapping_time"],
                      "unseen_trapping_time": u["mean_trapping_time"],
-                     "bias_trapping_time": c[recorded_t] - u["mean_trapping_time"],
-                     "recorded_return": c[recorded_r], "unseen_return": u["mean_return"],
-                     "bias_return": c[recorded_r] - u["mean_return"]})
+                     "bias_trapping_time": c[prefix + "mean_trapping_time"]
+                     - u["mean_trapping_time"],
+                     "set_offset_trapping_time": offset["mean_trapping_time"],
+                     "recorded_return": c[prefix + "mean_return"],
+                     "unseen_return": u["mean_return"],
+                     "bias_return": c[prefix + "mean_return"] - u["mean_return"],
+                     "set_offset_return": offset["mean_return"]})
     return rows
 
 
@@ -79,7 +112,7 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             if not sel:
                 continue
             entry: dict[str, Any] = {"env_id": env_id, "rule": rule, "runs": len(sel)}
-            for key in ("bias_trapping_time", "bias_return"):
+            for key in ("bias_trapping_time", "bias_return", "set_offset_trapping_time"):
                 values = [r[key] for r in sel]
                 se = statistics.stdev(values) / math.sqrt(len(values)) if len(values) > 1 \
                     else float("nan")
@@ -89,12 +122,13 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def markdown(summary: list[dict[str, Any]]) -> str:
-    lines = ["| level | rule | runs | bias, trapping time [s] | bias, return |",
-             "|---|---|---|---|---|"]
+    lines = ["| level | rule | runs | bias, trapping time [s] | of which the episode set's "
+             "offset [s] | bias, return |", "|---|---|---|---|---|---|"]
     for e in summary:
-        t, r = e["bias_trapping_time"], e["bias_return"]
+        t, r, o = e["bias_trapping_time"], e["bias_return"], e["set_offset_trapping_time"]
         lines.append(f"| {e['env_id']} | {e['rule']} | {e['runs']} | "
-                     f"{t['mean']:+.3f} ± {t['se']:.3f} | {r['mean']:+.1f} ± {r['se']:.1f} |")
+                     f"{t['mean']:+.3f} ± {t['se']:.3f} | {o['mean']:+.3f} | "
+                     f"{r['mean']:+.1f} ± {r['se']:.1f} |")
     return "\n".join(lines)
 
 

@@ -13,8 +13,9 @@ episodes of the curve it is drawn beside.
 evaluations is biased upward: the snapshot that scored best is, on average, one that was
 lucky on those episodes (the winner's curse). So the run keeps the `TOP` snapshots with the
 highest mean validation return (ties: the later one), and when training ends it evaluates
-them again on ``eval_episodes`` *fresh* episodes (seeds from `RESELECT_SEED`, disjoint from
-the validation set and from the leaderboard's test set) and ships the one with the highest
+them again on ``eval_episodes`` *fresh* episodes (`fresh_set`: seeds from `RESELECT_SEED`,
+a set of its own for each run, disjoint from the validation set and from the leaderboard's
+test set) and ships the one with the highest
 mean return there (ties: the later one) as ``selected_model.zip``. Its recorded score is the
 fresh one. Choosing among three on the fresh sample still leaves a small curse, against one
 in thirteen or twenty on the first; smoothing the curve would trade the curse for a lag on a
@@ -37,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from agents.control.rollout import episode_set
-from agents.seeds import RESELECT_SEED, VALIDATION_SEED
+from agents.seeds import RESELECT_SEED, TEST_SEED, VALIDATION_SEED
 from agents.training.run_report import CURVE_EPISODES
 from agents.training.runs import TrainSettings
 
@@ -53,8 +54,18 @@ def validation_set(settings: TrainSettings) -> dict[str, Any]:
 
 
 def fresh_set(settings: TrainSettings) -> dict[str, Any]:
-    """The episodes the best snapshots are re-evaluated on (`RESELECT_SEED`)."""
-    return _set(settings, RESELECT_SEED)
+    """The episodes the best snapshots of run ``settings.seed`` are re-evaluated on:
+    ``RESELECT_SEED + seed · eval_episodes`` onwards, a set of its own for every run, so that
+    the offset of one set of episodes (easier or harder than the level's average) is noise
+    across runs rather than a bias shared by all of them."""
+    assert settings.eval_episodes is not None
+    start = RESELECT_SEED + settings.seed * settings.eval_episodes
+    if settings.seed < 0 or start + settings.eval_episodes > TEST_SEED:
+        raise ValueError(f"--seed {settings.seed} with --eval-episodes {settings.eval_episodes}: "
+                         f"the re-selection episodes (seeds from {RESELECT_SEED:,} + seed x "
+                         f"eval_episodes) must end before the test set's {TEST_SEED:,}; use "
+                         f"a seed in [0, {(TEST_SEED - RESELECT_SEED) // settings.eval_episodes - 1}]")
+    return _set(settings, start)
 
 
 def _set(settings: TrainSettings, seed: int) -> dict[str, Any]:
