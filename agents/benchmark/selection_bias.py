@@ -139,16 +139,31 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--episodes", type=int, default=500,
                     help="unseen episodes per network (seeds from COMPARE_SEED)")
     ap.add_argument("--out", default="selection_bias", help="<out>.json and <out>.csv")
+    ap.add_argument("--resume", action="store_true",
+                    help="read the rows of runs already in <out>.csv (by folder name) "
+                         "instead of evaluating them again")
     args = ap.parse_args(argv)
     if args.episodes < 2:
         ap.error(f"--episodes must be at least 2, got {args.episodes}")
     out = Path(args.out)
     rows: list[dict[str, Any]] = []
+    done: dict[str, list[dict[str, Any]]] = {}
+    if args.resume and out.with_suffix(".csv").is_file():
+        with open(out.with_suffix(".csv"), newline="") as f:
+            for row in csv.DictReader(f):
+                parsed: dict[str, Any] = {k: row[k] for k in ("env_id", "run", "rule")}
+                parsed.update({k: float(row[k]) for k in FIELDS if k not in parsed})
+                parsed["selected_at_steps"] = int(parsed["selected_at_steps"])
+                done.setdefault(parsed["run"], []).append(parsed)
     with open(out.with_suffix(".csv"), "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=FIELDS)
         w.writeheader()
         for run in args.runs:
             run_dir = Path(run)
+            if run_dir.name in done:
+                w.writerows(done[run_dir.name])
+                rows += done[run_dir.name]
+                continue
             if not (run_dir / "selection.json").is_file():
                 print(f"{run}: no selection.json (unfinished, or not a selecting run); "
                       f"skipped", file=sys.stderr)
