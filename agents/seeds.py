@@ -10,7 +10,7 @@ training or model selection.
 | ``SEARCH_SEED + 64 ..`` (512) | best-const's paired comparison of the grid's best speeds |
 | ``VALIDATION_SEED ..`` | the validation curve of every training run (the same episodes |
 | | for every seed) and the reference lines drawn beside it |
-| ``RESELECT_SEED + s·n ..`` | the fresh episodes on which run s's best snapshots are |
+| ``RESELECT_SEED + s·4n ..`` | the 4n fresh episodes on which run s's best snapshots are |
 | | re-evaluated before one is shipped (n = its validation episodes, |
 | | `agents.training.selection`) |
 | ``TEST_SEED ..`` | the leaderboard's frozen test set, nothing else |

@@ -46,9 +46,11 @@ def test_the_seed_ranges_of_selection_never_meet_each_other_or_the_test_set():
 
     sets = [fresh_set(TrainSettings(env_id="SaddleTrap-v0", eval_episodes=256, seed=s).validate())
             for s in (0, 1, 99)]
-    assert [f["seed"] for f in sets] == [RESELECT_SEED, RESELECT_SEED + 256, RESELECT_SEED + 99 * 256]
+    n = 4 * 256                                     # FRESH_FACTOR x eval_episodes
+    assert [f["seed"] for f in sets] == [RESELECT_SEED, RESELECT_SEED + n, RESELECT_SEED + 99 * n]
+    assert {f["episodes"] for f in sets} == {n}
     with pytest.raises(ValueError, match="must end before the test set"):
-        fresh_set(TrainSettings(env_id="SaddleTrap-v0", eval_episodes=256, seed=1954).validate())
+        fresh_set(TrainSettings(env_id="SaddleTrap-v0", eval_episodes=256, seed=489).validate())
 
 
 def test_evaluate_records_the_episode_set_it_ran():

@@ -13,7 +13,7 @@ episodes of the curve it is drawn beside.
 evaluations is biased upward: the snapshot that scored best is, on average, one that was
 lucky on those episodes (the winner's curse). So the run keeps the `TOP` snapshots with the
 highest mean validation return (ties: the later one), and when training ends it evaluates
-them again on ``eval_episodes`` *fresh* episodes (`fresh_set`: seeds from `RESELECT_SEED`,
+them again on four times as many *fresh* episodes (`fresh_set`: seeds from `RESELECT_SEED`,
 a set of its own for each run, disjoint from the validation set and from the leaderboard's
 test set) and ships the one with the highest
 mean return there (ties: the later one) as ``selected_model.zip``. Its recorded score is the
@@ -43,6 +43,7 @@ from agents.training.run_report import CURVE_EPISODES
 from agents.training.runs import TrainSettings
 
 TOP = 3                                   # snapshots re-evaluated on fresh episodes
+FRESH_FACTOR = 4                          # fresh episodes per validation episode
 SELECTION_JSON = "selection.json"
 RULE = (f"the {TOP} snapshots with the highest mean validation return, re-evaluated on "
         f"fresh episodes; the highest there is shipped (ties: the later snapshot)")
@@ -55,17 +56,20 @@ def validation_set(settings: TrainSettings) -> dict[str, Any]:
 
 def fresh_set(settings: TrainSettings) -> dict[str, Any]:
     """The episodes the best snapshots of run ``settings.seed`` are re-evaluated on:
-    ``RESELECT_SEED + seed · eval_episodes`` onwards, a set of its own for every run, so that
-    the offset of one set of episodes (easier or harder than the level's average) is noise
-    across runs rather than a bias shared by all of them."""
-    assert settings.eval_episodes is not None
-    start = RESELECT_SEED + settings.seed * settings.eval_episodes
-    if settings.seed < 0 or start + settings.eval_episodes > TEST_SEED:
+    `FRESH_FACTOR` × ``eval_episodes`` of them from ``RESELECT_SEED + seed · FRESH_FACTOR ·
+    eval_episodes``, a set of its own for every run, so that the offset of one set of
+    episodes (easier or harder than the level's average) is noise across runs rather than a
+    bias shared by all of them, and four times smaller than the validation set's would be
+    (a 256-episode set of Capture is off by about 0.15 s; docs/training_profile.md)."""
+    assert settings.eval_episodes is not None and settings.max_episode_steps is not None
+    n = FRESH_FACTOR * settings.eval_episodes
+    start = RESELECT_SEED + settings.seed * n
+    if settings.seed < 0 or start + n > TEST_SEED:
         raise ValueError(f"--seed {settings.seed} with --eval-episodes {settings.eval_episodes}: "
                          f"the re-selection episodes (seeds from {RESELECT_SEED:,} + seed x "
-                         f"eval_episodes) must end before the test set's {TEST_SEED:,}; use "
-                         f"a seed in [0, {(TEST_SEED - RESELECT_SEED) // settings.eval_episodes - 1}]")
-    return _set(settings, start)
+                         f"{FRESH_FACTOR} x eval_episodes) must end before the test set's "
+                         f"{TEST_SEED:,}; use a seed in [0, {(TEST_SEED - RESELECT_SEED) // n - 1}]")
+    return episode_set(settings.environment()[1], start, n, settings.max_episode_steps)
 
 
 def _set(settings: TrainSettings, seed: int) -> dict[str, Any]:
@@ -123,6 +127,7 @@ class Selection:
         self.run_dir, self.settings, self.top = Path(run_dir), settings, top
         self.folder = self.run_dir / "candidates"
         self.episodes = validation_set(settings)
+        fresh_set(settings)           # a seed whose fresh episodes would not fit fails now
         self.kept: list[dict[str, Any]] = []
         self.steps: list[int] = []
         self.returns: list[np.ndarray] = []
@@ -190,5 +195,5 @@ class Selection:
         return selected
 
 
-__all__ = ["CURVE_EPISODES", "RULE", "SELECTION_JSON", "TOP", "Selection", "copy_model",
+__all__ = ["CURVE_EPISODES", "FRESH_FACTOR", "RULE", "SELECTION_JSON", "TOP", "Selection", "copy_model",
            "fresh_set", "model_files", "score", "validation_set"]
