@@ -20,8 +20,8 @@ mean return there (ties: the later one) as ``selected_model.zip``. Its recorded 
 fresh one. Choosing among three on the fresh sample still leaves a small curse, against one
 in thirteen or twenty on the first; smoothing the curve would trade the curse for a lag on a
 curve that rises, and keeping the final network would give up the selection that the
-learning rate's schedule and the plateaus of the curves need (docs/training_profile.md,
-"Model selection").
+learning rate's schedule and the plateaus of the curves need (docs/model_selection.md,
+with the bias measured on Capture and Storm).
 
 ``selection.json`` records the rule, both episode sets and every candidate's two scores,
 and the snapshot the previous rule (the latest maximum of the curve) would have shipped.
@@ -60,7 +60,7 @@ def fresh_set(settings: TrainSettings) -> dict[str, Any]:
     eval_episodes``, a set of its own for every run, so that the offset of one set of
     episodes (easier or harder than the level's average) is noise across runs rather than a
     bias shared by all of them, and four times smaller than the validation set's would be
-    (a 256-episode set of Capture is off by about 0.15 s; docs/training_profile.md)."""
+    (sets of a few hundred of Capture's episodes differ by 0.1-0.3 s; docs/model_selection.md)."""
     assert settings.eval_episodes is not None and settings.max_episode_steps is not None
     n = FRESH_FACTOR * settings.eval_episodes
     start = RESELECT_SEED + settings.seed * n
