@@ -82,9 +82,10 @@ def test_best_const_is_searched_and_cached_per_level(tmp_path, monkeypatch, caps
     real = BC.search_best_constant
     searched = []
 
-    def small(config, episodes, seed, max_episode_steps, progress=False):
+    def small(config, episodes, seed, max_episode_steps, progress=False, paired=0):
         searched.append(config)
-        return real(config, 2, seed, 15)  # a tiny search: this tests the plumbing
+        assert paired == BC.PAIRED_EPISODES    # the baseline's search is the paired one
+        return real(config, 2, seed, 15, paired=4)  # a tiny search: this tests the plumbing
 
     monkeypatch.setattr(BC, "search_best_constant", small)
     for level in LEVELS:
