@@ -159,6 +159,7 @@ def test_time_to_target_refuses_a_curve_from_other_episodes_than_its_targets(tmp
         ttt.run("SaddleTrap-v0", [0], None, tmp_path, label="b", **kw)
 
 
+@pytest.mark.slow
 def test_a_run_scores_its_curve_on_the_episodes_evaluate_runs(tmp_path):
     """End to end (tiny budget): the curve's score of the selected snapshot is what the
     evaluation tool gives the shipped file on the validation episodes, and its recorded
