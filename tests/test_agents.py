@@ -195,6 +195,60 @@ def test_best_constant_search_is_cached(tmp_path, monkeypatch):
     assert json.loads((tmp_path / "best.json").read_text())
 
 
+def test_the_paired_comparison_keeps_the_grid_choice_unless_beaten_beyond_its_error():
+    """Speeds far apart are told apart on common episodes; a speed against itself ties;
+    the incumbent is replaced only by a speed that beats it by more than two standard
+    errors (issue 44)."""
+    config = EnvConfig(R=0.033)
+    wc = critical_omega(config.scene())
+    slow, good = round(0.5 * wc, 3), round(1.3 * wc, 3)   # below critical: the ball is lost
+    res = BC.paired_comparison(config, [slow, good, good], episodes=12, seed=5,
+                               max_episode_steps=100, incumbent=slow)
+    assert res["omega"] == good and res["ties"] == [good, good]
+    rows = {(r["omega"], i): r for i, r in enumerate(res["speeds"])}
+    assert rows[(slow, 0)]["difference"] < -2 * rows[(slow, 0)]["se"]
+    assert rows[(good, 2)]["difference"] == 0.0
+    same = BC.paired_comparison(config, [good, good + 0.001], episodes=12, seed=5,
+                                max_episode_steps=100, incumbent=good + 0.001)
+    assert same["omega"] == good + 0.001          # not beaten beyond its error: kept
+    with pytest.raises(ValueError, match="incumbent must be one of"):
+        BC.paired_comparison(config, [good], episodes=4, incumbent=slow)
+    with pytest.raises(ValueError, match="episodes must be an integer >= 2"):
+        BC.paired_comparison(config, [good], episodes=1)
+
+
+def test_a_paired_search_is_cached_apart_and_records_its_candidates(tmp_path, monkeypatch):
+    monkeypatch.setattr(BC, "CACHE_FILE", tmp_path / "best.json")
+    monkeypatch.setattr(BC, "USER_CACHE_FILE", tmp_path / "user.json")
+    monkeypatch.delenv(BC.CACHE_ENV_VAR)
+    config = EnvConfig(R=0.033)
+    grid = BC.best_constant(config, episodes=3, max_episode_steps=100)
+    both = BC.best_constant(config, episodes=3, max_episode_steps=100, paired=8)
+    assert "paired" not in grid and both["paired"]["episodes"] == 8
+    speeds = [r["omega"] for r in both["paired"]["speeds"]]
+    assert speeds[0] == grid["omega"] == both["paired"]["incumbent"]
+    assert len(speeds) == BC.PAIRED_TOP and both["omega"] in speeds
+    assert both["omega"] in both["paired"]["ties"] and both["paired"]["seed"] == BC.SEARCH_SEED + 3
+    assert len(json.loads((tmp_path / "best.json").read_text())) == 2   # two keys
+
+
+def test_the_shipped_cache_holds_every_level_s_paired_best_const():
+    """The best-const baseline of each of the five first levels is the paired search's,
+    shipped in agents/control/best_const.json (no search at the leaderboard's first use),
+    and its recorded comparison says which speeds it could not tell apart."""
+    from saddle_env.envs import get_level
+
+    for lid in ("SaddleTrap-v0", "SaddleTrap-Gusty-v0", "SaddleTrap-Capture-v0",
+                "SaddleTrap-Storm-v0", "SaddleTrap-Slippery-v0"):
+        level = get_level(lid)
+        hit = BC.cached_best_constant(level.config(), max_episode_steps=level.max_episode_steps,
+                                      paired=BC.PAIRED_EPISODES)
+        assert hit is not None, lid
+        winner = next(r for r in hit["paired"]["speeds"] if r["omega"] == hit["omega"])
+        assert all(r["difference"] <= 2 * r["se"] for r in hit["paired"]["speeds"]), lid
+        assert winner["difference"] == 0.0 and hit["omega"] in hit["paired"]["ties"]
+
+
 def test_load_policy_rejects_unknown_names(tmp_path):
     with pytest.raises(ValueError, match="unknown policy"):
         P.load_policy("nope", EnvConfig())

@@ -58,6 +58,9 @@ def test_the_runner_trains_the_algorithm_asked_for(tmp_path, monkeypatch):
         run.mkdir(parents=True)
         (run / "evaluations_wall.csv").write_text(
             "timesteps,wall_seconds,mean_return,mean_trapping_time\n100,1.5,10.0,0.4\n")
+        from agents.training.selection import validation_set
+
+        (run / "curve_episodes.json").write_text(json.dumps(validation_set(settings)))
         return run
 
     monkeypatch.setattr("agents.training.trainer.train", fake_train)
@@ -157,3 +160,37 @@ def test_shorter_budgets_pick_what_the_selection_rule_kept_by_then(tmp_path):
         ttt.shorter_budgets([run], [50], "r", [4])
     with pytest.raises(ValueError, match="--budgets must be positive"):
         ttt.shorter_budgets([run], [0], "r", [4])
+
+
+def test_shorter_budgets_with_reselection_pick_the_best_of_the_top_few_on_fresh_episodes(
+        tmp_path, monkeypatch):
+    """The trainer's rule on a shorter budget: the best three evaluations up to B, scored
+    again on the seed's fresh episodes; the highest there wins (made-up scores)."""
+    from agents.training import runs, selection
+
+    run = tmp_path / "r_seed0"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "evaluations_wall.csv").write_text(
+        "timesteps,wall_seconds,mean_return,mean_trapping_time\n"
+        "100,1.0,5.0,1.0\n200,2.0,9.0,2.0\n300,3.0,8.0,2.5\n400,4.0,7.0,1.5\n500,5.0,9.5,3.0\n")
+    for steps in (100, 200, 300, 400, 500):
+        (run / "checkpoints" / f"checkpoint_{steps}_steps.zip").write_bytes(b"")
+    settings = runs.TrainSettings(env_id="SaddleTrap-v0", eval_episodes=4,
+                                  max_episode_steps=10).validate()
+    monkeypatch.setattr(runs, "settings_for_resume", lambda path: settings)
+    fresh = {200: 6.0, 300: 7.5, 400: 7.0}
+    scored = []
+
+    def fake_score(path, s, episodes):
+        steps = int(path.stem.split("_")[1])
+        scored.append((steps, episodes["seed"]))
+        return {"mean_return": fresh[steps]}
+
+    monkeypatch.setattr(selection, "score", fake_score)
+    picks = ttt.shorter_budgets([run], [450], "r", [0], reselect=True)
+    assert picks["r_seed0@450"]["selected_at_steps"] == 300
+    assert sorted(scored) == [(200, selection.fresh_set(settings)["seed"]),
+                              (300, selection.fresh_set(settings)["seed"]),
+                              (400, selection.fresh_set(settings)["seed"])]
+    # without reselection: the curve's latest maximum
+    assert ttt.shorter_budgets([run], [450], "r", [0])["r_seed0@450"]["selected_at_steps"] == 200

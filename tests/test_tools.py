@@ -82,9 +82,10 @@ def test_best_const_is_searched_and_cached_per_level(tmp_path, monkeypatch, caps
     real = BC.search_best_constant
     searched = []
 
-    def small(config, episodes, seed, max_episode_steps, progress=False):
+    def small(config, episodes, seed, max_episode_steps, progress=False, paired=0):
         searched.append(config)
-        return real(config, 2, seed, 15)  # a tiny search: this tests the plumbing
+        assert paired == BC.PAIRED_EPISODES    # the baseline's search is the paired one
+        return real(config, 2, seed, 15, paired=4)  # a tiny search: this tests the plumbing
 
     monkeypatch.setattr(BC, "search_best_constant", small)
     for level in LEVELS:
@@ -307,9 +308,11 @@ def test_train_on_a_level_records_it_and_honours_normalize_and_frame_stack(tmp_p
     selected = json.loads((run / "selected_model.json").read_text())
     evals = np.load(run / "evaluations.npz")
     means = evals["results"].mean(axis=1)
-    # the latest evaluation that reached the best mean, the final model's included
-    last_best = int(np.flatnonzero(means >= means.max())[-1])
-    assert selected["selected_at_steps"] == int(evals["timesteps"][last_best])
+    # one of the best few evaluations (the final model's included), re-evaluated on fresh
+    # episodes (agents.training.selection; tests/test_selection.py has the rule itself)
+    order = sorted(range(len(means)), key=lambda i: (means[i], evals["timesteps"][i]))
+    top = {int(evals["timesteps"][i]) for i in order[-3:]}
+    assert selected["selected_at_steps"] in top
     assert int(evals["timesteps"][-1]) >= 256
     # saddle-eval finds the level in the sidecar and feeds the model as training did
     table = _eval_json(capsys, "--policy", str(run / "final_model.zip"), "--episodes", "2",

@@ -85,7 +85,8 @@ def test_new_searches_go_to_the_cache_the_environment_names(tmp_path, monkeypatc
     target = tmp_path / "cache.json"
     monkeypatch.setenv(bc.CACHE_ENV_VAR, str(target))
     monkeypatch.setattr(bc, "search_best_constant",
-                        lambda c, e, s, m: {"omega": 17.0, "grid": [], "mean_time": 1.0})
+                        lambda c, e, s, m, paired=0: {"omega": 17.0, "grid": [],
+                                                      "mean_time": 1.0})
     config = EnvConfig(R=0.0201)                 # a task no cache has
     assert bc.best_constant(config, max_episode_steps=7)["omega"] == 17.0
     assert bc.CACHE_FILE.read_bytes() == shipped

@@ -7,7 +7,7 @@ PNGs) by one command::
 
 The test seeds (``TEST_SEED`` onwards) are used by nothing else: training runs use seeds
 0-99 (each run's balls are seeded from its own seed), the best-constant search 12,345
-onwards, model selection during training ``VALIDATION_SEED`` onwards. Results are written
+onwards, model selection during training ``VALIDATION_SEED`` and ``RESELECT_SEED`` onwards. Results are written
 policy by policy as they finish (``leaderboard.json``, with every episode's trapping time),
 so an interrupted run keeps what finished and ``--resume`` does only the rest; a shipped
 model is keyed by a digest of its file, so a retrained one is evaluated afresh.
@@ -28,11 +28,12 @@ from typing import Any
 import numpy as np
 
 from agents.benchmark.report import clairvoyant_reference
+from agents.control.best_constant import PAIRED_EPISODES, SEARCH_EPISODES
 from agents.evaluation.model_files import TRUST_FLAG
 from agents.evaluation.policies import is_exported_folder, load_policy
 from agents.evaluation.user_code import parse_policy_kwargs, source_digest
 from agents.paths import DOCS_DIR, MODELS_DIR, REPO_ROOT
-from agents.seeds import SEARCH_SEED, TEST_SEED, VALIDATION_SEED
+from agents.seeds import RESELECT_SEED, SEARCH_SEED, TEST_SEED, VALIDATION_SEED
 from saddle_env.envs import LEVELS, EnvConfig, get_level
 from saddle_env.files import write_text_atomically
 
@@ -191,14 +192,16 @@ def write_markdown(results: dict[str, Any], path: Path, figures: dict[str, str],
         "leaves the rim, the episode length if it is kept. Mean [95 % interval]: percentile "
         "bootstrap for times, distances and effort, Wilson for rates. `zero` always sends "
         "action 0, `random` uniform actions; `const-K` holds K·Ω_crt of the nominal ball, "
-        "`best-const` the best constant speed of the level (searched on 64 seeded episodes), "
+        "`best-const` the best constant speed of the level (a grid searched on 64 seeded "
+        "episodes, its choice checked against the next four speeds on 512 more, paired), "
         "`mpc` is the model-predictive controller. Agents (bold) are the network alone, "
         "deterministic.",
         "",
         "Seeds (agents/seeds.py): test episodes from "
         f"{results['seed']:,} (used by nothing else); training runs seed 0-99; model "
-        f"selection during training on validation episodes from {VALIDATION_SEED:,}; "
-        f"best-const search {SEARCH_SEED:,}–{SEARCH_SEED + 63:,}.",
+        f"selection during training on validation episodes from {VALIDATION_SEED:,} and "
+        f"{RESELECT_SEED:,}; best-const search {SEARCH_SEED:,}–"
+        f"{SEARCH_SEED + SEARCH_EPISODES + PAIRED_EPISODES - 1:,}.",
         "",
     ]
     body = [level_markdown(results["levels"][lid], figures.get(lid))

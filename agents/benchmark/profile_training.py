@@ -18,8 +18,9 @@ The categories, and what each times:
   (the value forward included).
 - *gradient updates*: the algorithm's ``train`` (SB3: every epoch and minibatch), RLlib's
   ``TorchLearner._update``, imitation's ``fit``.
-- *evaluation + selection*: ``evaluate_policy`` inside the selection callback, and model saves
-  (selected model, checkpoints); RLlib: its checkpoints (it selects on training episodes).
+- *evaluation + selection*: the selection's evaluations (`agents.training.selection`: the
+  snapshots on the validation episodes, the best few again on fresh ones at the end) and
+  model saves (snapshots, checkpoints); RLlib: its checkpoints (it does not select).
 - *mpc queries*: ``ModelPredictiveController.predict`` and ``executed`` (imitation labels).
 - *warm start*: the best-constant search or cache read that sets the starting action.
 - *start-up*: building the environments and the model; RLlib: starting Ray and building the
@@ -116,17 +117,18 @@ def _sb3_loop_timers() -> Timers:
     """Timers around what the SB3 back end's loop does with either learner (SB3's own or
     SBX's): the batch env, the rollout buffer's GAE, evaluations and saves, the warm start,
     building the environments."""
-    from stable_baselines3.common import base_class, callbacks
+    from stable_baselines3.common import base_class
     from stable_baselines3.common.buffers import RolloutBuffer
 
-    from agents.training import warm_start
+    from agents.training import selection, warm_start
     from agents.training.backends import sb3 as sb3_backend
     from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
 
     t = Timers()
     t.wrap(SaddleTrapSB3VecEnv, "step_wait", "env stepping")
     t.wrap(RolloutBuffer, "compute_returns_and_advantage", "advantages (GAE)")
-    t.wrap(callbacks, "evaluate_policy", "evaluation + selection")
+    t.wrap(selection.Selection, "offer", "evaluation + selection")
+    t.wrap(selection.Selection, "choose", "evaluation + selection")
     t.wrap(base_class.BaseAlgorithm, "save", "evaluation + selection")
     t.wrap(warm_start, "warm_start", "warm start")
     t.wrap(sb3_backend, "make_vec_env", "start-up")

@@ -6,23 +6,24 @@ hyperparameters from ``--hyperparams`` or the back end's file: ``agents/hyperpar
 ``ppo_sbx.yml`` with ``--backend sbx``) and reads the
 run's validation curve against wall-clock time (``evaluations_wall.csv``: seconds since
 ``train()`` began, so the best-constant search or cache read, the imitation rounds with
-their ``mpc`` queries, every evaluation and model selection count in the time). The
-validation episodes are the runs' own (seeds from `VALIDATION_SEED` + seed; the trapping
-time of an episode is read from its length, to the control step).
+their ``mpc`` queries, every evaluation and model selection count in the time).
 
-The two targets are measured on the validation episodes of seed 0 (`VALIDATION_SEED`
-onwards, ``--eval-episodes`` of them; the seed-1 and seed-2 runs' sets are shifted by one
-and two episodes): **best-const's upper bound** (its 95 % bootstrap interval) and **mpc's
-mean**. For each seed the time to a target is the first evaluation at or past it; the
-report gives the median over seeds (not reached by a seed counts as never, so the median is
-"not reached" when most seeds miss).
+**One sample.** The curve and the two targets are measured on the same episodes:
+``reset(seed=VALIDATION_SEED + i)`` for i < ``--eval-episodes``, each to its end, through the
+evaluation tool's function (`agents.evaluation.evaluate.evaluate`; every seed's run evaluates
+on that set, `agents.training.selection`). The targets are **best-const's upper bound** (its
+95 % bootstrap interval) and **mpc's mean**; each run's recorded episode set
+(``curve_episodes.json``) is checked against the targets' (`same_episodes`: a ValueError,
+not a figure, when they differ). For each seed the time to a target is the first
+evaluation at or past it; the report gives the median over seeds (not reached by a seed
+counts as never, so the median is "not reached" when most seeds miss).
 
 A validation curve's maximum is a selected, noisy statistic. So each seed's selected model
 is then evaluated on ``--final-episodes`` fresh episodes (seeds from `COMPARE_SEED`), with
 best-const and ``mpc`` on the same episodes: the issue's target is an agent at ``mpc``'s
 mean on 200 fresh episodes. ``--budgets B ...`` adds, on the same episodes, the network each
 run would have shipped with a shorter budget B (`shorter_budgets`: what the selection rule
-kept among the evaluations up to B, read from the run's checkpoints).
+keeps among the evaluations up to B, read from the run's checkpoints).
 
 Writes ``<out>/time_to_target.csv`` (every evaluation of every seed), ``.json`` (targets,
 per-seed times, the fresh-episode table, the command) and the figure (``--figure``,
@@ -46,6 +47,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from agents.control.rollout import same_episodes
 from agents.seeds import COMPARE_SEED, VALIDATION_SEED
 from agents.training.runs import BACKEND_ALGOS
 
@@ -68,7 +70,7 @@ def references(env_id: str, episodes: int, seed: int, max_episode_steps: int | N
     steps = int(max_episode_steps or level.max_episode_steps)
     table, _ = evaluate(["best-const", "mpc"], config, episodes, seed,
                         max_episode_steps=steps, examples=0, env_id=env_id)
-    return {"episodes": episodes, "seed": seed,
+    return {"episodes": episodes, "seed": seed, "episode_set": table["episode_set"],
             "best-const": _trapping(table, "best-const"), "mpc": _trapping(table, "mpc")}
 
 
@@ -100,7 +102,7 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
     (``<out>/runs/<label>_seed<s>``) holds a finished run is read, not trained again (its
     wall time is that of its last evaluation). ``budgets``: also what each shorter budget
     would have shipped (`shorter_budgets`)."""
-    from agents.training.run_report import WALL_CSV, read_wall_rows
+    from agents.training.run_report import WALL_CSV, curve_episodes, read_wall_rows
     from agents.training.trainer import TrainSettings, recipe, train
 
     out.mkdir(parents=True, exist_ok=True)
@@ -135,6 +137,8 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
             run_dir = train(settings)
             wall = time.time() - started
             curve = read_wall_rows(run_dir)
+        same_episodes(curve_episodes(run_dir), ref["episode_set"],
+                      f"seed {s}'s validation curve and the best-const and mpc lines")
         run_dirs.append(run_dir)
         for row in curve:
             rows.append({"label": label, "seed": s, **row})
@@ -147,7 +151,7 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
             f"{per_seed[-1]['best_validation']:.2f} s; past best-const's bound at "
             f"{per_seed[-1]['to_best_const_high']} s, at mpc's mean at "
             f"{per_seed[-1]['to_mpc_mean']} s")
-    fresh, shorter = None, shorter_budgets(run_dirs, budgets, label, seeds)
+    fresh, shorter = None, shorter_budgets(run_dirs, budgets, label, seeds, reselect=True)
     if final_episodes > 0:
         models = [(str(d / "selected_model.zip"), d / "selected_model.zip") for d in run_dirs]
         models += [(name, pick["model"]) for name, pick in shorter.items()]
@@ -174,15 +178,18 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
 
 
 def shorter_budgets(run_dirs: list[Path], budgets: Sequence[float], label: str,
-                    seeds: list[int]) -> dict[str, dict[str, Any]]:
-    """For each run and each budget B: the network the selection rule (the latest best
-    mean validation return) keeps among the run's evaluations at or before B steps, by
-    ``<label>_seed<s>@<B>``, with its steps and the wall time of the last evaluation up to
-    B. A shorter run with the same seed and a constant step size is a prefix of this one,
-    so these are its networks, but for the one evaluation it would add at its very end.
-    The network is the run's checkpoint at that evaluation: the checkpoint period must
-    divide the evaluation period (ValueError otherwise)."""
+                    seeds: list[int], reselect: bool = False) -> dict[str, dict[str, Any]]:
+    """For each run and each budget B: the network the selection rule keeps among the
+    run's evaluations at or before B steps, by ``<label>_seed<s>@<B>``, with its steps and
+    the wall time of the last evaluation up to B. ``reselect``: the trainer's rule (the
+    best `agents.training.selection.TOP` re-evaluated on its fresh episodes); else the
+    curve's latest maximum alone. A shorter run with the same seed and a constant step
+    size is a prefix of this one, so these are its networks, but for the one evaluation it
+    would add at its very end. The network is the run's checkpoint at that evaluation: the
+    checkpoint period must divide the evaluation period (ValueError otherwise)."""
     from agents.training.run_report import read_wall_rows
+    from agents.training.runs import settings_for_resume
+    from agents.training.selection import TOP, fresh_set, score
 
     picks = {}
     for seed, run_dir in zip(seeds, run_dirs):
@@ -194,13 +201,23 @@ def shorter_budgets(run_dirs: list[Path], budgets: Sequence[float], label: str,
             if not upto:
                 raise ValueError(f"--budgets: {run_dir} has no evaluation within {budget:g} "
                                  f"steps")
-            best = max(r["mean_return"] for r in upto)
-            pick = [r for r in upto if r["mean_return"] == best][-1]
-            steps = int(pick["timesteps"])
-            model = run_dir / "checkpoints" / f"checkpoint_{steps}_steps.zip"
-            if not model.is_file():
-                raise ValueError(f"--budgets: no checkpoint at the evaluation of {steps} steps "
-                                 f"in {run_dir} (--save-freq must divide --eval-freq)")
+            ranked = sorted(upto, key=lambda r: (r["mean_return"], r["timesteps"]),
+                            reverse=True)[:TOP if reselect else 1]
+            models = {}
+            for r in ranked:
+                steps = int(r["timesteps"])
+                models[steps] = run_dir / "checkpoints" / f"checkpoint_{steps}_steps.zip"
+                if not models[steps].is_file():
+                    raise ValueError(f"--budgets: no checkpoint at the evaluation of {steps} "
+                                     f"steps in {run_dir} (--save-freq must divide "
+                                     f"--eval-freq)")
+            steps = int(ranked[0]["timesteps"])
+            if reselect and len(models) > 1:
+                settings = settings_for_resume(models[steps])
+                episodes = fresh_set(settings)
+                steps = max(models, key=lambda k: (score(models[k], settings, episodes)
+                                                   ["mean_return"], k))
+            model = models[steps]
             picks[f"{label}_seed{seed}@{budget:g}"] = {
                 "seed": seed, "budget": budget, "selected_at_steps": steps, "model": model,
                 "wall_seconds": max(r["wall_seconds"] for r in upto)}

@@ -3,11 +3,15 @@ layer both the evaluation tool (`agents.evaluation.evaluate`) and the best-const
 (`agents.control.best_constant`) stand on, so neither has to import the other.
 
 `run_episodes` steps `SaddleTrapVectorEnv` with an ``act(obs, idx)`` callable; `PolicyActor`
-turns any policy with Stable-Baselines3's ``predict`` into one.
+turns any policy with Stable-Baselines3's ``predict`` into one. `episode_set` names the
+episodes a call runs (first seed, count, length, options), so that a curve and the reference
+lines drawn beside it can be checked to come from the same episodes (`same_episodes`).
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import sys
 from collections.abc import Callable, Sequence
@@ -20,6 +24,35 @@ from saddle_env.envs import DEFAULT_EPISODE_STEPS, EnvConfig
 CHUNK = 100          # episodes per batch for model files (fixed: batch-independent actions)
 
 Actor = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+def episode_set(config: EnvConfig, seed: int, episodes: int,
+                max_episode_steps: int = DEFAULT_EPISODE_STEPS) -> dict[str, Any]:
+    """The episodes `run_episodes` runs for ``seeds = seed .. seed + episodes − 1`` on
+    ``config``: episode i is ``reset(seed=seed + i)``, run to its end (at most
+    ``max_episode_steps`` steps). ``options`` is a digest of every option of ``config``, so
+    two sets are the same episodes exactly when the dicts are equal (`same_episodes`)."""
+    for name, value, low in (("seed", seed, 0), ("episodes", episodes, 1),
+                             ("max_episode_steps", max_episode_steps, 1)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+            raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+    text = json.dumps(config.as_dict(), sort_keys=True, default=str)
+    return {"seed": int(seed), "episodes": int(episodes),
+            "max_episode_steps": int(max_episode_steps),
+            "options": hashlib.sha256(text.encode()).hexdigest()[:16]}
+
+
+def same_episodes(a: dict[str, Any] | None, b: dict[str, Any] | None, what: str) -> None:
+    """ValueError naming ``what`` (e.g. "the validation curve and best-const's line") unless
+    the `episode_set` dicts ``a`` and ``b`` are the same episodes."""
+    if a is None or b is None:
+        raise ValueError(f"{what}: an episode set is not recorded ({a!r} and {b!r}), so "
+                         f"they cannot be shown to come from the same episodes")
+    keys = ("seed", "episodes", "max_episode_steps", "options")
+    differ = [k for k in keys if a.get(k) != b.get(k)]
+    if differ:
+        raise ValueError(f"{what} come from different episodes: "
+                         + ", ".join(f"{k} {a.get(k)!r} against {b.get(k)!r}" for k in differ))
 
 
 def run_episodes(config: EnvConfig, act: Actor, seeds: Sequence[int] | np.ndarray, *,
@@ -173,4 +206,5 @@ def policy_actor(policy: Any) -> tuple[Any, bool]:
     return actor, actor.row_independent
 
 
-__all__ = ["CHUNK", "Actor", "PolicyActor", "policy_actor", "run_episodes"]
+__all__ = ["CHUNK", "Actor", "PolicyActor", "episode_set", "policy_actor", "run_episodes",
+           "same_episodes"]

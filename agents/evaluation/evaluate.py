@@ -59,7 +59,14 @@ from agents.cli_args import (
     parse_env_kwargs,
     resolve_env,
 )
-from agents.control.rollout import CHUNK, Actor, PolicyActor, policy_actor, run_episodes  # noqa: F401
+from agents.control.rollout import (  # noqa: F401
+    CHUNK,
+    Actor,
+    PolicyActor,
+    episode_set,
+    policy_actor,
+    run_episodes,
+)
 from agents.evaluation.model_files import TRUST_FLAG
 from agents.evaluation.policies import (  # noqa: F401
     is_exported_folder,
@@ -171,6 +178,7 @@ def evaluate(specs: Sequence[str | tuple[str, Any]], config: EnvConfig, episodes
                   "options": _jsonable(config.as_dict()),
                   "episodes": episodes, "seed": seed, "max_episode_steps": max_episode_steps,
                   "episode_length_s": round(max_episode_steps * config.control_period, 9),
+                  "episode_set": episode_set(config, seed, episodes, max_episode_steps),
                   "policies": []})
     details: dict[str, Any] = {}
     seeds = seed + np.arange(episodes)

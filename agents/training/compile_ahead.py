@@ -39,7 +39,11 @@ def start(settings: Any) -> subprocess.Popen | None:
             or os.environ.get(OFF_ENV, "1") == "0"):
         return None
     _, config = settings.environment()
-    if cached_best_constant(config, max_episode_steps=settings.max_episode_steps) is None:
+    from agents.control.best_constant import PAIRED_EPISODES
+
+    steps = settings.max_episode_steps       # mpc's reference speed and the best-const row
+    if cached_best_constant(config, max_episode_steps=steps) is None or \
+            cached_best_constant(config, max_episode_steps=steps, paired=PAIRED_EPISODES) is None:
         return None
     return subprocess.Popen(
         [sys.executable, "-m", "agents.training.compile_ahead", settings.env_id,

@@ -4,10 +4,17 @@
 
 The curve comes from the run folder alone:
 
-* ``evaluations.npz`` (SB3's EvalCallback) with ``evaluations_wall.csv``: the validation
-  episodes' trapping time at each evaluation, against steps and wall-clock seconds;
+* ``evaluations.npz`` (`agents.training.selection`) with ``evaluations_wall.csv``: the
+  validation episodes' trapping time at each evaluation, against steps and wall-clock
+  seconds, on the episodes ``curve_episodes.json`` names;
 * or, without it, ``evaluations_wall.csv`` alone (the RLlib back end writes one row per
-  training iteration: its *training* episodes' running mean, labelled so on the plot).
+  training iteration: its *training* episodes' running mean, labelled so on the plot, with
+  no reference lines: no reference policy ran those episodes).
+
+The reference lines on the curve (best-const and ``mpc``) are measured on the curve's own
+episodes (``curve_references.json`` records them with their episode set); `plot_learning_curve`
+refuses lines from any other set. The closing comparison's table is on other, fresh episodes
+(`COMPARE_SEED`): it compares the shipped network, not the curve.
 """
 
 from __future__ import annotations
@@ -20,10 +27,12 @@ from typing import Any
 import numpy as np
 
 from agents.cli_args import resolve_env
+from agents.control.rollout import same_episodes
 from agents.seeds import COMPARE_SEED
 from agents.training.runs import TrainSettings
 
 WALL_CSV = "evaluations_wall.csv"
+CURVE_EPISODES = "curve_episodes.json"    # written by agents.training.selection
 WALL_HEADER = "timesteps,wall_seconds,mean_return,mean_trapping_time"
 
 
@@ -59,13 +68,40 @@ def compare(run_dir: Path, settings: TrainSettings, model: Path | None = None) -
                         max_episode_steps=steps, examples=0, env_id=settings.env_id,
                         progress=settings.progress_bar)
     text = markdown(table)
-    refs = {row["policy"]: row["trapping_time"]["mean"] for row in table["policies"]
-            if row["policy"] in ("best-const", "mpc")}
-    plot_learning_curve(run_dir, refs, f" ({settings.compare_episodes} fresh ep.)")
+    plot_learning_curve(run_dir, curve_references(run_dir, settings))
     (run_dir / "comparison.md").write_text(text)
     (run_dir / "comparison.json").write_text(json.dumps(table, indent=1) + "\n")
     print(text)
     return text
+
+
+def curve_episodes(run_dir: Path) -> dict[str, Any] | None:
+    """The `agents.control.rollout.episode_set` of the run's validation curve
+    (``curve_episodes.json``), None if the run has none (RLlib's curve, older runs)."""
+    path = Path(run_dir) / CURVE_EPISODES
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def curve_references(run_dir: Path, settings: TrainSettings,
+                     names: tuple[str, ...] = ("best-const", "mpc")) -> dict[str, Any] | None:
+    """best-const and mpc on the episodes of the run's validation curve (the same seeds,
+    order, length and options), saved as ``curve_references.json``: {"episode_set",
+    "policies": {name: mean trapping time}}; None if the curve has no recorded episodes."""
+    from agents.evaluation.evaluate import evaluate
+
+    episodes = curve_episodes(run_dir)
+    if episodes is None:
+        return None
+    _, config = settings.environment()
+    table, _ = evaluate(list(names), config, episodes["episodes"], episodes["seed"],
+                        max_episode_steps=episodes["max_episode_steps"], examples=0,
+                        env_id=settings.env_id)
+    same_episodes(episodes, table["episode_set"], "the curve and its reference lines")
+    refs = {"episode_set": table["episode_set"],
+            "policies": {row["policy"]: row["trapping_time"]["mean"]
+                         for row in table["policies"]}}
+    (Path(run_dir) / "curve_references.json").write_text(json.dumps(refs, indent=1) + "\n")
+    return refs
 
 
 def read_wall_rows(run_dir: Path) -> list[dict[str, float]]:
@@ -92,18 +128,24 @@ def read_curve(run_dir: Path) -> dict[str, Any] | None:
     data_file = run_dir / "evaluations.npz"
     if data_file.is_file():
         data = np.load(data_file, allow_pickle=False)
-        steps, results, lengths = data["timesteps"], data["results"], data["ep_lengths"]
-        dt = 0.02
-        try:
-            dt = resolve_env(saved["env_id"], saved.get("env_kwargs") or {})[1].control_period
-        except (KeyError, ValueError, TypeError):
-            pass
+        steps, results = data["timesteps"], data["results"]
+        if "trapping_times" in data:
+            trapping = data["trapping_times"]
+        else:   # SB3's EvalCallback (older runs): episode lengths
+            dt = 0.02
+            try:
+                dt = resolve_env(saved["env_id"],
+                                 saved.get("env_kwargs") or {})[1].control_period
+            except (KeyError, ValueError, TypeError):
+                pass
+            trapping = data["ep_lengths"] * dt
         wall = {int(r["timesteps"]): r["wall_seconds"] for r in wall_rows}
         return {"timesteps": np.asarray(steps),
                 "wall_seconds": np.array([wall.get(int(s), np.nan) for s in steps]),
                 "mean_return": results.mean(axis=1), "std_return": results.std(axis=1),
-                "trapping_time": lengths.mean(axis=1) * dt,
-                "label": f"validation ({lengths.shape[1]} episodes)"}
+                "trapping_time": trapping.mean(axis=1),
+                "label": f"validation ({trapping.shape[1]} episodes)",
+                "episode_set": curve_episodes(run_dir)}
     if not wall_rows:
         return None
     def column(name: str) -> np.ndarray:
@@ -113,18 +155,25 @@ def read_curve(run_dir: Path) -> dict[str, Any] | None:
             "wall_seconds": column("wall_seconds"), "mean_return": column("mean_return"),
             "std_return": np.full(len(wall_rows), np.nan),
             "trapping_time": column("mean_trapping_time"),
-            "label": f"training episodes ({saved.get('backend', 'sb3')}, running mean)"}
+            "label": f"training episodes ({saved.get('backend', 'sb3')}, running mean)",
+            "episode_set": None}
 
 
-def plot_learning_curve(run_dir: Path, references: dict[str, float] | None = None,
-                        reference_note: str = "") -> Path | None:
+def plot_learning_curve(run_dir: Path, references: dict[str, Any] | None = None
+                        ) -> Path | None:
     """The curve's trapping time against timesteps and against wall-clock seconds as
-    ``learning_curve.png``, and the curve as ``learning_curve.csv``. ``references`` (policy
-    name -> mean trapping time, e.g. best-const and mpc from the closing comparison) are
-    drawn as horizontal lines."""
+    ``learning_curve.png``, and the curve as ``learning_curve.csv``. ``references``
+    (`curve_references`: {"episode_set", "policies": {name: mean trapping time}}) are drawn
+    as horizontal lines; ValueError if they were measured on other episodes than the
+    curve."""
     curve = read_curve(run_dir)
     if curve is None:
         return None
+    lines: dict[str, float] = {}
+    if references is not None:
+        same_episodes(curve["episode_set"], references.get("episode_set"),
+                      "the learning curve and its reference lines")
+        lines = dict(references["policies"])
     steps, seconds, trap = curve["timesteps"], curve["wall_seconds"], curve["trapping_time"]
     rows = ["timesteps,mean_return,std_return,mean_trapping_time,wall_seconds"]
     rows += [f"{s},{r},{sd},{t},{w}" for s, r, sd, t, w in
@@ -142,9 +191,9 @@ def plot_learning_curve(run_dir: Path, references: dict[str, float] | None = Non
                                    if have_wall else [])
     for ax, (x, label) in zip(axes[0], xs):
         ax.plot(x, trap, color="C0", marker="o", ms=3, label=curve["label"])
-        for k, (name, value) in enumerate((references or {}).items()):
+        for k, (name, value) in enumerate(lines.items()):
             ax.axhline(value, color=("0.4", "C3", "C2")[k % 3], ls=("--", "-.", ":")[k % 3],
-                       label=f"{name} {value:.2f}{reference_note}")
+                       label=f"{name} {value:.2f} (same episodes)")
         ax.set_xlabel(label)
     axes[0][0].set_ylabel("mean trapping time [s]")
     axes[0][-1].legend(fontsize=7, loc="lower right")
@@ -156,5 +205,5 @@ def plot_learning_curve(run_dir: Path, references: dict[str, float] | None = Non
     return out
 
 
-__all__ = ["WALL_CSV", "append_curve_point", "compare", "plot_learning_curve", "read_curve",
-           "read_wall_rows"]
+__all__ = ["CURVE_EPISODES", "WALL_CSV", "append_curve_point", "compare", "curve_episodes",
+           "curve_references", "plot_learning_curve", "read_curve", "read_wall_rows"]

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from agents.cli_args import parse_address, resolve_env, saved_settings
+from agents.seeds import MAX_EVAL_EPISODES
 from saddle_env.envs import LEVEL_IDS, EnvConfig, Level
 
 # The main job (`python train.py`): a level where learning shows within minutes and a
@@ -114,6 +115,7 @@ class TrainSettings:
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"--{name.replace('_', '-')} must be an integer >= 0, "
                                  f"got {value}")
+        self._check_eval_episodes()
         if self.address is not None:
             parse_address(self.address)
         if self.recipe_of is not None and self.recipe_of not in LEVEL_IDS:
@@ -144,6 +146,13 @@ class TrainSettings:
                                  or max(20_000, self.total_timesteps // 20))
         if self.eval_episodes is None:
             self.eval_episodes = int(hyper.get("eval_episodes") or DEFAULT_EVAL_EPISODES)
+        self._check_eval_episodes()
+
+    def _check_eval_episodes(self) -> None:
+        if self.eval_episodes is not None and self.eval_episodes > MAX_EVAL_EPISODES:
+            raise ValueError(f"--eval-episodes must be at most {MAX_EVAL_EPISODES:,} (the "
+                             f"validation and re-selection seed ranges must not meet), "
+                             f"got {self.eval_episodes}")
 
     def open_run_folder(self, resume: str | Path | None = None) -> Path:
         """The run folder (a resumed checkpoint's own, else ``log_dir/run_name``, named

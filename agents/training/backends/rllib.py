@@ -33,8 +33,9 @@ episode length, the algorithm, the steps), which ``saddle-eval --policy DIR`` re
 and ``--address`` may change) and restores the checkpoint, the lifetime step count included.
 As every back end's run (`agents.training.trainer`), a finished one ends with ``learning_curve.png``
 (here from the training episodes' running mean, ``evaluations_wall.csv``: RLlib has no
-validation during training) and the comparison of ``final/`` with best-const and mpc on
-fresh episodes (``comparison.md``).
+validation during training, so no model selection, and its curve has no reference lines:
+no reference policy ran its training episodes, `agents.training.run_report`) and the
+comparison of ``final/`` with best-const and mpc on fresh episodes (``comparison.md``).
 
 **Faults.** ``restart_failed_env_runners``: an env runner that dies is replaced by a fresh
 one (same index, same seeds) and training goes on with the learner's state intact.

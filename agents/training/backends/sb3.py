@@ -13,22 +13,25 @@ episodes; evaluation keeps the level's) and ``reward_shaping`` (training rewards
 normalisation and stacking from the sidecar.
 
 What it writes in the run folder: TensorBoard logs, ``progress.csv``, ``evaluations.npz``
-and ``evaluations_wall.csv``, ``best_model.zip`` (SB3's EvalCallback: the *first*
-evaluation that reached the highest mean return), ``selected_model.zip`` (below),
-``checkpoints/`` and ``final_model.zip``, each model with a ``.json`` sidecar that records
-the level (``env_id``), the options overriding it (``env_kwargs``), the episode length and
-the wrappers. Ctrl-C or SIGTERM saves a checkpoint (and the replay buffer of off-policy
-algorithms); ``--resume CHECKPOINT.zip`` continues from it. Everything a run writes is read
-back as data (JSON, tensors, npz: `agents.evaluation.model_files`); a checkpoint that needs
-unpickling (SB3's own files, older runs' pickles) is resumed only with ``--trust-model``.
+(every evaluation's per-episode returns and trapping times), ``evaluations_wall.csv`` and
+``curve_episodes.json`` (the episodes of the curve), ``best_model.zip`` (the *first*
+evaluation that reached the highest mean return, as SB3's EvalCallback keeps it),
+``selected_model.zip`` and ``selection.json`` (below), ``candidates/``, ``checkpoints/`` and
+``final_model.zip``, each model with a ``.json`` sidecar that records the level
+(``env_id``), the options overriding it (``env_kwargs``), the episode length and the
+wrappers. Ctrl-C or SIGTERM saves a checkpoint (and the replay buffer of off-policy
+algorithms); ``--resume CHECKPOINT.zip`` continues from it (the selection then sees the
+evaluations after the resume only). Everything a run writes is read back as data (JSON,
+tensors, npz: `agents.evaluation.model_files`); a checkpoint that needs unpickling (SB3's
+own files, older runs' pickles) is resumed only with ``--trust-model``.
 
-**Model selection.** Every ``eval_freq`` steps (default: a twentieth of the budget), and
-once more on the final model, the policy is evaluated on ``eval_episodes`` validation
-episodes (seeds from `VALIDATION_SEED`, never used for training or for the leaderboard's
-test set). ``selected_model.zip`` is the *latest* snapshot whose mean validation return is
-at least the best mean seen so far: ties go to the later snapshot, so a run whose curve
-reaches its plateau early ships a model from the end of the plateau, not its first point
-(which ``best_model.zip`` keeps, as SB3 does).
+**Model selection** (`agents.training.selection`). Every ``eval_freq`` steps (default: a
+twentieth of the budget), and once more on the final model, the network is saved and
+evaluated on the ``eval_episodes`` validation episodes ``reset(seed=VALIDATION_SEED + i)``
+(the same for every seed of a recipe, never used for training or for the leaderboard's
+test set) by the evaluation tool's own function, so that the curve and the reference lines
+drawn beside it come from the same episodes. The best few snapshots are re-evaluated on
+fresh episodes when training ends and the best there is shipped as ``selected_model.zip``.
 """
 
 from __future__ import annotations
@@ -41,7 +44,6 @@ from typing import Any
 import numpy as np
 
 from agents.cli_args import MissingExtra, install_hint, level_overrides, missing, resolve_env
-from agents.seeds import VALIDATION_SEED
 from agents.training.recipes import (
     ZOO_ONLY_KEYS,
     parse_policy_kwargs,
@@ -311,65 +313,48 @@ def write_sidecar(model_path: Path, settings: TrainSettings,
     Path(model_path).with_suffix(".json").write_text(json.dumps(sidecar, indent=2, default=list))
 
 
-def _selection_callback(eval_env, settings: TrainSettings, run_dir: Path, n_envs: int,
+def _selection_callback(settings: TrainSettings, run_dir: Path, n_envs: int,
                         learner: Sb3Learner, began: float | None = None):
-    """SB3's EvalCallback (writes evaluations.npz; best_model.zip, the first best, is saved
-    by ``learner`` rather than by SB3's ``model.save``, which for SBX would pickle), which
-    also keeps ``selected_model.zip``: the latest snapshot whose mean validation return is
-    at least the best so far (ties go to the later snapshot; see the module docstring)."""
-    from stable_baselines3.common.callbacks import EvalCallback
+    """Every ``eval_freq`` steps (and on demand, `evaluate_now`): the network saved by
+    ``learner`` as a snapshot and offered to the run's `agents.training.selection.Selection`
+    (the validation curve, ``evaluations.npz``, ``best_model.zip`` and the best few
+    candidates); `finish` re-evaluates the candidates on fresh episodes and ships one."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from agents.training.selection import Selection
 
     start_s = time.time() if began is None else began
-    dt = settings.environment()[1].control_period
+    assert settings.eval_freq is not None  # TrainSettings.take_recipe filled it
+    per_env = max(1, settings.eval_freq // n_envs)    # callbacks count vector steps
 
-    class SelectingEvalCallback(EvalCallback):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            self.selected_mean = -np.inf
-            self.selected_steps: int | None = None
+    class SelectingCallback(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__(verbose=0)
+            self.selection = Selection(run_dir, settings)
             self.last_eval_steps: int | None = None
 
         def _on_step(self) -> bool:
-            due = self.eval_freq > 0 and self.n_calls % self.eval_freq == 0
-            best_before = self.best_mean_reward
-            keep_going = super()._on_step()
-            if due:
-                if self.best_mean_reward != best_before:   # a new best: best_model.zip
-                    learner.save(self.model, run_dir / "best_model.zip", settings)
-                self._select()
-            return keep_going
-
-        def _select(self) -> None:
-            self.last_eval_steps = self.num_timesteps
-            # The curve against wall-clock time (since train() began: warm start and
-            # imitation included), for the learning curve and agents.benchmark.time_to_target.
-            lengths = np.asarray(self.evaluations_length[-1], dtype=float)
-            append_curve_point(run_dir, self.num_timesteps, time.time() - start_s,
-                               self.last_mean_reward, lengths.mean() * dt)
-            if self.last_mean_reward >= self.selected_mean:
-                self.selected_mean = float(self.last_mean_reward)
-                self.selected_steps = int(self.num_timesteps)
-                learner.save(self.model, run_dir / "selected_model.zip", settings,
-                           {"selected_at_steps": self.selected_steps,
-                            "validation_mean_return": self.selected_mean,
-                            "validation_episodes": self.n_eval_episodes,
-                            "validation_seed": VALIDATION_SEED})
+            if self.n_calls % per_env == 0:
+                self.evaluate_now()
+            return True
 
         def evaluate_now(self) -> None:
-            """One more evaluation (of the final model), unless the last one was of it."""
+            """Evaluate the current network, unless the last evaluation was of it."""
             if self.last_eval_steps == self.num_timesteps:
                 return
-            period, self.eval_freq = self.eval_freq, 1   # due now, whatever n_calls is
-            try:
-                self._on_step()
-            finally:
-                self.eval_freq = period
+            self.last_eval_steps = steps = int(self.num_timesteps)
+            model = self.model
+            result = self.selection.offer(
+                steps, lambda path: learner.save(model, path, settings))
+            # The curve against wall-clock time (since train() began: warm start and
+            # imitation included), for the learning curve and agents.benchmark.time_to_target.
+            append_curve_point(run_dir, steps, time.time() - start_s, result["mean_return"],
+                               result["mean_trapping_time"])
 
-    assert settings.eval_freq is not None  # TrainSettings.take_recipe filled it
-    per_env = max(1, settings.eval_freq // n_envs)    # callbacks count vector steps
-    return SelectingEvalCallback(eval_env, n_eval_episodes=settings.eval_episodes,
-                                 eval_freq=per_env, best_model_save_path=None,
-                                 log_path=str(run_dir), deterministic=True, verbose=0)
+        def finish(self) -> Path | None:
+            return self.selection.choose()
+
+    return SelectingCallback()
 
 
 def progress_callback():
@@ -435,13 +420,10 @@ def train_with(learner: Sb3Learner, settings: TrainSettings, hyper: dict[str, An
     _, config = settings.environment()
     env = make_vec_env(n_envs, settings.seed, settings.env_kwargs,
                        train_episode_steps(hyper, steps), settings.env_id)
-    eval_env = make_vec_env(min(settings.eval_episodes, 16), VALIDATION_SEED + settings.seed,
-                            settings.env_kwargs, steps, settings.env_id)
     if hyper.get("reward_shaping") is not None:      # training rewards only (agents.training.shaping)
         from agents.training.shaping import shape
 
         env = shape(env, hyper["reward_shaping"], config)
-        eval_env = shape(eval_env, hyper["reward_shaping"], config, training=False)
     if resume is not None:
         model = learner.resume(Path(resume), env, hyper, norm_kw, frame_stack, settings, trust)
     else:
@@ -452,9 +434,8 @@ def train_with(learner: Sb3Learner, settings: TrainSettings, hyper: dict[str, An
             done = learner.warm_start(model, config, hyper, steps, settings.seed)
             done["seconds"] = round(time.time() - began, 1)   # wall time beside RL's
             (run_dir / "warm_start.json").write_text(json.dumps(done, indent=2))
-    eval_env = wrap_env(eval_env, norm_kw, frame_stack, training=False)
     model.set_logger(configure(str(run_dir), ["csv", "tensorboard"]))
-    selector = _selection_callback(eval_env, settings, run_dir, n_envs, learner, began)
+    selector = _selection_callback(settings, run_dir, n_envs, learner, began)
     callbacks = [_checkpoint_callback(run_dir / "checkpoints", settings, n_envs, learner),
                  selector]
     if settings.progress_bar:
@@ -462,8 +443,6 @@ def train_with(learner: Sb3Learner, settings: TrainSettings, hyper: dict[str, An
     remaining = settings.total_timesteps - model.num_timesteps
     if resume is None and hyper.get("warm_start") == "mpc":
         # The imitating network is a candidate too: RL fine-tuning may not improve on it.
-        # (Only here: an extra evaluation moves later validation episodes along their
-        # seeds' streams, and the other recipes' runs stay as they were.)
         selector.init_callback(model)
         selector.evaluate_now()
     try:
@@ -476,15 +455,13 @@ def train_with(learner: Sb3Learner, settings: TrainSettings, hyper: dict[str, An
         print(f"\ninterrupted at {model.num_timesteps} steps; checkpoint saved to {path}\n"
               f"continue with: python train.py --resume {path}")
         env.close()
-        eval_env.close()
         return None
     if remaining > 0:
         selector.evaluate_now()      # the final model is a candidate too
     env.close()
-    eval_env.close()
     learner.save(model, run_dir / "final_model.zip", settings)
-    selected = run_dir / "selected_model.zip"
-    return selected if selected.is_file() else run_dir / "final_model.zip"
+    selected = selector.finish()
+    return selected if selected is not None else run_dir / "final_model.zip"
 
 
 __all__ = ["REPLAY_SUFFIX", "RESUME_NEEDS_TRUST", "Sb3Learner", "TRAIN_MODULES", "algo_class",

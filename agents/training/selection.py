@@ -1,0 +1,199 @@
+"""Model selection during training, for the back ends that select (``sb3`` and ``sbx``; RLlib
+ships its final network and draws no validation curve).
+
+**The validation curve.** Every evaluation runs the network on the same episodes:
+``reset(seed=VALIDATION_SEED + i)`` for i < ``eval_episodes``, each to its end, through
+`agents.evaluation.evaluate.evaluate` (the function every reference line goes through:
+best-const and ``mpc`` in `agents.benchmark.time_to_target` and on the learning curve). Every
+run of every seed uses that one set, recorded as ``curve_episodes.json`` (an
+`agents.control.rollout.episode_set`), so a reference line can be checked to come from the
+episodes of the curve it is drawn beside.
+
+**The rule: the best few, re-evaluated on fresh episodes.** The maximum of a dozen noisy
+evaluations is biased upward: the snapshot that scored best is, on average, one that was
+lucky on those episodes (the winner's curse). So the run keeps the `TOP` snapshots with the
+highest mean validation return (ties: the later one), and when training ends it evaluates
+them again on four times as many *fresh* episodes (`fresh_set`: seeds from `RESELECT_SEED`,
+a set of its own for each run, disjoint from the validation set and from the leaderboard's
+test set) and ships the one with the highest
+mean return there (ties: the later one) as ``selected_model.zip``. Its recorded score is the
+fresh one. Choosing among three on the fresh sample still leaves a small curse, against one
+in thirteen or twenty on the first; smoothing the curve would trade the curse for a lag on a
+curve that rises, and keeping the final network would give up the selection that the
+learning rate's schedule and the plateaus of the curves need (docs/model_selection.md,
+with the bias measured on Capture and Storm).
+
+``selection.json`` records the rule, both episode sets and every candidate's two scores,
+and the snapshot the previous rule (the latest maximum of the curve) would have shipped.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agents.control.rollout import episode_set
+from agents.seeds import RESELECT_SEED, TEST_SEED, VALIDATION_SEED
+from agents.training.run_report import CURVE_EPISODES
+from agents.training.runs import TrainSettings
+
+TOP = 3                                   # snapshots re-evaluated on fresh episodes
+FRESH_FACTOR = 4                          # fresh episodes per validation episode
+SELECTION_JSON = "selection.json"
+RULE = (f"the {TOP} snapshots with the highest mean validation return, re-evaluated on "
+        f"fresh episodes; the highest there is shipped (ties: the later snapshot)")
+
+
+def validation_set(settings: TrainSettings) -> dict[str, Any]:
+    """The episodes of every evaluation during a run of ``settings`` (`VALIDATION_SEED`)."""
+    return _set(settings, VALIDATION_SEED)
+
+
+def fresh_set(settings: TrainSettings) -> dict[str, Any]:
+    """The episodes the best snapshots of run ``settings.seed`` are re-evaluated on:
+    `FRESH_FACTOR` × ``eval_episodes`` of them from ``RESELECT_SEED + seed · FRESH_FACTOR ·
+    eval_episodes``, a set of its own for every run, so that the offset of one set of
+    episodes (easier or harder than the level's average) is noise across runs rather than a
+    bias shared by all of them, and four times smaller than the validation set's would be
+    (sets of a few hundred of Capture's episodes differ by 0.1-0.3 s; docs/model_selection.md)."""
+    assert settings.eval_episodes is not None and settings.max_episode_steps is not None
+    n = FRESH_FACTOR * settings.eval_episodes
+    start = RESELECT_SEED + settings.seed * n
+    if settings.seed < 0 or start + n > TEST_SEED:
+        raise ValueError(f"--seed {settings.seed} with --eval-episodes {settings.eval_episodes}: "
+                         f"the re-selection episodes (seeds from {RESELECT_SEED:,} + seed x "
+                         f"{FRESH_FACTOR} x eval_episodes) must end before the test set's "
+                         f"{TEST_SEED:,}; use a seed in [0, {(TEST_SEED - RESELECT_SEED) // n - 1}]")
+    return episode_set(settings.environment()[1], start, n, settings.max_episode_steps)
+
+
+def _set(settings: TrainSettings, seed: int) -> dict[str, Any]:
+    assert settings.eval_episodes is not None and settings.max_episode_steps is not None
+    return episode_set(settings.environment()[1], seed, settings.eval_episodes,
+                       settings.max_episode_steps)
+
+
+def score(model_path: Path, settings: TrainSettings, episodes: dict[str, Any]
+          ) -> dict[str, Any]:
+    """The saved model's mean return and trapping time on the `episode_set` ``episodes``,
+    as the evaluation tool measures them (the model file read as data, with its sidecar's
+    normalisation and frame stacking)."""
+    from agents.evaluation.evaluate import evaluate
+    from agents.evaluation.policies import load_policy
+
+    _, config = settings.environment()
+    table, details = evaluate([(str(model_path), load_policy(model_path, config))], config,
+                              episodes["episodes"], episodes["seed"],
+                              max_episode_steps=episodes["max_episode_steps"], examples=0,
+                              env_id=settings.env_id)
+    assert table["episode_set"] == episodes, (table["episode_set"], episodes)
+    res = next(iter(details.values()))
+    returns, times = np.asarray(res["return"], float), np.asarray(res["time"], float)
+    return {"mean_return": float(returns.mean()), "mean_trapping_time": float(times.mean()),
+            "returns": returns, "trapping_times": times}
+
+
+def model_files(path: Path) -> list[Path]:
+    """A saved model and the files beside it (sidecar, normalisation statistics)."""
+    from agents.evaluation.policies import vecnormalize_path
+
+    return [path, path.with_suffix(".json"), vecnormalize_path(path)]
+
+
+def copy_model(src: Path, dst: Path, extra: dict[str, Any] | None = None) -> None:
+    """``src`` and its companion files as ``dst``; ``extra`` merged into the sidecar."""
+    for a, b in zip(model_files(src), model_files(dst)):
+        if a.is_file():
+            shutil.copyfile(a, b)
+    if extra:
+        side = dst.with_suffix(".json")
+        data = json.loads(side.read_text()) if side.is_file() else {}
+        data.update(extra)
+        side.write_text(json.dumps(data, indent=2, default=list))
+
+
+class Selection:
+    """The running state of a run's model selection: its curve, the `TOP` candidates (saved
+    under ``candidates/``), and the choice at the end (`choose`)."""
+
+    def __init__(self, run_dir: Path, settings: TrainSettings, top: int = TOP):
+        if isinstance(top, bool) or not isinstance(top, int) or top < 1:
+            raise ValueError(f"top must be a positive integer, got {top!r}")
+        self.run_dir, self.settings, self.top = Path(run_dir), settings, top
+        self.folder = self.run_dir / "candidates"
+        self.episodes = validation_set(settings)
+        fresh_set(settings)           # a seed whose fresh episodes would not fit fails now
+        self.kept: list[dict[str, Any]] = []
+        self.steps: list[int] = []
+        self.returns: list[np.ndarray] = []
+        self.times: list[np.ndarray] = []
+        self.best_mean = -np.inf
+        (self.run_dir / CURVE_EPISODES).write_text(json.dumps(self.episodes, indent=1) + "\n")
+
+    def offer(self, steps: int, save: Callable[[Path], Any]) -> dict[str, Any]:
+        """Evaluate the network at ``steps`` (``save(path)`` writes it) on the validation
+        episodes, record it on the curve, keep it if it is among the best `TOP`; return its
+        score. ``best_model.zip`` is the first snapshot that reached the highest mean (as
+        SB3's EvalCallback keeps it)."""
+        self.folder.mkdir(parents=True, exist_ok=True)
+        path = self.folder / f"snapshot_{int(steps)}_steps.zip"
+        save(path)
+        result = score(path, self.settings, self.episodes)
+        self.steps.append(int(steps))
+        self.returns.append(result["returns"])
+        self.times.append(result["trapping_times"])
+        np.savez(self.run_dir / "evaluations.npz", timesteps=np.asarray(self.steps),
+                 results=np.stack(self.returns), trapping_times=np.stack(self.times))
+        if result["mean_return"] > self.best_mean:
+            self.best_mean = result["mean_return"]
+            copy_model(path, self.run_dir / "best_model.zip")
+        entry = {"steps": int(steps), "path": path, "mean_return": result["mean_return"],
+                 "mean_trapping_time": result["mean_trapping_time"]}
+        ranked = sorted(self.kept + [entry], key=lambda c: (c["mean_return"], c["steps"]),
+                        reverse=True)
+        self.kept = ranked[:self.top]
+        for dropped in ranked[self.top:]:
+            for f in model_files(dropped["path"]):
+                f.unlink(missing_ok=True)
+        return result
+
+    def choose(self) -> Path | None:
+        """Re-evaluate the candidates on the fresh episodes, ship the best as
+        ``selected_model.zip`` (its sidecar records the rule and the scores), write
+        ``selection.json``; return the selected model (None if nothing was evaluated)."""
+        if not self.kept:
+            return None
+        fresh = fresh_set(self.settings)
+        for c in self.kept:
+            result = score(c["path"], self.settings, fresh)
+            c["fresh_mean_return"] = result["mean_return"]
+            c["fresh_mean_trapping_time"] = result["mean_trapping_time"]
+        pick = max(self.kept, key=lambda c: (c["fresh_mean_return"], c["steps"]))
+        max_rule = max(self.kept, key=lambda c: (c["mean_return"], c["steps"]))
+        candidates = [{k: v for k, v in c.items() if k != "path"} for c in
+                      sorted(self.kept, key=lambda c: c["steps"])]
+        record = {"rule": RULE, "top": self.top, "validation_episodes": self.episodes,
+                  "fresh_episodes": fresh, "candidates": candidates,
+                  "selected_at_steps": pick["steps"],
+                  "max_rule_at_steps": max_rule["steps"]}
+        selected = self.run_dir / "selected_model.zip"
+        copy_model(pick["path"], selected, {
+            "selected_at_steps": pick["steps"],
+            # the score the choice stands on: the fresh episodes' (ship compares runs on it)
+            "validation_mean_return": pick["fresh_mean_return"],
+            "validation_episodes": fresh["episodes"], "validation_seed": fresh["seed"],
+            "in_run_mean_return": pick["mean_return"],
+            "in_run_mean_trapping_time": pick["mean_trapping_time"],
+            "fresh_mean_trapping_time": pick["fresh_mean_trapping_time"],
+            "selection": record})
+        (self.run_dir / SELECTION_JSON).write_text(json.dumps(record, indent=1) + "\n")
+        return selected
+
+
+__all__ = ["CURVE_EPISODES", "FRESH_FACTOR", "RULE", "SELECTION_JSON", "TOP", "Selection", "copy_model",
+           "fresh_set", "model_files", "score", "validation_set"]
