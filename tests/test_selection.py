@@ -133,6 +133,31 @@ def test_a_reference_line_from_other_episodes_is_refused(tmp_path):
             plot_learning_curve(run, {"episode_set": other, "policies": {"best-const": 0.15}})
 
 
+def test_reference_lines_drawn_ahead_are_read_only_for_the_curves_own_episodes(tmp_path):
+    """compile_ahead draws the curve's lines on the other core while the run trains; the run's
+    end reads them if they are for its curve's episodes, and draws them again if not."""
+    from agents.training.compile_ahead import draw_curve_references
+    from agents.training.run_report import CURVE_REFERENCES, curve_references
+
+    settings = _settings(tmp_path, episodes=3)
+    _, config = settings.environment()
+    run = tmp_path / "run"
+    run.mkdir()
+    curve_set = episode_set(config, VALIDATION_SEED, 3, 10)
+    (run / "curve_episodes.json").write_text(json.dumps(curve_set))
+    draw_curve_references(settings.env_id, run, wait_s=0.0)
+    drawn = json.loads((run / CURVE_REFERENCES).read_text())
+    same_episodes(curve_set, drawn["episode_set"], "drawn ahead")
+    assert set(drawn["policies"]) == {"best-const", "mpc"}
+    marked = dict(drawn, policies={"best-const": -1.0, "mpc": -2.0})   # not a real score
+    (run / CURVE_REFERENCES).write_text(json.dumps(marked))
+    assert curve_references(run, settings)["policies"] == marked["policies"]     # read
+    stale = dict(marked, episode_set=episode_set(config, VALIDATION_SEED, 2, 10))
+    (run / CURVE_REFERENCES).write_text(json.dumps(stale))
+    again = curve_references(run, settings)                                       # redrawn
+    assert again["policies"] == drawn["policies"] and again["episode_set"] == curve_set
+
+
 def test_time_to_target_refuses_a_curve_from_other_episodes_than_its_targets(tmp_path,
                                                                              monkeypatch):
     pytest.importorskip("stable_baselines3")

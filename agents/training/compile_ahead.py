@@ -8,10 +8,14 @@ after the main job's four minutes of training (docs/coldstart.md). `train` start
 in a second process as training begins, where the second core has room, and waits for it
 before the comparison; with a warm cache it loads and exits in seconds.
 
-    python -m agents.training.compile_ahead ENV_ID EPISODES MAX_EPISODE_STEPS
+    python -m agents.training.compile_ahead ENV_ID EPISODES MAX_EPISODE_STEPS [RUN_DIR]
 
 It runs the comparison's two baselines for a few steps on the comparison's batch size, which
-compiles (or loads) the same functions with the same signatures. It starts only where that
+compiles (or loads) the same functions with the same signatures. Given the run's folder, it
+then draws the learning curve's reference lines (best-const and `mpc` on the curve's own
+episodes, `run_report.curve_references`) there, so the end of the run only checks that they
+are for the curve's episode set and reads them: `mpc` on Capture's 256 validation episodes
+is half a minute of the second core. It starts only where that
 cannot race the run's own work on shared files: a registered level as it is (no
 ``--env-kwargs``) whose best constant speed is already in the cache, so neither process
 searches for it. ``SADDLE_ENV_COMPILE_AHEAD=0`` turns it off.
@@ -23,14 +27,16 @@ import os
 import subprocess
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 OFF_ENV = "SADDLE_ENV_COMPILE_AHEAD"
 STEPS = 3          # mpc's look-ahead first runs within its first steps
 WAIT_S = 300.0     # the longest the comparison waits for it (then compiles by itself)
+EPISODES_WAIT_S = 120.0   # the longest it waits for the run to write its curve's episode set
 
 
-def start(settings: Any) -> subprocess.Popen | None:
+def start(settings: Any, run_dir: Path | None = None) -> subprocess.Popen | None:
     """The compile-ahead process for ``settings``' comparison, or None where it does not
     apply (no comparison, RLlib, options over the level, best-const not cached, turned off)."""
     from agents.control.best_constant import cached_best_constant
@@ -47,7 +53,8 @@ def start(settings: Any) -> subprocess.Popen | None:
         return None
     return subprocess.Popen(
         [sys.executable, "-m", "agents.training.compile_ahead", settings.env_id,
-         str(settings.compare_episodes), str(settings.max_episode_steps)],
+         str(settings.compare_episodes), str(settings.max_episode_steps),
+         *([str(run_dir)] if run_dir is not None else [])],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
@@ -81,6 +88,23 @@ def compile_comparison(env_id: str, episodes: int, max_episode_steps: int) -> No
         run_episodes(config, act, seeds, max_episode_steps=STEPS, row_independent=independent)
 
 
+def draw_curve_references(env_id: str, run_dir: Path, wait_s: float = EPISODES_WAIT_S) -> None:
+    """The curve's reference lines in ``run_dir`` once the run has written its episode set
+    (the selection does so as training starts); nothing if it does not within ``wait_s``."""
+    import time
+
+    from agents.training.run_report import CURVE_EPISODES, reference_lines
+    from saddle_env.envs import get_level
+
+    path = run_dir / CURVE_EPISODES
+    end = time.monotonic() + wait_s
+    while not path.is_file():
+        if time.monotonic() > end:
+            return
+        time.sleep(0.5)
+    reference_lines(run_dir, get_level(env_id).config(), env_id, strict=False)
+
+
 def _exit_with_parent() -> None:
     """Exit when the process that started this one is gone: a run killed before its own
     SIGTERM handler is in place cannot stop this process, which would otherwise compile on
@@ -99,9 +123,11 @@ def _exit_with_parent() -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    env_id, episodes, steps = (argv if argv is not None else sys.argv[1:])
+    env_id, episodes, steps, *run_dir = (argv if argv is not None else sys.argv[1:])
     _exit_with_parent()
     compile_comparison(env_id, int(episodes), int(steps))
+    if run_dir:
+        draw_curve_references(env_id, Path(run_dir[0]))
     return 0
 
 

@@ -30,9 +30,13 @@ from agents.cli_args import resolve_env
 from agents.control.rollout import same_episodes
 from agents.seeds import COMPARE_SEED
 from agents.training.runs import TrainSettings
+from saddle_env.envs import EnvConfig
+from saddle_env.files import write_text_atomically
 
 WALL_CSV = "evaluations_wall.csv"
 CURVE_EPISODES = "curve_episodes.json"    # written by agents.training.selection
+CURVE_REFERENCES = "curve_references.json"
+REFERENCE_NAMES = ("best-const", "mpc")
 WALL_HEADER = "timesteps,wall_seconds,mean_return,mean_trapping_time"
 
 
@@ -83,24 +87,52 @@ def curve_episodes(run_dir: Path) -> dict[str, Any] | None:
 
 
 def curve_references(run_dir: Path, settings: TrainSettings,
-                     names: tuple[str, ...] = ("best-const", "mpc")) -> dict[str, Any] | None:
+                     names: tuple[str, ...] = REFERENCE_NAMES) -> dict[str, Any] | None:
     """best-const and mpc on the episodes of the run's validation curve (the same seeds,
     order, length and options), saved as ``curve_references.json``: {"episode_set",
-    "policies": {name: mean trapping time}}; None if the curve has no recorded episodes."""
+    "policies": {name: mean trapping time}}; None if the curve has no recorded episodes.
+    Lines already drawn there (by `agents.training.compile_ahead`, on the other core while
+    the run trained) are read instead, if they are for the curve's episode set."""
+    episodes = curve_episodes(run_dir)
+    if episodes is None:
+        return None
+    path = Path(run_dir) / CURVE_REFERENCES
+    if path.is_file():
+        refs = json.loads(path.read_text())
+        try:
+            same_episodes(episodes, refs.get("episode_set"), "the curve and its reference lines")
+        except ValueError:
+            refs = None
+        if refs is not None and set(names) <= set(refs.get("policies", {})):
+            return refs
+    _, config = settings.environment()
+    return reference_lines(run_dir, config, settings.env_id, names)
+
+
+def reference_lines(run_dir: Path, config: EnvConfig, env_id: str | None,
+                    names: tuple[str, ...] = REFERENCE_NAMES,
+                    strict: bool = True) -> dict[str, Any] | None:
+    """Evaluate ``names`` on the run's curve episodes with ``config`` and save them as
+    ``curve_references.json``. If ``config`` does not make the curve's episodes (the check
+    `same_episodes` makes): ValueError, or with ``strict=False`` None and nothing saved."""
     from agents.evaluation.evaluate import evaluate
 
     episodes = curve_episodes(run_dir)
     if episodes is None:
         return None
-    _, config = settings.environment()
     table, _ = evaluate(list(names), config, episodes["episodes"], episodes["seed"],
                         max_episode_steps=episodes["max_episode_steps"], examples=0,
-                        env_id=settings.env_id)
-    same_episodes(episodes, table["episode_set"], "the curve and its reference lines")
+                        env_id=env_id)
+    try:
+        same_episodes(episodes, table["episode_set"], "the curve and its reference lines")
+    except ValueError:
+        if strict:
+            raise
+        return None
     refs = {"episode_set": table["episode_set"],
             "policies": {row["policy"]: row["trapping_time"]["mean"]
                          for row in table["policies"]}}
-    (Path(run_dir) / "curve_references.json").write_text(json.dumps(refs, indent=1) + "\n")
+    write_text_atomically(Path(run_dir) / CURVE_REFERENCES, json.dumps(refs, indent=1) + "\n")
     return refs
 
 

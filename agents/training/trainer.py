@@ -96,7 +96,8 @@ def train(settings: TrainSettings, resume: str | Path | None = None, trust: bool
     hyper = recipe(settings, note=True)
     settings.take_recipe(hyper)
     run_dir = settings.open_run_folder(resume)
-    ahead = compile_ahead.start(settings)   # the comparison's kernels, on the other core
+    ahead = compile_ahead.start(settings, run_dir)   # the comparison's kernels and the curve's
+    # reference lines, on the other core
     try:
         model = back.run(settings, hyper, run_dir, resume, trust, began)
         if model is not None:
