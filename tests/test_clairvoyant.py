@@ -160,3 +160,28 @@ def test_a_batch_the_integrator_cannot_follow_changes_nothing(gusty, monkeypatch
     clair, act = _run(ClairvoyantController(gusty, max_rounds=3), gusty, [GUST_SEED])
     assert len(calls) >= 2 and act.plans[0].rounds == 3
     assert clair["time"][0] >= act.plans[0].mpc_time
+
+
+def test_on_the_rig_candidates_hold_voltages_and_plans_replay_through_the_latency():
+    """In voltage mode a candidate holds the voltage of a steady speed (a held voltage holds
+    its speed, as a held target does), not an acceleration's ±1; and on the Lab level, whose
+    camera is 30 ms late, mpc's episode on the copy is what mpc does in the environment."""
+    from agents.control.clairvoyant import ClairvoyantPlanner
+    from saddle_env.envs.vector import SaddleTrapVectorEnv
+
+    # a motor whose top steady speed (30 rad/s) is not omega_max: voltage is not target
+    lab = get_level("SaddleTrap-Lab-v0").config(motor_gain=1.25)
+    env = SaddleTrapVectorEnv(num_envs=1, max_episode_steps=10, **lab.as_dict())
+    env.reset(seed=[9_000_001])
+    planner = ClairvoyantPlanner(lab)
+    state = BallState.capture(env.engine, env._rngs, 0)
+    plans = planner._candidates(state, np.zeros(50, dtype=np.float32), np.random.default_rng(0))
+    held = 2.0 * planner._speeds(state) / (lab.motor_gain * lab.voltage_max) - 1.0
+    for v in np.minimum(held, 1.0):
+        assert np.any(np.all(np.abs(plans - np.float32(v)) < 1e-6, axis=1)), v
+    level = get_level("SaddleTrap-Lab-v0").config()
+    seeds = [9_000_000, 9_000_001]
+    mpc, _ = _run(load_policy("mpc", level), level, seeds, steps=40)
+    clair, act = _run(ClairvoyantController(level, max_rounds=5), level, seeds, steps=40)
+    np.testing.assert_array_equal([p.mpc_time for p in act.plans], mpc["time"])
+    assert np.all(clair["time"] >= mpc["time"])

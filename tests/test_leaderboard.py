@@ -104,6 +104,19 @@ def test_shipped_agents_are_found_by_their_sidecar(tmp_path):
     assert lb.shipped_agents("SaddleTrap-Gusty-v0", tmp_path) == [tmp_path / "a.zip"]
 
 
+def test_delay_blind_mpc_runs_where_a_level_is_late_and_nowhere_else(tmp_path):
+    """What ignoring a delay costs is on the board of a level with one (the Lab level's
+    camera), and the other levels do not pay for a row that equals mpc there."""
+    from saddle_env.envs import get_level
+
+    for level in LEVELS:
+        c = get_level(level.id).config()
+        specs = lb.policy_specs(level.id, tmp_path)
+        assert specs[:len(lb.BASELINE_POLICIES)] == list(lb.BASELINE_POLICIES)
+        assert ("mpc-blind" in specs) == (c.obs_delay > 0 or c.action_delay > 0), level.id
+    assert "mpc-blind" in lb.policy_specs("SaddleTrap-Lab-v0", tmp_path)
+
+
 def test_bad_arguments_give_one_line_errors(capsys):
     with pytest.raises(SystemExit):
         lb.main(["--episodes", "0"])

@@ -30,6 +30,20 @@ def test_untrained_policy_starts_at_the_best_constant_speed(monkeypatch):
     assert np.abs(after - action).max() < 0.02
 
 
+def test_a_voltage_driven_motor_starts_at_the_voltage_of_the_best_constant_speed(monkeypatch):
+    """In voltage mode a constant action holds the steady speed K·V: the warm start's action
+    is the voltage whose steady speed is the best constant, not the target-speed action."""
+    from agents.control import best_constant
+
+    # a motor whose top steady speed (30 rad/s) is below omega_max: the two modes differ
+    config = level_config("SaddleTrap-Lab-v0", motor_gain=1.25)
+    monkeypatch.setattr(best_constant, "best_constant", lambda c, **kw: {"omega": 18.0})
+    action = ws.warm_start_action(config, "best-const", 500)
+    top = config.motor_gain * config.voltage_max
+    assert top < config.omega_max
+    assert action == pytest.approx(2 * 18.0 / top - 1)
+
+
 def test_warm_start_refuses_what_it_cannot_do():
     with pytest.raises(ValueError, match="warm_start must be one of"):
         ws.warm_start_action(level_config("SaddleTrap-Capture-v0"), "imitate", 500)

@@ -40,6 +40,9 @@ from saddle_env.files import write_text_atomically
 TEST_EPISODES = 1000           # 200-episode sets move the kept fraction by about 7 points
 BASELINE_POLICIES = ("zero", "random", "const-1.0", "const-1.2", "const-1.5", "best-const",
                      "mpc")
+# On a level whose camera or motor is late (obs_delay, action_delay): mpc planning as if the
+# delayed picture were now, so that the board shows what ignoring the delay costs.
+DELAY_BASELINES = ("mpc-blind",)
 DOCS = DOCS_DIR
 
 
@@ -57,12 +60,20 @@ def shipped_agents(env_id: str, models_dir: Path = MODELS_DIR) -> list[Path]:
     return out
 
 
+def baseline_policies(env_id: str) -> list[str]:
+    """The baselines of level ``env_id``: `BASELINE_POLICIES`, and `DELAY_BASELINES` where
+    the level delays its observations or its commands."""
+    config = get_level(env_id).config()
+    delayed = config.obs_delay > 0 or config.action_delay > 0
+    return list(BASELINE_POLICIES) + (list(DELAY_BASELINES) if delayed else [])
+
+
 def policy_specs(env_id: str, models_dir: Path = MODELS_DIR,
                  extra: Sequence[str] = ()) -> list[str]:
     """What the leaderboard runs on ``env_id``: every baseline, then the agents in
     ``models_dir`` (the shipped ones by default), then the ``extra`` policies (``--policy``:
     a controller class of yours, another model file)."""
-    return (list(BASELINE_POLICIES) + [str(p) for p in shipped_agents(env_id, models_dir)]
+    return (baseline_policies(env_id) + [str(p) for p in shipped_agents(env_id, models_dir)]
             + list(extra))
 
 
@@ -194,8 +205,9 @@ def write_markdown(results: dict[str, Any], path: Path, figures: dict[str, str],
         "action 0, `random` uniform actions; `const-K` holds K·Ω_crt of the nominal ball, "
         "`best-const` the best constant speed of the level (a grid searched on 64 seeded "
         "episodes, its choice checked against the next four speeds on 512 more, paired), "
-        "`mpc` is the model-predictive controller. Agents (bold) are the network alone, "
-        "deterministic.",
+        "`mpc` is the model-predictive controller, and on a level whose camera is late "
+        "`mpc-blind` the same controller planning as if the late picture were now. Agents "
+        "(bold) are the network alone, deterministic.",
         "",
         "Seeds (agents/seeds.py): test episodes from "
         f"{results['seed']:,} (used by nothing else); training runs seed 0-99; model "

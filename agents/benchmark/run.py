@@ -349,7 +349,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         from agents.benchmark.report import main_report
 
         return main_report(out, ALGOS, SEEDS, TEST_EPISODES,
-                           docs=Path(args.docs) if args.docs else None, as_json=args.json)
+                           docs=Path(args.docs) if args.docs else None, as_json=args.json,
+                           levels=[lv.id for lv in LEVELS if lv.id != CALM])
     try:
         if args.only:
             todo = [parse_only(args.only)]

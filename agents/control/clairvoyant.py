@@ -22,10 +22,11 @@ keeps a ball on the copy keeps it in the episode, bit for bit.
    ball at that step (its state and generator). The candidates (`_candidates`): the
    incumbent's own remaining actions; each of 14 target speeds (0.85-1.6 Ω_crt of the true
    ball, and the speed commanded now) held for 2, 6, 15 or 40 steps, then either the
-   incumbent's remaining actions or that speed held, or held to the end; in
-   ``acceleration`` mode accelerations of ±0.2, ±0.5 and ±1 of the motor's limit instead,
-   followed by holding the speed reached. The rest of the ``candidates`` slots (128 by
-   default: 1 in target mode, 73 in acceleration mode) are smooth random perturbations of
+   incumbent's remaining actions or that speed held, or held to the end (in ``voltage``
+   mode the voltages whose steady speeds these are); in ``acceleration`` mode
+   accelerations of ±0.2, ±0.5 and ±1 of the motor's limit instead, followed by holding
+   the speed reached. The rest of the ``candidates`` slots (128 by default: 1 in target
+   and voltage mode, 73 in acceleration mode) are smooth random perturbations of
    the incumbent. A candidate that keeps the ball strictly longer than the incumbent (from
    the same step, with the same future) replaces it, and the search starts again from the
    new loss. It stops when the ball is kept, when backing off to the episode's start finds
@@ -275,7 +276,8 @@ class ClairvoyantPlanner:
             rows = np.arange(lo, min(lo + CHUNK, engine.n))
             rows = np.concatenate([rows, np.full(CHUNK - len(rows), rows[0])])
             twin = TrapEngine(engine.config, CHUNK)
-            for name in ("models", "P", "scales", "Y", "balls", "out", "frame", "obs", "noise"):
+            for name in ("models", "P", "scales", "Y", "balls", "out", "frame", "obs", "noise",
+                         *engine.delay_arrays):
                 getattr(twin, name)[:] = getattr(engine, name)[rows]
             twin.scenes = [engine.scenes[r] for r in rows]
             keep = min(CHUNK, engine.n - lo)
@@ -346,6 +348,10 @@ class ClairvoyantPlanner:
         if c.action_mode == "target":
             levels = 2.0 * self._speeds(state) / c.omega_max - 1.0
             hold = None                      # a held target is the level itself
+        elif c.action_mode == "voltage":     # a held voltage holds its steady speed K·V
+            levels = np.minimum(2.0 * self._speeds(state) / (c.motor_gain * c.voltage_max)
+                                - 1.0, 1.0)
+            hold = None
         else:
             levels = np.array([-1.0, -0.5, -0.2, 0.2, 0.5, 1.0])
             hold = 0.0                       # acceleration 0 holds the speed reached

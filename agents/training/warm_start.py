@@ -2,7 +2,8 @@
 
 ``warm_start: best-const`` (a hyperparameter key) sets the bias of the policy's action head so
 that, before any update, the mean action is the level's best constant speed (target-speed
-action mode: a constant action is a constant speed). The untrained network's other weights
+action mode: a constant action is a constant speed; voltage mode: the constant voltage whose
+steady speed it is). The untrained network's other weights
 are small (SB3 initialises the action head with gain 0.01), so the starting policy is the
 best constant plus exploration noise, and learning starts from the baseline it has to beat
 rather than from a random speed that loses most balls.
@@ -49,13 +50,18 @@ def warm_start_action(config: EnvConfig, how: str, max_episode_steps: int) -> fl
     """The action the warm start ``how`` (best-const) makes the untrained policy's mean."""
     if check_warm_start(how) != "best-const":
         raise ValueError(f"warm_start {how!r} does not set a constant action")
-    if config.action_mode != "target":
-        raise ValueError("warm_start 'best-const' needs action_mode='target' (in acceleration "
-                         "mode a constant action is a constant acceleration, not a speed)")
+    if config.action_mode not in ("target", "voltage"):
+        raise ValueError("warm_start 'best-const' needs action_mode='target' or 'voltage' (in "
+                         "acceleration mode a constant action is a constant acceleration, not a "
+                         "speed)")
     from agents.control.best_constant import best_constant
 
     omega = float(best_constant(config, max_episode_steps=max_episode_steps)["omega"])
-    return 2.0 * omega / config.omega_max - 1.0
+    # A constant voltage V holds the steady speed K·V (the search's speeds are such steady
+    # speeds, up to K·V_max).
+    top = config.motor_gain * config.voltage_max if config.action_mode == "voltage" \
+        else config.omega_max
+    return 2.0 * omega / top - 1.0
 
 
 def apply_warm_start(model: Any, action: float) -> None:
