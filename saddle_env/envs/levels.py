@@ -175,7 +175,7 @@ LEVELS: tuple[Level, ...] = (
         "(seeds 500,200-500,799), ignoring the latency costs 0.13 s [0.00, 0.25] of trapping "
         "time (docs/mpc.md). On the leaderboard's 1,000 test episodes (python -m "
         "agents.benchmark.leaderboard --resume --levels SaddleTrap-Lab-v0, 2026-11-27): best-"
-        "const 7.49 s [7.31, 7.66] (41 % [38, 44] kept); mpc 9.46 s [9.36, 9.56] (85 % [82.5, "
+        "const (14.25 rad/s) 7.67 s [7.50, 7.84] (45 % [41, 48] kept); mpc 9.46 s [9.36, 9.56] (85 % [82.5, "
         "87.0] kept); mpc-blind 9.32 s [9.21, 9.43] (81 % [79, 84] kept); paired over the same "
         "1,000 episodes, ignoring the latency costs 0.14 s [0.05, 0.23] of trapping time "
         "(paired bootstrap over episodes; 93 balls kept by mpc alone, 57 by mpc-blind alone). A"
