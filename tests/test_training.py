@@ -380,3 +380,20 @@ def test_a_run_warm_started_by_imitating_mpc_records_it_and_can_select_it(tmp_pa
     assert [r["driver"] for r in record["rounds"]] == ["mpc", "network"]
     # The imitating network was evaluated before RL: a snapshot at step 0 is on the curve.
     assert np.load(run / "evaluations.npz")["timesteps"][0] == 0
+
+
+def test_a_stop_inside_the_model_loader_stays_a_stop(monkeypatch):
+    """SIGTERM can land while a snapshot is being read back for its evaluation; the loader's
+    catch-all for corrupt tensor files must not turn the run's Stop into a load error (the run
+    would then exit with a usage error instead of checkpointing)."""
+    import torch
+
+    from agents.evaluation.model_files import load_tensors
+    from agents.training.runs import Stop
+
+    def interrupted(*args, **kwargs):
+        raise Stop()
+
+    monkeypatch.setattr(torch, "load", interrupted)
+    with pytest.raises(Stop):
+        load_tensors(b"any bytes", "snapshot.zip:policy.pth")

@@ -196,9 +196,11 @@ def settings_for_resume(checkpoint: str | Path, total_timesteps: int | None = No
                           **overrides).validate()
 
 
-class Stop(Exception):
+class Stop(BaseException):
     """Raised in the main thread by SIGTERM, so that a run checkpoints and exits as on
-    Ctrl-C."""
+    Ctrl-C. A BaseException, as KeyboardInterrupt is: it can arrive inside any code, and an
+    ``except Exception`` there (the model loader's, which turns torch's many errors on a
+    corrupt file into one message) must not take it for that code's own failure."""
 
 
 class _Held:
