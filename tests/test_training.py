@@ -108,6 +108,32 @@ def test_sigterm_raises_stop_or_only_sets_the_flag_when_deferred():
     assert signal.getsignal(signal.SIGTERM) is before
 
 
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")
+def test_a_stop_python_dropped_inside_a_del_is_raised_at_the_next_step():
+    """A SIGTERM whose handler runs inside a ``__del__`` (CI: numba freeing an LLVM object
+    mid-compile) has its Stop printed and dropped by Python; the run trained on until the
+    test's timeout. The per-step check raises it again, and only once it was dropped."""
+    import gc
+    import os
+
+    from agents.training.backends.sb3 import _lost_stop_callback
+    from agents.training.runs import Stop, sigterm_stops
+
+    class SignalledWhileFreed:
+        def __del__(self):
+            os.kill(os.getpid(), signal.SIGTERM)
+            for _ in range(1000):              # the handler runs on one of these bytecodes
+                pass
+
+    with pytest.raises(Stop), sigterm_stops() as requested:
+        check = _lost_stop_callback(requested)
+        assert check._on_step() is True         # no signal yet: training goes on
+        SignalledWhileFreed()                    # freed here; its Stop is dropped
+        gc.collect()
+        assert requested.is_set()               # the run would have gone on from here
+        check._on_step()
+
+
 def test_a_stop_during_a_save_comes_after_the_files_are_whole(tmp_path, monkeypatch, set_sigint):
     """SIGTERM or Ctrl-C while a checkpoint or the selected model is being written waits
     for the save to finish (it used to break torch's zip writer mid-file, whose RuntimeError

@@ -226,8 +226,27 @@ def stops_held() -> Iterator[None]:
         raise stop
 
 
+class StopRequest(threading.Event):
+    """Set by SIGTERM (or Ctrl-C under `sigterm_stops`), remembering the stop it raised.
+
+    Python drops an exception raised by a signal handler that runs inside a ``__del__``
+    (it prints "Exception ignored in ..." and carries on): a SIGTERM that lands while numba
+    frees a compiled object would be lost and the run would train on. `raise_if_lost`,
+    called once per training step, raises such a stop again."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.stop: BaseException | None = None
+
+    def raise_if_lost(self) -> None:
+        """Raise the stop again if a signal came and its exception has not ended the run
+        (the code that checks this runs only while the run goes on, so it was lost)."""
+        if self.is_set() and self.stop is not None and not _Held.depth:
+            raise type(self.stop)()
+
+
 @contextmanager
-def sigterm_stops(deferred: bool = False) -> Iterator[threading.Event]:
+def sigterm_stops(deferred: bool = False) -> Iterator[StopRequest]:
     """Within the block, SIGTERM raises `Stop` and Ctrl-C KeyboardInterrupt (as ever), each
     held until the end of a `stops_held` block in progress; the previous handlers come back
     after.
@@ -236,13 +255,14 @@ def sigterm_stops(deferred: bool = False) -> Iterator[threading.Event]:
     between iterations (Ctrl-C is left alone): an exception raised from a signal handler
     while the main thread waits inside Ray's compiled ``CoreWorker.wait`` comes out as a
     ``SystemError`` ("returned a result with an exception set"), not as `Stop`."""
-    requested = threading.Event()
+    requested = StopRequest()
 
     def on_signal(signum, frame):
         requested.set()
         if deferred:
             return
         stop = Stop() if signum == signal.SIGTERM else KeyboardInterrupt()
+        requested.stop = requested.stop or stop
         if _Held.depth:
             _Held.pending = _Held.pending or stop
             return
@@ -260,5 +280,5 @@ def sigterm_stops(deferred: bool = False) -> Iterator[threading.Event]:
 
 
 __all__ = ["ALGO_NAMES", "BACKENDS", "BACKEND_ALGOS", "DEFAULT_ENV_RUNNERS", "DEFAULT_N_ENVS",
-           "MAIN_JOB_ENV_ID", "Stop", "TrainSettings", "run_folder_of", "settings_for_resume",
+           "MAIN_JOB_ENV_ID", "Stop", "StopRequest", "TrainSettings", "run_folder_of", "settings_for_resume",
            "sigterm_stops", "stops_held"]

@@ -51,7 +51,7 @@ from agents.training.recipes import (
     wrapper_settings,
 )
 from agents.training.run_report import append_curve_point
-from agents.training.runs import Stop, TrainSettings, sigterm_stops, stops_held
+from agents.training.runs import Stop, StopRequest, TrainSettings, sigterm_stops, stops_held
 from agents.training.schedules import with_schedules
 from saddle_env.envs import ENV_ID
 
@@ -357,6 +357,18 @@ def _selection_callback(settings: TrainSettings, run_dir: Path, n_envs: int,
     return SelectingCallback()
 
 
+def _lost_stop_callback(requested: StopRequest):
+    """Raises, at the next step, a stop whose exception Python dropped (`StopRequest`)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class LostStop(BaseCallback):
+        def _on_step(self) -> bool:
+            requested.raise_if_lost()
+            return True
+
+    return LostStop()
+
+
 def progress_callback():
     """A progress bar that ends at the number of steps actually taken: SB3's counts to the
     budget asked for, but on-policy algorithms collect whole rollouts (n_steps × n_envs)
@@ -446,9 +458,10 @@ def train_with(learner: Sb3Learner, settings: TrainSettings, hyper: dict[str, An
         selector.init_callback(model)
         selector.evaluate_now()
     try:
-        with sigterm_stops():
+        with sigterm_stops() as requested:
             if remaining > 0:
-                model.learn(remaining, callback=CallbackList(callbacks),
+                model.learn(remaining, callback=CallbackList([_lost_stop_callback(requested),
+                                                              *callbacks]),
                             reset_num_timesteps=resume is None)
     except (KeyboardInterrupt, Stop):
         path = learner.checkpoint(model, run_dir / "checkpoints", "interrupted", settings)
