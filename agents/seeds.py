@@ -10,9 +10,10 @@ training or model selection.
 | ``SEARCH_SEED + 64 ..`` (512) | best-const's paired comparison of the grid's best speeds |
 | ``VALIDATION_SEED ..`` | the validation curve of every training run (the same episodes |
 | | for every seed) and the reference lines drawn beside it |
-| ``RESELECT_SEED + s·4n ..`` | the 4n fresh episodes on which run s's best snapshots are |
-| | re-evaluated before one is shipped (n = its validation episodes, |
-| | `agents.training.selection`) |
+| ``RESELECT_SEED + s·8n ..`` | run s's 4n fresh episodes, on which its best snapshots are |
+| | re-evaluated before one is shipped, then 4n report episodes, on |
+| | which the shipped one's recorded score is measured (n = its |
+| | validation episodes, `agents.training.selection`) |
 | ``TEST_SEED ..`` | the leaderboard's frozen test set, nothing else |
 | ``COMPARE_SEED ..`` | the comparison ``train.py`` prints at the end of a run |
 | ``IMITATION_SEED + s·k ..`` | run s's imitation warm start (k = its episodes, `agents.training.imitation`) |

@@ -42,15 +42,19 @@ def test_the_seed_ranges_of_selection_never_meet_each_other_or_the_test_set():
 
     with pytest.raises(ValueError, match="--eval-episodes must be at most"):
         TrainSettings(env_id="SaddleTrap-v0", eval_episodes=MAX_EVAL_EPISODES + 1).validate()
-    from agents.training.selection import fresh_set
+    from agents.training.selection import fresh_set, report_set
 
-    sets = [fresh_set(TrainSettings(env_id="SaddleTrap-v0", eval_episodes=256, seed=s).validate())
-            for s in (0, 1, 99)]
+    settings = [TrainSettings(env_id="SaddleTrap-v0", eval_episodes=256, seed=s).validate()
+                for s in (0, 1, 99, 243)]
     n = 4 * 256                                     # FRESH_FACTOR x eval_episodes
-    assert [f["seed"] for f in sets] == [RESELECT_SEED, RESELECT_SEED + n, RESELECT_SEED + 99 * n]
-    assert {f["episodes"] for f in sets} == {n}
-    with pytest.raises(ValueError, match="must end before the test set"):
-        fresh_set(TrainSettings(env_id="SaddleTrap-v0", eval_episodes=256, seed=489).validate())
+    fresh = [fresh_set(s) for s in settings]
+    report = [report_set(s) for s in settings]
+    assert [f["seed"] for f in fresh] == [RESELECT_SEED + k * 2 * n for k in (0, 1, 99, 243)]
+    assert [r["seed"] for r in report] == [f["seed"] + n for f in fresh]
+    assert {f["episodes"] for f in fresh + report} == {n}
+    assert report[-1]["seed"] + n <= TEST_SEED      # the last seed allowed still fits
+    with pytest.raises(ValueError, match=r"must end before the test set.*\[0, 243\]"):
+        fresh_set(TrainSettings(env_id="SaddleTrap-v0", eval_episodes=256, seed=244).validate())
 
 
 def test_evaluate_records_the_episode_set_it_ran():
@@ -71,18 +75,21 @@ def _settings(tmp_path, episodes=4):
 
 def test_the_rule_keeps_the_top_few_and_ships_the_best_on_fresh_episodes(tmp_path, monkeypatch):
     """With made-up scores: the in-run maximum (the old rule's pick) loses on the fresh
-    episodes to a later candidate, which is shipped with both scores in its sidecar; a
-    snapshot that falls out of the top few is deleted."""
+    episodes to a later candidate, which is shipped and scored once more on the report
+    episodes, the score its sidecar records; a snapshot that falls out of the top few is
+    deleted."""
     from agents.training import selection
 
     in_run = {100: 5.0, 200: 9.0, 300: 7.0, 400: 6.0, 500: 8.0}
     fresh = {200: 6.5, 300: 7.5, 500: 7.0}
+    report = {300: 7.2}
+    report_seed = RESELECT_SEED + 4 * 4         # the fresh set's 4 x 4 episodes come first
     seen_sets = []
 
     def fake_score(path, settings, episodes):
         seen_sets.append(episodes["seed"])
         steps = int(Path(path).stem.split("_")[1]) if "snapshot" in str(path) else None
-        table = fresh if episodes["seed"] == RESELECT_SEED else in_run
+        table = {RESELECT_SEED: fresh, report_seed: report}.get(episodes["seed"], in_run)
         value = table[steps]
         return {"mean_return": value, "mean_trapping_time": value / 10,
                 "returns": np.full(4, value), "trapping_times": np.full(4, value / 10)}
@@ -104,13 +111,16 @@ def test_the_rule_keeps_the_top_few_and_ships_the_best_on_fresh_episodes(tmp_pat
     assert json.loads((run / "best_model.json").read_text()) == {"algo": "ppo"}
     assert sel.choose() == run / "selected_model.zip"
     side = json.loads((run / "selected_model.json").read_text())
-    assert side["selected_at_steps"] == 300 and side["validation_mean_return"] == 7.5
-    assert side["in_run_mean_return"] == 7.0 and side["validation_seed"] == RESELECT_SEED
+    assert side["selected_at_steps"] == 300 and side["validation_mean_return"] == 7.2
+    assert side["fresh_mean_return"] == 7.5 and side["validation_seed"] == report_seed
+    assert side["in_run_mean_return"] == 7.0
     record = json.loads((run / "selection.json").read_text())
     assert record["max_rule_at_steps"] == 200 and record["selected_at_steps"] == 300
     assert record["validation_episodes"]["seed"] == VALIDATION_SEED
     assert record["fresh_episodes"]["seed"] == RESELECT_SEED
-    assert seen_sets == [VALIDATION_SEED] * 5 + [RESELECT_SEED] * 3
+    assert record["report_episodes"]["seed"] == report_seed
+    assert record["report_mean_return"] == 7.2
+    assert seen_sets == [VALIDATION_SEED] * 5 + [RESELECT_SEED] * 3 + [report_seed]
     curve = np.load(run / "evaluations.npz")
     assert list(curve["timesteps"]) == list(in_run) and curve["results"].shape == (5, 4)
     assert json.loads((run / "curve_episodes.json").read_text()) == record["validation_episodes"]
@@ -188,7 +198,7 @@ def test_time_to_target_refuses_a_curve_from_other_episodes_than_its_targets(tmp
 def test_a_run_scores_its_curve_on_the_episodes_evaluate_runs(tmp_path):
     """End to end (tiny budget): the curve's score of the selected snapshot is what the
     evaluation tool gives the shipped file on the validation episodes, and its recorded
-    fresh score what it gives on the re-selection episodes."""
+    fresh and report scores what it gives on the re-selection and report episodes."""
     pytest.importorskip("stable_baselines3")
     from agents.evaluation.evaluate import evaluate
     from agents.evaluation.policies import load_policy
@@ -207,19 +217,24 @@ def test_a_run_scores_its_curve_on_the_episodes_evaluate_runs(tmp_path):
                 if c["steps"] == record["selected_at_steps"])
     config = EnvConfig()
     policy = load_policy(run / "selected_model.zip", config)
+    pick["report_mean_return"] = record["report_mean_return"]
     for episodes, key in ((record["validation_episodes"], "mean_return"),
-                          (record["fresh_episodes"], "fresh_mean_return")):
+                          (record["fresh_episodes"], "fresh_mean_return"),
+                          (record["report_episodes"], "report_mean_return")):
         _, details = evaluate([("m", policy)], config, episodes["episodes"], episodes["seed"],
                               max_episode_steps=episodes["max_episode_steps"], examples=0)
         assert float(np.mean(details["m"]["return"])) == pytest.approx(pick[key], rel=1e-9)
+    side = json.loads((run / "selected_model.json").read_text())
+    assert side["validation_mean_return"] == record["report_mean_return"]
     curve = np.load(run / "evaluations.npz")
     i = list(curve["timesteps"]).index(pick["steps"])
     assert float(curve["results"][i].mean()) == pytest.approx(pick["mean_return"], rel=1e-9)
 
 
-def test_selection_bias_compares_both_rules_on_unseen_episodes(tmp_path, monkeypatch):
+def test_selection_bias_compares_the_rules_on_unseen_episodes(tmp_path, monkeypatch):
     """agents.benchmark.selection_bias: each rule's recorded score against the same
-    network's score on unseen episodes (COMPARE_SEED), per run and as mean ± SE."""
+    network's score on unseen episodes (COMPARE_SEED), per run and as mean ± SE, the SE
+    with the unseen set's own (shared by the runs) added in quadrature."""
     from agents.benchmark import selection_bias as sb
     from agents.training import selection
 
@@ -244,22 +259,37 @@ def test_selection_bias_compares_both_rules_on_unseen_episodes(tmp_path, monkeyp
         runs.append(run)
     unseen_seeds = []
 
+    report_seed = selection.report_set(settings)["seed"]
+
     def fake_score(path, s, episodes):
         unseen_seeds.append(episodes["seed"])
         steps = int(Path(path).stem.split("_")[1])
-        return {"mean_return": steps / 10.0 - 6, "mean_trapping_time": steps / 100.0 - 0.1}
+        if episodes["seed"] == report_seed:      # the runs predate the report set
+            return {"mean_return": steps / 10.0 - 5.5, "mean_trapping_time": steps / 100.0}
+        times = steps / 100.0 - 0.1 + np.array([-0.3, 0.3])    # SE 0.3 on the unseen set
+        return {"mean_return": steps / 10.0 - 6, "mean_trapping_time": float(times.mean()),
+                "returns": np.full(2, steps / 10.0 - 6), "trapping_times": times}
 
     monkeypatch.setattr(selection, "score", fake_score)
     rows = sb.run_rows(runs[0], 8) + sb.run_rows(runs[1], 8)
-    assert set(unseen_seeds) == {COMPARE_SEED} and settings.eval_episodes == 4
+    assert set(unseen_seeds) == {COMPARE_SEED, report_seed} and settings.eval_episodes == 4
+    assert unseen_seeds.count(report_seed) == 2          # the shipped network, once a run
     by_rule = {(r["run"], r["rule"]): r for r in rows}
     assert by_rule[("r0", "max")]["bias_trapping_time"] == pytest.approx(0.1)
     assert by_rule[("r0", "top-k re-evaluated")]["set_offset_trapping_time"] == \
         pytest.approx(0.05)
     assert by_rule[("r0", "top-k re-evaluated")]["bias_trapping_time"] == pytest.approx(0.05)
     assert by_rule[("r0", "top-k re-evaluated")]["selected_at_steps"] == 300
+    reported = by_rule[("r0", "top-k, report score")]
+    assert reported["selected_at_steps"] == 300
+    assert reported["recorded_trapping_time"] == pytest.approx(3.0)
+    assert reported["bias_trapping_time"] == pytest.approx(0.1)
+    assert reported["unseen_se_trapping_time"] == pytest.approx(0.3)
     summary = {e["rule"]: e for e in sb.summarise(rows)}
     assert summary["max"]["runs"] == 2
     assert summary["top-k re-evaluated"]["bias_return"]["mean"] == pytest.approx(1.0)
     assert summary["max"]["bias_return"]["se"] == pytest.approx(0.0)
+    # both runs' biases are 0.1 (spread 0): the SE is the unseen set's own
+    assert summary["top-k, report score"]["bias_trapping_time"]["mean"] == pytest.approx(0.1)
+    assert summary["top-k, report score"]["bias_trapping_time"]["se"] == pytest.approx(0.3)
     assert "top-k re-evaluated" in sb.markdown(sb.summarise(rows))

@@ -8,14 +8,19 @@ applied to the same run's snapshots:
 
 * **max**: the snapshot with the highest mean validation return (the latest, on ties), with
   its score on the validation curve (the rule before issue 44);
-* **top-k re-evaluated** (the trainer's): the snapshot it shipped, with its score on the
-  fresh re-selection episodes (the score its sidecar records).
+* **top-k re-evaluated**: the snapshot the trainer ships, with its score on the fresh
+  episodes it was chosen on;
+* **top-k, report score** (the trainer's): the same snapshot, with its score on the report
+  episodes, which chose nothing (the score its sidecar records).
 
 The bias of a rule is its recorded score minus the same network's score on the unseen
 episodes (mean trapping time [s]; the mean return beside it), and beside it the part of it
-that is the scoring episodes' own offset, not the choice (`run_rows`). The report gives, per level,
-the mean bias over runs ± its standard error (SD over runs / sqrt(runs)), and each run's
-row. Writes ``<out>.json`` and ``<out>.csv`` (a row per run, written as each run is done).
+that is the scoring episodes' own offset, not the choice (`run_rows`). The report gives, per
+level, the mean bias over runs ± its standard error. The unseen episodes are one set for
+every run of a level, so their own sampling error is shared by all the runs and does not
+show in their spread: the standard error adds it (the selected network's per-episode SD /
+sqrt(episodes)) in quadrature to the SD over runs / sqrt(runs). Writes ``<out>.json`` and
+``<out>.csv`` (a row per run, written as each run is done).
 
     python -m agents.benchmark.selection_bias runs/issue44/*_seed* --out bias
 """
@@ -33,18 +38,22 @@ from typing import Any
 
 from agents.seeds import COMPARE_SEED
 
+RULES = ("max", "top-k re-evaluated", "top-k, report score")
 FIELDS = ["env_id", "run", "rule", "selected_at_steps", "recorded_trapping_time",
           "unseen_trapping_time", "bias_trapping_time", "set_offset_trapping_time",
-          "recorded_return", "unseen_return", "bias_return", "set_offset_return"]
+          "unseen_se_trapping_time", "recorded_return", "unseen_return", "bias_return",
+          "set_offset_return", "unseen_se_return"]
 
 
 def run_rows(run_dir: Path, episodes: int) -> list[dict[str, Any]]:
-    """The two rules' rows of one run: every candidate and the final network scored on the
-    unseen episodes. ``set_offset``: how much the rule's scoring episodes flatter a network
-    they did not choose, against the unseen ones (the validation set: the final network,
-    whose curve point is no choice; the fresh set: the mean over the candidates, which the
-    validation set chose); the episode sets are the same for every run of a level, so this
-    part of a bias does not average out over seeds."""
+    """The three rules' rows of one run: every candidate and the final network scored on
+    the unseen episodes. ``set_offset``: how much the rule's scoring episodes flatter a
+    network they did not choose, against the unseen ones (the validation set: the final
+    network, whose curve point is no choice; the fresh set: the mean over the candidates,
+    which the validation set chose; the report set: NaN, its one score is the row's own).
+    ``unseen_se``: the selected network's standard error on the unseen episodes. A run
+    made before the trainer's current sets (fresh and report episodes of its own per seed)
+    is scored on the sets the trainer now gives its seed, and the choice made again."""
     import numpy as np
 
     from agents.control.rollout import episode_set
@@ -59,16 +68,21 @@ def run_rows(run_dir: Path, episodes: int) -> list[dict[str, Any]]:
     assert settings.max_episode_steps is not None
     unseen_set = episode_set(config, COMPARE_SEED, episodes, settings.max_episode_steps)
     by_steps = {int(c["steps"]): c for c in record["candidates"]}
-    fresh = selection.fresh_set(settings)
+    fresh, reported = selection.fresh_set(settings), selection.report_set(settings)
     if record["fresh_episodes"] != fresh:
-        # A run from before each run had fresh episodes of its own: its candidates are
-        # scored on the set the trainer now gives this seed, and the choice is made again.
         for steps, c in by_steps.items():
             again = selection.score(path[steps], settings, fresh)
             c["fresh_mean_return"] = again["mean_return"]
             c["fresh_mean_trapping_time"] = again["mean_trapping_time"]
         record["selected_at_steps"] = max(by_steps, key=lambda k: (
             by_steps[k]["fresh_mean_return"], k))
+    pick = by_steps[int(record["selected_at_steps"])]
+    if record.get("report_episodes") != reported or "report_mean_return" not in record:
+        again = selection.score(path[pick["steps"]], settings, reported)
+        record["report_mean_return"] = again["mean_return"]
+        record["report_mean_trapping_time"] = again["mean_trapping_time"]
+    pick["report_mean_return"] = record["report_mean_return"]
+    pick["report_mean_trapping_time"] = record["report_mean_trapping_time"]
     for steps, c in by_steps.items():
         c["unseen"] = selection.score(path[steps], settings, unseen_set)
     offsets = {"mean_trapping_time": 0.0, "mean_return": 0.0}
@@ -83,12 +97,16 @@ def run_rows(run_dir: Path, episodes: int) -> list[dict[str, Any]]:
                    - unseen_final["mean_trapping_time"],
                    "mean_return": float(data["results"][-1].mean())
                    - unseen_final["mean_return"]}
+    nan = {"mean_trapping_time": float("nan"), "mean_return": float("nan")}
     rows = []
     for rule, steps, prefix, offset in (
             ("max", record["max_rule_at_steps"], "", offsets),
-            ("top-k re-evaluated", record["selected_at_steps"], "fresh_", fresh_offsets)):
+            ("top-k re-evaluated", record["selected_at_steps"], "fresh_", fresh_offsets),
+            ("top-k, report score", record["selected_at_steps"], "report_", nan)):
         c = by_steps[int(steps)]
         u = c["unseen"]
+        se = {k: _se(u[a]) if a in u else float("nan")
+              for k, a in (("mean_trapping_time", "trapping_times"), ("mean_return", "returns"))}
         rows.append({"env_id": settings.env_id, "run": run_dir.name, "rule": rule,
                      "selected_at_steps": int(steps),
                      "recorded_trapping_time": c[prefix + "mean_trapping_time"],
@@ -96,26 +114,43 @@ def run_rows(run_dir: Path, episodes: int) -> list[dict[str, Any]]:
                      "bias_trapping_time": c[prefix + "mean_trapping_time"]
                      - u["mean_trapping_time"],
                      "set_offset_trapping_time": offset["mean_trapping_time"],
+                     "unseen_se_trapping_time": se["mean_trapping_time"],
                      "recorded_return": c[prefix + "mean_return"],
                      "unseen_return": u["mean_return"],
                      "bias_return": c[prefix + "mean_return"] - u["mean_return"],
-                     "set_offset_return": offset["mean_return"]})
+                     "set_offset_return": offset["mean_return"],
+                     "unseen_se_return": se["mean_return"]})
     return rows
 
 
+def _se(values: Any) -> float:
+    """Standard error of the mean of per-episode values."""
+    values = [float(v) for v in values]
+    return statistics.stdev(values) / math.sqrt(len(values)) if len(values) > 1 else float("nan")
+
+
 def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per level and rule: runs, mean bias ± standard error, in trapping time and return."""
+    """Per level and rule: runs, mean bias ± standard error, in trapping time and return.
+    The bias's standard error adds the unseen set's own (shared by every run, so absent
+    from their spread) in quadrature to the spread's; the offset's is the spread's alone."""
     out = []
     for env_id in sorted({r["env_id"] for r in rows}):
-        for rule in ("max", "top-k re-evaluated"):
+        for rule in RULES:
             sel = [r for r in rows if r["env_id"] == env_id and r["rule"] == rule]
             if not sel:
                 continue
             entry: dict[str, Any] = {"env_id": env_id, "rule": rule, "runs": len(sel)}
             for key in ("bias_trapping_time", "bias_return", "set_offset_trapping_time"):
-                values = [r[key] for r in sel]
-                se = statistics.stdev(values) / math.sqrt(len(values)) if len(values) > 1 \
-                    else float("nan")
+                values = [r[key] for r in sel if math.isfinite(r[key])]
+                if not values:                      # the report set's offset: none
+                    entry[key] = {"mean": float("nan"), "se": float("nan")}
+                    continue
+                se = _se(values)
+                if key.startswith("bias_"):
+                    shared = statistics.fmean(
+                        r.get("unseen_se_" + key[len("bias_"):], float("nan")) for r in sel)
+                    if math.isfinite(shared):
+                        se = math.hypot(se, shared)
                 entry[key] = {"mean": statistics.fmean(values), "se": se}
             out.append(entry)
     return out
@@ -127,7 +162,8 @@ def markdown(summary: list[dict[str, Any]]) -> str:
     for e in summary:
         t, r, o = e["bias_trapping_time"], e["bias_return"], e["set_offset_trapping_time"]
         lines.append(f"| {e['env_id']} | {e['rule']} | {e['runs']} | "
-                     f"{t['mean']:+.3f} ± {t['se']:.3f} | {o['mean']:+.3f} | "
+                     f"{t['mean']:+.3f} ± {t['se']:.3f} | "
+                     f"{'–' if math.isnan(o['mean']) else format(o['mean'], '+.3f')} | "
                      f"{r['mean']:+.1f} ± {r['se']:.1f} |")
     return "\n".join(lines)
 
@@ -136,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="The bias of model selection: recorded score "
                                              "against unseen episodes, max rule and top-k.")
     ap.add_argument("runs", nargs="+", metavar="RUN", help="finished run folders")
-    ap.add_argument("--episodes", type=int, default=500,
+    ap.add_argument("--episodes", type=int, default=2000,
                     help="unseen episodes per network (seeds from COMPARE_SEED)")
     ap.add_argument("--out", default="selection_bias", help="<out>.json and <out>.csv")
     ap.add_argument("--resume", action="store_true",

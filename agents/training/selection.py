@@ -16,15 +16,21 @@ highest mean validation return (ties: the later one), and when training ends it 
 them again on four times as many *fresh* episodes (`fresh_set`: seeds from `RESELECT_SEED`,
 a set of its own for each run, disjoint from the validation set and from the leaderboard's
 test set) and ships the one with the highest
-mean return there (ties: the later one) as ``selected_model.zip``. Its recorded score is the
-fresh one. Choosing among three on the fresh sample still leaves a small curse, against one
-in thirteen or twenty on the first; smoothing the curve would trade the curse for a lag on a
-curve that rises, and keeping the final network would give up the selection that the
-learning rate's schedule and the plateaus of the curves need (docs/model_selection.md,
-with the bias measured on Capture and Storm).
+mean return there (ties: the later one) as ``selected_model.zip``.
 
-``selection.json`` records the rule, both episode sets and every candidate's two scores,
-and the snapshot the previous rule (the latest maximum of the curve) would have shipped.
+**Its recorded score comes from episodes that chose nothing.** The shipped network is
+scored once more on a second set of the same size (`report_set`, the next seeds of the
+run's block), and that is the score its sidecar records. A score taken on the episodes a
+choice was made on is a maximum of noisy estimates again, however few; one taken on
+episodes no choice saw is an unbiased estimate of the network's score, whatever the rule
+chose. Smoothing the curve would trade the curse for a lag on a curve that rises, and
+keeping the final network would give up the selection that the learning rate's schedule and
+the plateaus of the curves need (docs/model_selection.md, with the bias measured on Capture
+and Storm).
+
+``selection.json`` records the rule, the three episode sets, every candidate's two scores,
+the shipped network's report score, and the snapshot the previous rule (the latest maximum
+of the curve) would have shipped.
 """
 
 from __future__ import annotations
@@ -46,7 +52,8 @@ TOP = 3                                   # snapshots re-evaluated on fresh epis
 FRESH_FACTOR = 4                          # fresh episodes per validation episode
 SELECTION_JSON = "selection.json"
 RULE = (f"the {TOP} snapshots with the highest mean validation return, re-evaluated on "
-        f"fresh episodes; the highest there is shipped (ties: the later snapshot)")
+        f"fresh episodes; the highest there is shipped (ties: the later snapshot) and "
+        f"scored on a second fresh set that chose nothing")
 
 
 def validation_set(settings: TrainSettings) -> dict[str, Any]:
@@ -56,20 +63,37 @@ def validation_set(settings: TrainSettings) -> dict[str, Any]:
 
 def fresh_set(settings: TrainSettings) -> dict[str, Any]:
     """The episodes the best snapshots of run ``settings.seed`` are re-evaluated on:
-    `FRESH_FACTOR` × ``eval_episodes`` of them from ``RESELECT_SEED + seed · FRESH_FACTOR ·
-    eval_episodes``, a set of its own for every run, so that the offset of one set of
-    episodes (easier or harder than the level's average) is noise across runs rather than a
-    bias shared by all of them, and four times smaller than the validation set's would be
+    `FRESH_FACTOR` × ``eval_episodes`` of them, the first half of the run's own block of
+    seeds (`_reselect_block`), so that the offset of one set of episodes (easier or harder
+    than the level's average) is noise across runs rather than a bias shared by all of them
     (sets of a few hundred of Capture's episodes differ by 0.1-0.3 s; docs/model_selection.md)."""
+    start, n = _reselect_block(settings)
+    assert settings.max_episode_steps is not None
+    return episode_set(settings.environment()[1], start, n, settings.max_episode_steps)
+
+
+def report_set(settings: TrainSettings) -> dict[str, Any]:
+    """The episodes the shipped network's recorded score comes from: the second half of the
+    run's block, as many as `fresh_set` and disjoint from it, so that no choice was made on
+    them."""
+    start, n = _reselect_block(settings)
+    assert settings.max_episode_steps is not None
+    return episode_set(settings.environment()[1], start + n, n, settings.max_episode_steps)
+
+
+def _reselect_block(settings: TrainSettings) -> tuple[int, int]:
+    """Run ``settings.seed``'s first re-selection seed and the size of each of its two sets:
+    2 · `FRESH_FACTOR` · ``eval_episodes`` seeds from ``RESELECT_SEED + seed · 2n``."""
     assert settings.eval_episodes is not None and settings.max_episode_steps is not None
     n = FRESH_FACTOR * settings.eval_episodes
-    start = RESELECT_SEED + settings.seed * n
-    if settings.seed < 0 or start + n > TEST_SEED:
+    start = RESELECT_SEED + settings.seed * 2 * n
+    if settings.seed < 0 or start + 2 * n > TEST_SEED:
         raise ValueError(f"--seed {settings.seed} with --eval-episodes {settings.eval_episodes}: "
-                         f"the re-selection episodes (seeds from {RESELECT_SEED:,} + seed x "
+                         f"the re-selection episodes (seeds from {RESELECT_SEED:,} + seed x 2 x "
                          f"{FRESH_FACTOR} x eval_episodes) must end before the test set's "
-                         f"{TEST_SEED:,}; use a seed in [0, {(TEST_SEED - RESELECT_SEED) // n - 1}]")
-    return episode_set(settings.environment()[1], start, n, settings.max_episode_steps)
+                         f"{TEST_SEED:,}; use a seed in "
+                         f"[0, {(TEST_SEED - RESELECT_SEED) // (2 * n) - 1}]")
+    return start, n
 
 
 def _set(settings: TrainSettings, seed: int) -> dict[str, Any]:
@@ -164,7 +188,8 @@ class Selection:
 
     def choose(self) -> Path | None:
         """Re-evaluate the candidates on the fresh episodes, ship the best as
-        ``selected_model.zip`` (its sidecar records the rule and the scores), write
+        ``selected_model.zip``, score it on the report episodes (its sidecar records the rule
+        and the scores, the report score as its own), write
         ``selection.json``; return the selected model (None if nothing was evaluated)."""
         if not self.kept:
             return None
@@ -175,20 +200,27 @@ class Selection:
             c["fresh_mean_trapping_time"] = result["mean_trapping_time"]
         pick = max(self.kept, key=lambda c: (c["fresh_mean_return"], c["steps"]))
         max_rule = max(self.kept, key=lambda c: (c["mean_return"], c["steps"]))
+        reported = report_set(self.settings)
+        report = score(pick["path"], self.settings, reported)
         candidates = [{k: v for k, v in c.items() if k != "path"} for c in
                       sorted(self.kept, key=lambda c: c["steps"])]
         record = {"rule": RULE, "top": self.top, "validation_episodes": self.episodes,
-                  "fresh_episodes": fresh, "candidates": candidates,
-                  "selected_at_steps": pick["steps"],
+                  "fresh_episodes": fresh, "report_episodes": reported,
+                  "candidates": candidates, "selected_at_steps": pick["steps"],
+                  "report_mean_return": report["mean_return"],
+                  "report_mean_trapping_time": report["mean_trapping_time"],
                   "max_rule_at_steps": max_rule["steps"]}
         selected = self.run_dir / "selected_model.zip"
         copy_model(pick["path"], selected, {
             "selected_at_steps": pick["steps"],
-            # the score the choice stands on: the fresh episodes' (ship compares runs on it)
-            "validation_mean_return": pick["fresh_mean_return"],
-            "validation_episodes": fresh["episodes"], "validation_seed": fresh["seed"],
+            # the recorded score: the report episodes', which chose nothing (ship compares
+            # runs on it)
+            "validation_mean_return": report["mean_return"],
+            "validation_mean_trapping_time": report["mean_trapping_time"],
+            "validation_episodes": reported["episodes"], "validation_seed": reported["seed"],
             "in_run_mean_return": pick["mean_return"],
             "in_run_mean_trapping_time": pick["mean_trapping_time"],
+            "fresh_mean_return": pick["fresh_mean_return"],
             "fresh_mean_trapping_time": pick["fresh_mean_trapping_time"],
             "selection": record})
         (self.run_dir / SELECTION_JSON).write_text(json.dumps(record, indent=1) + "\n")
@@ -196,4 +228,4 @@ class Selection:
 
 
 __all__ = ["CURVE_EPISODES", "FRESH_FACTOR", "RULE", "SELECTION_JSON", "TOP", "Selection", "copy_model",
-           "fresh_set", "model_files", "score", "validation_set"]
+           "fresh_set", "model_files", "report_set", "score", "validation_set"]
