@@ -31,6 +31,7 @@ def test_ships_the_best_validation_score_with_every_run_recorded(tmp_path):
     assert [r["seed"] for r in side["recipe_runs"]] == [0, 1, 2]
     assert side["total_timesteps"] == 2000 and side["steps_per_s"] == 500
     assert side["remake"] == "python train.py --env SaddleTrap-Gusty-v0 --seed 1"
+    assert side["chosen_among_seeds"].startswith("the highest validation score of 3 seeds")
     assert (tmp_path / "models" / "ppo_gusty_learning_curve.png").is_file()
 
 
