@@ -87,3 +87,49 @@ def test_a_short_imitation_brings_the_network_to_mpc():
     assert history[1]["labels"] > history[0]["labels"]
     assert after < 0.25 * before, (before, after)
     assert torch.equal(model.policy.log_std, log_std)   # exploration noise left alone
+
+
+def test_with_normalised_observations_the_network_imitates_through_the_normaliser():
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from agents.control.mpc import ModelPredictiveController
+    from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
+
+    torch.manual_seed(0)
+    config = level_config("SaddleTrap-Storm-v0")
+    env = VecNormalize(SaddleTrapSB3VecEnv(4, **config.as_dict()), norm_reward=False)
+    model = PPO("MlpPolicy", env, n_steps=8, batch_size=8, seed=0, device="cpu",
+                policy_kwargs={"log_std_init": -2.0})
+    assert im.observation_normaliser(model) is env
+    probe = im.record_round(config, ModelPredictiveController(config), None,
+                            np.arange(50, 58), 60, 0.99)
+    im.imitate(model, config, 60, 0,
+               im.ImitationSettings(rounds=2, episodes=8, epochs=20, batch_size=128),
+               log=lambda *_: None)
+    # The statistics are those of mpc's observations, not the untouched (0, 1).
+    assert env.obs_rms.count > 100
+    assert not np.allclose(env.obs_rms.var, 1.0)
+    # The network follows mpc on what RL will feed it: normalised observations.
+    seen = np.mean((im.network_actions(model.policy, env.normalize_obs(probe["obs"]))
+                    - probe["action"]) ** 2)
+    raw = np.mean((im.network_actions(model.policy, probe["obs"]) - probe["action"]) ** 2)
+    assert seen < raw, (seen, raw)
+    assert seen < 0.1 * np.var(probe["action"]) + 0.05, seen
+
+
+def test_normaliser_statistics_are_checked():
+    class Rms:
+        mean, var, count = np.zeros(3), np.ones(3), 1e-4
+
+    class Norm:
+        obs_rms = Rms()
+
+    with pytest.raises(ValueError, match="statistics"):
+        im.set_statistics(Norm(), np.zeros((5, 4)))
+    with pytest.raises(ValueError, match="finite"):
+        im.set_statistics(Norm(), np.full((5, 3), np.nan))
+    obs = np.arange(15.0).reshape(5, 3)
+    im.set_statistics(Norm(), obs)
+    assert np.allclose(Norm.obs_rms.mean, obs.mean(axis=0)) and Norm.obs_rms.count == 5

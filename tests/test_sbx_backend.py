@@ -176,8 +176,8 @@ def test_train_py_backend_sbx_checkpoints_on_sigterm_and_resumes_as_data(tmp_pat
 def test_the_sbx_recipes_are_the_fast_recipe_but_for_the_budget_and_rollout_shape():
     """Each SBX entry is ppo.yml's fast recipe but for its budget and how its rollout of
     n_envs x n_steps samples is shaped (Storm's: more balls, fewer steps), never its size;
-    Capture's and Lab's also decay the fast recipe's learning rate to 0 and select their
-    model on more validation episodes."""
+    Capture's and Lab's also decay the learning rate to 0 and select their model on more
+    validation episodes; Lab's starts from the imitation of mpc, with a third of the step."""
     from agents.training.recipes import load_hyperparams
     from saddle_env.envs import LEVEL_IDS
 
@@ -188,7 +188,13 @@ def test_the_sbx_recipes_are_the_fast_recipe_but_for_the_budget_and_rollout_shap
         theirs = fast if level != "SaddleTrap-v0" else load_hyperparams("ppo", level)
         if level in ("SaddleTrap-Capture-v0", "SaddleTrap-Lab-v0"):
             schedule = ours.pop("learning_rate")          # "lin_3e-4": from the fast step to 0
-            assert schedule.startswith("lin_") and float(schedule[4:]) == theirs["learning_rate"]
+            step = theirs["learning_rate"]
+            if level == "SaddleTrap-Lab-v0":              # the imitation's warm start
+                assert (ours.pop("warm_start"), theirs["warm_start"]) == ("mpc", "best-const")
+                assert ours.pop("imitation")["rounds"] >= 1
+                theirs = {k: v for k, v in theirs.items() if k != "warm_start"}
+                step = step / 3
+            assert schedule.startswith("lin_") and float(schedule[4:]) == pytest.approx(step)
             assert (ours.pop("eval_freq"), ours.pop("eval_episodes")) == (499_200, 256)
             theirs = {k: v for k, v in theirs.items() if k != "learning_rate"}
         assert {k: v for k, v in ours.items() if k not in free} == \

@@ -15,6 +15,12 @@ to all labels so far (mean squared error; the exploration noise ``log_std`` is l
 recipe sets it), and its value head to the discounted returns of the episodes recorded
 (so PPO's first advantages are not the noise of an untrained critic).
 
+With normalised observations (a recipe's ``normalize``: the model's VecNormalize) the network
+sees, during imitation as during RL, the observations through the normaliser: its statistics
+are set from round 0's observations (those of ``mpc``'s episodes) before the first fit, and RL
+goes on updating them from there. Without this the network would learn from raw
+observations and meet normalised ones from RL's first step on.
+
 Episodes use their own seed range (`agents.seeds.IMITATION_SEED`), apart from validation,
 test and comparison seeds.
 """
@@ -22,6 +28,7 @@ test and comparison seeds.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -106,9 +113,12 @@ def discounted_returns(rewards: np.ndarray, alive: np.ndarray, kept: np.ndarray,
 
 
 def record_round(config: EnvConfig, expert: Any, policy: Any | None, seeds: np.ndarray,
-                 max_episode_steps: int, gamma: float) -> dict[str, np.ndarray]:
-    """One episode per seed with ``policy`` driving (``None``: the expert drives); every
-    observation is labelled with the expert's action. Returns the recorded ``obs``,
+                 max_episode_steps: int, gamma: float,
+                 view: Callable[[np.ndarray], np.ndarray] | None = None
+                 ) -> dict[str, np.ndarray]:
+    """One episode per seed with ``policy`` driving (``None``: the expert drives; ``view``:
+    what the policy's input is made from the observation, e.g. a normaliser); every
+    observation is labelled with the expert's action. Returns the recorded ``obs`` (raw),
     ``action`` (the expert's) and ``ret`` (discounted return-to-go), and per episode
     ``time`` [s] and ``kept``."""
     from saddle_env.envs.vector import SaddleTrapVectorEnv
@@ -127,7 +137,8 @@ def record_round(config: EnvConfig, expert: Any, policy: Any | None, seeds: np.n
     for t in range(max_episode_steps):
         label, state = expert.predict(obs, state, episode_start=start)
         label = label.reshape(-1).astype(np.float64)
-        action = label if policy is None else network_actions(policy, obs)
+        action = label if policy is None else \
+            network_actions(policy, obs if view is None else view(obs))
         if policy is not None:   # the expert's estimators must know what the motor was told
             state = expert.executed(state, action)
         O.append(obs[alive])
@@ -179,6 +190,28 @@ def fit(policy: Any, obs: np.ndarray, action: np.ndarray, ret: np.ndarray,
     return losses
 
 
+def observation_normaliser(model: Any) -> Any | None:
+    """The model's VecNormalize if it normalises observations, else None."""
+    get = getattr(model, "get_vec_normalize_env", None)
+    norm = get() if callable(get) else None
+    return norm if norm is not None and getattr(norm, "norm_obs", False) else None
+
+
+def set_statistics(norm: Any, obs: np.ndarray) -> None:
+    """Set the VecNormalize ``norm``'s observation statistics to those of ``obs`` (n, d), as
+    if it had seen exactly these observations."""
+    if obs.ndim != 2 or len(obs) < 2 or not np.all(np.isfinite(obs)):
+        raise ValueError(f"observation statistics need a finite (n >= 2, d) array, got shape "
+                         f"{obs.shape}")
+    rms = norm.obs_rms
+    if tuple(rms.mean.shape) != obs.shape[1:]:
+        raise ValueError(f"the normaliser holds {rms.mean.shape} statistics, the observations "
+                         f"are {obs.shape[1:]}")
+    rms.mean = obs.mean(axis=0).astype(np.float64)
+    rms.var = obs.var(axis=0).astype(np.float64)
+    rms.count = float(len(obs))
+
+
 def imitate(model: Any, config: EnvConfig, max_episode_steps: int, seed: int,
             settings: ImitationSettings, log: Any = print) -> list[dict[str, float | int | str]]:
     """DAgger warm start of the SB3 actor-critic ``model`` (PPO, A2C) on ``config``
@@ -199,17 +232,21 @@ def imitate(model: Any, config: EnvConfig, max_episode_steps: int, seed: int,
     history = []
     if settings.episode_steps is not None:   # shorter episodes: fewer mpc queries per round
         max_episode_steps = min(max_episode_steps, settings.episode_steps)
+    norm = observation_normaliser(model)
+    view = None if norm is None else norm.normalize_obs
     policy.set_training_mode(False)
     for r in range(settings.rounds):
         first = IMITATION_SEED + seed * per_run + r * settings.episodes
         seeds = np.arange(first, first + settings.episodes)
         rec = record_round(config, expert, None if r == 0 else policy, seeds,
-                           max_episode_steps, gamma)
+                           max_episode_steps, gamma, view)
+        if r == 0 and norm is not None:   # the normaliser's statistics: mpc's observations
+            set_statistics(norm, rec["obs"])
         for key, labels in data.items():
             labels.append(rec[key])
         policy.set_training_mode(True)
         obs, action, ret = (np.concatenate(data[k]) for k in ("obs", "action", "ret"))
-        losses = fit(policy, obs, action, ret, settings, rng)
+        losses = fit(policy, obs if view is None else view(obs), action, ret, settings, rng)
         policy.set_training_mode(False)
         summary = {"round": r, "driver": "mpc" if r == 0 else "network",
                    "mean_time": float(np.mean(rec["time"])), "kept": float(np.mean(rec["kept"])),
@@ -222,4 +259,4 @@ def imitate(model: Any, config: EnvConfig, max_episode_steps: int, seed: int,
 
 
 __all__ = ["ImitationSettings", "discounted_returns", "fit", "imitate", "network_actions",
-           "record_round"]
+           "observation_normaliser", "record_round", "set_statistics"]
