@@ -174,6 +174,19 @@ def test_the_report_is_generated_from_the_result_files(tmp_path, monkeypatch, ca
     assert data["levels"][GUSTY]["sac"]["load_at_end_median_run"] is None
     assert data["missing"][capture]["ppo"] == [0, 1, 2] and "ppo" not in data["missing"][GUSTY]
     assert "SaddleTrap-v0" not in data["missing"]   # the calm level is not benchmarked
+    # A level one row has run and the other not is left out of the aggregates, which
+    # compare the rows on the same levels (it used to drop the other row instead).
+    for seed in (0, 1, 2):
+        B.write_result(results, _fake_cell(capture, "sac", seed))
+    capsys.readouterr()
+    assert B.main(["--report", "--json", "--out", str(results)]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["across_levels_levels"] == [GUSTY, STORM]
+    assert set(data["across_levels"]) == {"ppo", "sac"}
+    assert data["across_levels"]["sac"]["levels"] == [GUSTY, STORM]
+    assert data["levels"][capture]["sac"]["seeds"] == 3
+    assert B.main(["--report", "--out", str(results), "--docs", str(docs)]) == 0
+    assert f"(left out: `{capture}`)" in (docs / "benchmark.md").read_text()
 
 
 def test_bad_cells_are_one_line_errors(capsys):

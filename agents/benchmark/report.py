@@ -156,24 +156,29 @@ def report_data(results: list[dict[str, Any]], refs: dict[str, dict[str, Any]]
                 row[f"p_improve_{base}"], row[f"p_improve_{base}_ci"] = p, ci
             table[a] = row
         data["levels"][lid] = table
-    # Across levels: the seeds every level has for the algorithm (a runs x levels matrix).
+    # Across levels: the rows are compared on the same levels, those every row has run (a
+    # level one row has not reached yet, as the Lab level's newer cells, would otherwise
+    # drop every other row from the aggregate), each over the seeds all those levels have
+    # for it (a runs x levels matrix).
+    shared = [lid for lid in levels if all(by.get((lid, a)) for a in algos)]
+    data["across_levels_levels"] = shared
     matrices = {}
     for a in algos:
         common = set.intersection(*[{r["seed"] for r in by.get((lid, a), [])}
-                                    for lid in levels]) if levels else set()
+                                    for lid in shared]) if shared else set()
         if not common:
             continue
         seeds = sorted(common)
         matrices[a] = np.array([[normalise(next(r for r in by[(lid, a)] if r["seed"] == s)
                                            ["trapping_time"]["mean"], refs[lid])
-                                 for lid in levels] for s in seeds])
-        data["across_levels"][a] = {"seeds": len(seeds), "levels": levels}
+                                 for lid in shared] for s in seeds])
+        data["across_levels"][a] = {"seeds": len(seeds), "levels": shared}
     if matrices:
         for a, agg in _aggregates(matrices).items():
             data["across_levels"][a].update(agg)
             for base in ("best-const", "mpc"):
                 p, ci = _improvement(matrices[a], np.array(
-                    [[normalise(refs[lid][base], refs[lid]) for lid in levels]]))
+                    [[normalise(refs[lid][base], refs[lid]) for lid in shared]]))
                 data["across_levels"][a][f"p_improve_{base}"] = p
                 data["across_levels"][a][f"p_improve_{base}_ci"] = ci
     data["_matrices"] = matrices
@@ -312,7 +317,12 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
         lines.append(f"| `{lid}` | {r['random']:.2f} s | {r['best-const']:.2f} s | "
                      f"{r['mpc']:.2f} s | {clair} | {doomed} | {r['upper']} |")
     if data["across_levels"]:
+        left_out = [lid for lid in data["levels"] if lid not in data["across_levels_levels"]]
         lines += ["", "### Across levels", "",
+                  "On " + ", ".join(f"`{lid}`" for lid in data["across_levels_levels"])
+                  + (": the levels every row has run (left out: "
+                     + ", ".join(f"`{lid}`" for lid in left_out) + ")." if left_out else "."),
+                  "",
                   "| algorithm | runs per level | IQM | mean | P(>best-const) | P(>mpc) |",
                   "|---|---|---|---|---|---|"]
         for a, row in data["across_levels"].items():
@@ -324,8 +334,8 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
     if missing:
         lines += ["", "Cells not run yet are marked *not run* (no result file; `python -m "
                   "agents.benchmark --levels ID --algos ROW` runs them); a row with fewer seeds "
-                  "than the suite's names the missing ones. A level with no cell is not in the "
-                  "aggregates across levels."]
+                  "than the suite's names the missing ones. The aggregates across levels compare the "
+                  "rows on the levels every row has run."]
     for lid in shown:
         table = data["levels"].get(lid, {})
         lines += ["", f"### {lid}", "",
