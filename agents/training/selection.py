@@ -67,23 +67,22 @@ def fresh_set(settings: TrainSettings) -> dict[str, Any]:
     seeds (`_reselect_block`), so that the offset of one set of episodes (easier or harder
     than the level's average) is noise across runs rather than a bias shared by all of them
     (sets of a few hundred of Capture's episodes differ by 0.1-0.3 s; docs/model_selection.md)."""
-    start, n = _reselect_block(settings)
-    assert settings.max_episode_steps is not None
-    return episode_set(settings.environment()[1], start, n, settings.max_episode_steps)
+    start, n, steps = _reselect_block(settings)
+    return episode_set(settings.environment()[1], start, n, steps)
 
 
 def report_set(settings: TrainSettings) -> dict[str, Any]:
     """The episodes the shipped network's recorded score comes from: the second half of the
     run's block, as many as `fresh_set` and disjoint from it, so that no choice was made on
     them."""
-    start, n = _reselect_block(settings)
-    assert settings.max_episode_steps is not None
-    return episode_set(settings.environment()[1], start + n, n, settings.max_episode_steps)
+    start, n, steps = _reselect_block(settings)
+    return episode_set(settings.environment()[1], start + n, n, steps)
 
 
-def _reselect_block(settings: TrainSettings) -> tuple[int, int]:
-    """Run ``settings.seed``'s first re-selection seed and the size of each of its two sets:
-    2 · `FRESH_FACTOR` · ``eval_episodes`` seeds from ``RESELECT_SEED + seed · 2n``."""
+def _reselect_block(settings: TrainSettings) -> tuple[int, int, int]:
+    """Run ``settings.seed``'s first re-selection seed, the size of each of its two sets
+    (2 · `FRESH_FACTOR` · ``eval_episodes`` seeds from ``RESELECT_SEED + seed · 2n``) and the
+    episodes' length."""
     assert settings.eval_episodes is not None and settings.max_episode_steps is not None
     n = FRESH_FACTOR * settings.eval_episodes
     start = RESELECT_SEED + settings.seed * 2 * n
@@ -93,7 +92,7 @@ def _reselect_block(settings: TrainSettings) -> tuple[int, int]:
                          f"{FRESH_FACTOR} x eval_episodes) must end before the test set's "
                          f"{TEST_SEED:,}; use a seed in "
                          f"[0, {(TEST_SEED - RESELECT_SEED) // (2 * n) - 1}]")
-    return start, n
+    return start, n, settings.max_episode_steps
 
 
 def _set(settings: TrainSettings, seed: int) -> dict[str, Any]:
