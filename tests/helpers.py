@@ -1,6 +1,10 @@
-"""Shared test helpers (not physics: only evaluation of the shared kernels)."""
+"""Shared test helpers (not physics: only evaluation of the shared kernels, and the
+processes and signals the run and stop tests need)."""
 
 from __future__ import annotations
+
+import os
+import signal
 
 import numpy as np
 
@@ -190,3 +194,13 @@ def gone_within(pid: int, seconds: float) -> bool:
         time.sleep(0.05)
     os.kill(pid, signal.SIGKILL)
     return False
+
+
+class SignalledWhileFreed:
+    """Sends SIGTERM from its ``__del__``: Python runs the handler there and drops what it
+    raises (as when numba frees an LLVM object mid-compile)."""
+
+    def __del__(self):
+        os.kill(os.getpid(), signal.SIGTERM)
+        for _ in range(1000):              # the handler runs on one of these bytecodes
+            pass

@@ -114,16 +114,11 @@ def test_a_stop_python_dropped_inside_a_del_is_raised_at_the_next_step():
     mid-compile) has its Stop printed and dropped by Python; the run trained on until the
     test's timeout. The per-step check raises it again, and only once it was dropped."""
     import gc
-    import os
+
+    from helpers import SignalledWhileFreed
 
     from agents.training.backends.sb3 import _lost_stop_callback
     from agents.training.runs import Stop, sigterm_stops
-
-    class SignalledWhileFreed:
-        def __del__(self):
-            os.kill(os.getpid(), signal.SIGTERM)
-            for _ in range(1000):              # the handler runs on one of these bytecodes
-                pass
 
     with pytest.raises(Stop), sigterm_stops() as requested:
         check = _lost_stop_callback(requested)

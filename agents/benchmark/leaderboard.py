@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import signal
 import sys
 import time
 from collections.abc import Sequence
@@ -36,6 +35,7 @@ from agents.paths import DOCS_DIR, MODELS_DIR, REPO_ROOT
 from agents.seeds import RESELECT_SEED, SEARCH_SEED, TEST_SEED, VALIDATION_SEED
 from saddle_env.envs import LEVELS, EnvConfig, get_level
 from saddle_env.files import write_text_atomically
+from saddle_env.interrupts import sigterm_interrupts
 
 TEST_EPISODES = 1000           # 200-episode sets move the kept fraction by about 7 points
 BASELINE_POLICIES = ("zero", "random", "const-1.0", "const-1.2", "const-1.5", "best-const",
@@ -341,53 +341,52 @@ def main(argv: Sequence[str] | None = None) -> int:
     figures: dict[str, str] = {lid: f"figures/leaderboard_{lid}.png" for lid in results["levels"]
                                if lid not in ids and (figs / f"leaderboard_{lid}.png").is_file()}
 
-    def stop(signum, frame):  # SIGTERM: finish like Ctrl-C, keeping what finished
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, stop)
     import torch
 
     torch.set_num_threads(1)  # the same actions on any machine
     computed = 0
     try:
-        for lid in ids:
-            level = get_level(lid)
-            table = {"env_id": lid, "episodes": args.episodes, "seed": args.seed,
-                     "episode_length_s": round(level.max_episode_steps
-                                               * level.config().control_period, 9),
-                     "policies": []}
-            # Only the rows this run lists: a retrained agent's old file (another key) and
-            # a policy no longer ranked leave with their episodes.
-            episodes: dict[str, Any] = {}
-            results["episode_results"][lid] = episodes
-            results["levels"][lid] = table
-            for spec in policy_specs(lid, Path(args.models), args.policy):
-                key = policy_key(spec)
-                if key in done.get(lid, {}):
-                    row, eps = done[lid][key]
-                else:
-                    print(f"{lid}: {spec}, {args.episodes} episodes", file=sys.stderr, flush=True)
-                    try:
-                        row, res = evaluate_policy(lid, spec, args.episodes, args.seed,
-                                                   progress=not args.no_progress,
-                                                   trust=args.trust_model,
-                                                   policy_kwargs=policy_kwargs)
-                    except ValueError as exc:   # one bad submission does not stop the board
-                        print(f"{lid}: skipped {spec}: {exc}", file=sys.stderr, flush=True)
-                        continue
-                    row = {**row, "policy": shown_spec(spec), "key": key}
-                    eps = {"time": np.round(np.asarray(res["time"], float), 6).tolist(),
-                           "kept": np.asarray(res["kept"], bool).tolist()}
-                    computed += 1
-                table["policies"].append(row)
-                episodes[key] = eps
-                # as it comes, whole: a stop mid-write keeps the previous file for --resume
-                write_text_atomically(json_path, json.dumps(results, indent=1) + "\n")
-            fig = figs / f"leaderboard_{lid}.png"
-            survival_plot(lid, {row["policy"]: episodes[row["key"]] for row in table["policies"]},
-                          table["episode_length_s"], fig)
-            figures[lid] = f"figures/{fig.name}"
-            write_markdown(results, out / "leaderboard.md", figures, command)
+        # SIGTERM finishes like Ctrl-C, keeping what finished
+        with sigterm_interrupts() as term:
+            for lid in ids:
+                level = get_level(lid)
+                table = {"env_id": lid, "episodes": args.episodes, "seed": args.seed,
+                         "episode_length_s": round(level.max_episode_steps
+                                                   * level.config().control_period, 9),
+                         "policies": []}
+                # Only the rows this run lists: a retrained agent's old file (another key) and
+                # a policy no longer ranked leave with their episodes.
+                episodes: dict[str, Any] = {}
+                results["episode_results"][lid] = episodes
+                results["levels"][lid] = table
+                for spec in policy_specs(lid, Path(args.models), args.policy):
+                    key = policy_key(spec)
+                    term.raise_if_lost()
+                    if key in done.get(lid, {}):
+                        row, eps = done[lid][key]
+                    else:
+                        print(f"{lid}: {spec}, {args.episodes} episodes", file=sys.stderr, flush=True)
+                        try:
+                            row, res = evaluate_policy(lid, spec, args.episodes, args.seed,
+                                                       progress=not args.no_progress,
+                                                       trust=args.trust_model,
+                                                       policy_kwargs=policy_kwargs)
+                        except ValueError as exc:   # one bad submission does not stop the board
+                            print(f"{lid}: skipped {spec}: {exc}", file=sys.stderr, flush=True)
+                            continue
+                        row = {**row, "policy": shown_spec(spec), "key": key}
+                        eps = {"time": np.round(np.asarray(res["time"], float), 6).tolist(),
+                               "kept": np.asarray(res["kept"], bool).tolist()}
+                        computed += 1
+                    table["policies"].append(row)
+                    episodes[key] = eps
+                    # as it comes, whole: a stop mid-write keeps the previous file for --resume
+                    write_text_atomically(json_path, json.dumps(results, indent=1) + "\n")
+                fig = figs / f"leaderboard_{lid}.png"
+                survival_plot(lid, {row["policy"]: episodes[row["key"]] for row in table["policies"]},
+                              table["episode_length_s"], fig)
+                figures[lid] = f"figures/{fig.name}"
+                write_markdown(results, out / "leaderboard.md", figures, command)
     except KeyboardInterrupt:
         print(f"interrupted: {json_path} keeps every policy that finished; --resume goes on",
               file=sys.stderr)

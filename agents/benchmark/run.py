@@ -22,7 +22,6 @@ import argparse
 import json
 import os
 import platform
-import signal
 import sys
 import tempfile
 import time
@@ -38,6 +37,7 @@ from agents.seeds import TEST_SEED
 from agents.training.recipes import HYPERPARAMS_DIR
 from saddle_env.envs import LEVELS, get_level
 from saddle_env.files import write_text_atomically
+from saddle_env.interrupts import SignalRecord, sigterm_interrupts
 
 RESULTS = BENCHMARK_DIR / "results"
 TEST_EPISODES = 1000          # the leaderboard's frozen test set
@@ -262,8 +262,10 @@ def write_result(out: Path, result: dict[str, Any]) -> Path:
     return write_text_atomically(path, json.dumps(result, indent=1) + "\n")
 
 
-def _run_local(todo: list[tuple[str, str, int]], out: Path, cell: dict[str, Any]) -> int:
+def _run_local(todo: list[tuple[str, str, int]], out: Path, cell: dict[str, Any],
+               term: SignalRecord) -> int:
     for i, (lv, algo, seed) in enumerate(todo, 1):
+        term.raise_if_lost()
         print(f"[{i}/{len(todo)}] {lv}/{algo}/{seed}: training "
               f"{cell['budget'] or ALGOS[algo].budget:,} steps", file=sys.stderr, flush=True)
         result = run_cell(lv, algo, seed, **cell)
@@ -376,14 +378,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{len(done)} cell(s) already have results in {out}; running "
                   f"{len(todo)}", file=sys.stderr)
 
-    def stop(signum, frame):  # noqa: ARG001 — SIGTERM ends like Ctrl-C
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, stop)
     try:
         cell = {"budget": args.budget, "episodes": args.episodes, "keep_runs": args.keep_runs}
-        n = (_run_ray(todo, out, cell, args.address) if args.address
-             else _run_local(todo, out, cell))
+        with sigterm_interrupts() as term:   # SIGTERM ends like Ctrl-C
+            n = (_run_ray(todo, out, cell, args.address) if args.address
+                 else _run_local(todo, out, cell, term))
     except KeyboardInterrupt:
         print(f"interrupted: the finished cells' results are in {out}; the same command "
               f"resumes", file=sys.stderr)

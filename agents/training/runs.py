@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import signal
-import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -24,6 +23,7 @@ from typing import Any
 from agents.cli_args import parse_address, resolve_env, saved_settings
 from agents.seeds import MAX_EVAL_EPISODES
 from saddle_env.envs import LEVEL_IDS, EnvConfig, Level
+from saddle_env.interrupts import SignalRecord
 
 # The main job (`python train.py`): a level where learning shows within minutes and a
 # learned agent can beat mpc. Gusty, not Capture: on Capture mpc is within 0.02 s of the
@@ -226,23 +226,14 @@ def stops_held() -> Iterator[None]:
         raise stop
 
 
-class StopRequest(threading.Event):
-    """Set by SIGTERM (or Ctrl-C under `sigterm_stops`), remembering the stop it raised.
+class StopRequest(SignalRecord):
+    """Set by SIGTERM (or Ctrl-C under `sigterm_stops`), remembering the stop it raised; its
+    `raise_if_lost`, called once per training step, raises a stop that a ``__del__`` swallowed
+    (`saddle_env.interrupts`). A stop held by `stops_held` is not lost: it comes when the
+    save ends."""
 
-    Python drops an exception raised by a signal handler that runs inside a ``__del__``
-    (it prints "Exception ignored in ..." and carries on): a SIGTERM that lands while numba
-    frees a compiled object would be lost and the run would train on. `raise_if_lost`,
-    called once per training step, raises such a stop again."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.stop: BaseException | None = None
-
-    def raise_if_lost(self) -> None:
-        """Raise the stop again if a signal came and its exception has not ended the run
-        (the code that checks this runs only while the run goes on, so it was lost)."""
-        if self.is_set() and self.stop is not None and not _Held.depth:
-            raise type(self.stop)()
+    def lost(self) -> bool:
+        return super().lost() and not _Held.depth
 
 
 @contextmanager

@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import signal
 import sys
 import warnings
 from collections.abc import Sequence
@@ -16,6 +15,7 @@ from typing import Any, NoReturn
 
 from ..envs.levels import LEVEL_IDS, get_level
 from ..files import write_text_atomically
+from ..interrupts import sigterm_interrupts
 from .fit import FitResult, FitWarning, fit_tracks
 from .model import PARAMETERS
 from .tracks import TrackError, read_tracks
@@ -149,17 +149,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(str(exc))
     names = [n for n in args.fit.split(",") if n.strip()]
 
-    def _stop(signum: int, frame: object) -> None:   # SIGTERM as Ctrl-C: results kept
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, _stop)
     try:
-        with warnings.catch_warnings():
+        # SIGTERM as Ctrl-C: the fit keeps its last values; a stop lost on the way is raised
+        # again at the next iteration's line
+        with sigterm_interrupts() as term, warnings.catch_warnings():
             warnings.simplefilter("ignore", FitWarning)   # printed by the fit itself
+
+            def progress(line: str) -> None:
+                term.raise_if_lost()
+                say(line)
+
             result = fit_tracks(tracks, config, names, drive=args.drive, segment=args.segment,
                                 position_noise=args.position_noise,
                                 omega_noise=args.omega_noise,
-                                max_iterations=args.max_iterations, progress=say)
+                                max_iterations=args.max_iterations, progress=progress)
     except ValueError as exc:
         parser.error(str(exc))
     except KeyboardInterrupt:

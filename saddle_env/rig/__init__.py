@@ -15,9 +15,10 @@ with SimulatedRig("SaddleTrap-Lab-v0") as rig:
 ```
 """
 
+from ..interrupts import Terminated
 from .clock import Clock, MonotonicClock, VirtualClock
 from .interface import Frame, Rig
-from .loop import Terminated, run
+from .loop import run
 from .observe import Observer, as_policy, constant_voltage
 from .simulated import SimulatedRig
 

@@ -28,14 +28,12 @@ and re-raise; a run that ends by its time leaves the rig open for the caller.
 from __future__ import annotations
 
 import math
-import signal
-import threading
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from ..envs import EnvConfig, level_config
+from ..interrupts import SignalRecord, Terminated, sigterm_interrupts
 from .clock import Clock, MonotonicClock
 from .interface import Frame, Rig
 from .observe import Observer, as_policy
@@ -43,27 +41,6 @@ from .record import RunRecorder
 
 DEFAULT_LOST_AFTER = 0.1   # [s] of frames without the ball before a release counts as lost
 TIME_TOLERANCE = 1e-9      # [s]
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised in the main thread while `run` runs (it stops as on Ctrl-C)."""
-
-
-@contextmanager
-def _sigterm_raises() -> Iterator[None]:
-    """Within the block SIGTERM raises `Terminated` (main thread only; elsewhere nothing)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def on_term(signum: int, frame: Any) -> None:
-        raise Terminated("SIGTERM")
-
-    previous = signal.signal(signal.SIGTERM, on_term)
-    try:
-        yield
-    finally:   # None: a handler not set from Python; the default then
-        signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
 def _resolve_config(rig: Rig, config: EnvConfig | str | None, period: float | None) -> EnvConfig:
@@ -128,10 +105,10 @@ def run(rig: Rig, controller: Any, seconds: float, period: float | None = None, 
         "env_options": cfg.as_dict()})
     end = clk.now() + seconds
     try:
-        with _sigterm_raises():
+        with sigterm_interrupts() as term:
             while clk.now() < end - TIME_TOLERANCE and (releases is None or len(recorder.releases) < releases):
                 rel = _release(rig, policy, observer, recorder, cfg, clk, end, lost_after,
-                               progress)
+                               progress, term)
                 if progress is not None:
                     progress(f"release {rel['index']}: {rel['seconds']:.2f} s, ended by "
                              f"{rel['cause']}; {rel['periods']} periods, {rel['misses']} "
@@ -172,7 +149,8 @@ def _as_frame(frame: Any) -> Frame | None:
 
 def _release(rig: Rig, policy: Callable[[Any, bool], float], observer: Observer,
              recorder: RunRecorder, cfg: EnvConfig, clk: Clock, end: float,
-             lost_after: float, progress: Callable[[str], None] | None) -> dict[str, Any]:
+             lost_after: float, progress: Callable[[str], None] | None,
+             term: SignalRecord) -> dict[str, Any]:
     """One release of the ball: the periods until it is lost or the run's time is up."""
     T = cfg.control_period
     rig.release()
@@ -186,6 +164,7 @@ def _release(rig: Rig, policy: Callable[[Any, bool], float], observer: Observer,
     last_seen: float | None = None   # time of the newest frame with the ball
     cause = "time"
     while True:
+        term.raise_if_lost()
         start = t0 + k * T
         if start >= end - TIME_TOLERANCE:
             clk.sleep_until(end)
@@ -236,4 +215,4 @@ def _release(rig: Rig, policy: Callable[[Any, bool], float], observer: Observer,
     return recorder.end_release(clk.now(), cause)
 
 
-__all__ = ["DEFAULT_LOST_AFTER", "Terminated", "run"]
+__all__ = ["DEFAULT_LOST_AFTER", "run"]
