@@ -220,3 +220,32 @@ def test_too_large_fixed_step_is_reported():
     assert jacobi_drift(fine) < 1e-8
     est = assess(tr, method="rk4", dt=0.02)
     assert est["error_estimate_m"] > 1e-5 and est["jacobi_drift"] > 1e-5
+
+
+def test_blas_threads_are_one_within_the_block_and_the_callers_after():
+    """The fit pins BLAS to one thread while it runs (a threaded OpenBLAS waking its workers
+    on a busy machine made its SVDs 40x slower) and gives a program that called it its own
+    thread count back."""
+    import ctypes
+
+    from saddle_env.bench.blas import _GETTERS, _loaded_openblas, blas_threads
+
+    def counts():
+        found = []
+        for path in _loaded_openblas():
+            lib = ctypes.CDLL(path)
+            for getter in dict.fromkeys(_GETTERS.values()):
+                fn = getattr(lib, getter, None)
+                if fn is not None:
+                    fn.restype = ctypes.c_int
+                    found.append(int(fn()))
+                    break
+        return found
+
+    with blas_threads(2):
+        before = counts()              # a caller's own setting, whatever the machine's
+        if not before:
+            pytest.skip("no OpenBLAS loaded: nothing to pin")
+        with blas_threads(1) as changed:
+            assert len(changed) == len(before) and counts() == [1] * len(before)
+        assert counts() == before

@@ -55,6 +55,22 @@ def test_obs_delay_of_whole_periods_shifts_the_observations(model):
         assert np.array_equal(got_r, ref_r)          # the reward is the present's
 
 
+def test_frames_in_flight_are_the_next_observations_in_order():
+    """What the camera took and has not shown yet (the simulated rig's frames of a lost
+    ball): with a delay of 3 periods, the three frames the next three steps show."""
+    env = SaddleTrapEnv(obs_delay=0.06)
+    env.reset(seed=3)
+    acts = _actions(12)
+    for a in acts[:6]:
+        env.step(np.array([a], np.float32))
+    in_flight = env.engine.frames_in_flight(0)
+    assert in_flight.shape == (3, env.engine.frame_dim)
+    for k, a in enumerate(acts[6:9]):
+        env.step(np.array([a], np.float32))
+        assert np.array_equal(env.engine.frame[0], in_flight[k])
+    assert SaddleTrapEnv().engine.frames_in_flight(0).shape[0] == 0
+
+
 @pytest.mark.parametrize("model", MODELS, ids=lambda m: m["contact"])
 def test_half_period_obs_delay_equals_a_run_at_half_the_period(model):
     # An observation half a period old is the state in the middle of the period: what a run

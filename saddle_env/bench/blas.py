@@ -12,9 +12,12 @@ from __future__ import annotations
 
 import ctypes
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 _SYMBOLS = ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
             "openblas_set_num_threads64_", "openblas_set_num_threads")
+_GETTERS = {s: s.replace("_set_", "_get_") for s in _SYMBOLS}
 
 
 def _loaded_openblas() -> list[str]:
@@ -45,3 +48,30 @@ def limit_blas_threads(n: int = 1) -> list[str]:
                 changed.append(f"{os.path.basename(path)}:{sym}")
                 break
     return changed
+
+
+@contextmanager
+def blas_threads(n: int = 1) -> Iterator[list[str]]:
+    """Within the block every loaded OpenBLAS uses ``n`` threads; each gets its own count
+    back after, so a library call (the fit's) leaves its caller's BLAS as it found it."""
+    import numpy  # noqa: F401  (load the libraries first)
+    import scipy.linalg  # noqa: F401
+
+    restore = []
+    for path in _loaded_openblas():
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for sym in _SYMBOLS:
+            set_fn, get_fn = getattr(lib, sym, None), getattr(lib, _GETTERS[sym], None)
+            if set_fn is not None and get_fn is not None:
+                get_fn.restype = ctypes.c_int
+                restore.append((f"{os.path.basename(path)}:{sym}", set_fn, int(get_fn())))
+                set_fn(ctypes.c_int(n))
+                break
+    try:
+        yield [name for name, _, _ in restore]
+    finally:
+        for _, set_fn, threads in restore:
+            set_fn(ctypes.c_int(threads))

@@ -393,46 +393,46 @@ def fit_tracks(tracks: Sequence[Track], config: EnvConfig, fit: Sequence[str], *
                          f"{MAX_UNKNOWNS:,}; fit fewer or shorter tracks, or longer segments")
     # The fit's linear algebra is a few hundred columns while numba integrates in threads: a
     # threaded OpenBLAS waking its workers on a busy machine took 4 s per SVD instead of 0.1.
-    from ..bench.blas import limit_blas_threads
-    limit_blas_threads(1)
-    n_frames = sum(len(p.t) for p in plans)
-    say(f"fitting {list(names)} to {len(tracks)} track(s), {n_frames} frames, drive "
-        f"{drive!r}, {sum(p.segments for p in plans)} segments of ~{segment:g} s, "
-        f"{model.layout.size} unknowns")
-    lo, hi = _bounds(model)
-    v0 = initial_vector(model, say)
-    obj = _Objective(model, lo, hi, say)
-    status = "converged"
-    iterations = 0
-    try:
-        v, status = _solve(model, obj, v0, lo, hi, max_iterations, say)
-        if status == "converged" and "obs_delay" in names and _odd_tracks(model, v):
-            # The cost along the latency can be nearly flat with a worse minimum far off
-            # (seen: 96 ms fitted for 27 ms, one track's residual 1.3x the others'). Start
-            # again from no latency and from twice the start, with these weights; keep the
-            # lowest cost.
-            i = names.index("obs_delay")
-            start_delay = float(v0[i])
-            for d in (0.0, min(2.0 * start_delay + 0.02, PARAMETERS["obs_delay"][2])):
-                say(f"one track fits worse than the others: starting again from "
-                    f"obs_delay = {d:g} s")
-                alt = Model(replace(config, obs_delay=d), plans, names, drive, model.sigma,
-                            model.sigma_omega, rtol=rtol)
-                alt_obj = _Objective(alt, lo, hi, say)
-                w, st = _solve(alt, alt_obj, initial_vector(alt, say), lo, hi,
-                               max_iterations, say, reweight=False)
-                cost_w, cost_v = (float(np.sum(model.residuals(x) ** 2)) for x in (w, v))
-                say(f"cost {0.5 * cost_w:.6g} against {0.5 * cost_v:.6g}")
-                if st == "converged" and cost_w < cost_v:
-                    v = w
-        iterations = obj.iteration
-    except KeyboardInterrupt:
-        if obj.best_x is None:
-            raise
-        say("interrupted: reporting the best point so far")
-        v, status = obj.best_x, "interrupted"
-        iterations = obj.iteration
-    return summarise(model, v, v0, obj, names, status, iterations, say)
+    from ..bench.blas import blas_threads
+    with blas_threads(1):   # back to the caller's count after
+        n_frames = sum(len(p.t) for p in plans)
+        say(f"fitting {list(names)} to {len(tracks)} track(s), {n_frames} frames, drive "
+            f"{drive!r}, {sum(p.segments for p in plans)} segments of ~{segment:g} s, "
+            f"{model.layout.size} unknowns")
+        lo, hi = _bounds(model)
+        v0 = initial_vector(model, say)
+        obj = _Objective(model, lo, hi, say)
+        status = "converged"
+        iterations = 0
+        try:
+            v, status = _solve(model, obj, v0, lo, hi, max_iterations, say)
+            if status == "converged" and "obs_delay" in names and _odd_tracks(model, v):
+                # The cost along the latency can be nearly flat with a worse minimum far off
+                # (seen: 96 ms fitted for 27 ms, one track's residual 1.3x the others'). Start
+                # again from no latency and from twice the start, with these weights; keep the
+                # lowest cost.
+                i = names.index("obs_delay")
+                start_delay = float(v0[i])
+                for d in (0.0, min(2.0 * start_delay + 0.02, PARAMETERS["obs_delay"][2])):
+                    say(f"one track fits worse than the others: starting again from "
+                        f"obs_delay = {d:g} s")
+                    alt = Model(replace(config, obs_delay=d), plans, names, drive, model.sigma,
+                                model.sigma_omega, rtol=rtol)
+                    alt_obj = _Objective(alt, lo, hi, say)
+                    w, st = _solve(alt, alt_obj, initial_vector(alt, say), lo, hi,
+                                   max_iterations, say, reweight=False)
+                    cost_w, cost_v = (float(np.sum(model.residuals(x) ** 2)) for x in (w, v))
+                    say(f"cost {0.5 * cost_w:.6g} against {0.5 * cost_v:.6g}")
+                    if st == "converged" and cost_w < cost_v:
+                        v = w
+            iterations = obj.iteration
+        except KeyboardInterrupt:
+            if obj.best_x is None:
+                raise
+            say("interrupted: reporting the best point so far")
+            v, status = obj.best_x, "interrupted"
+            iterations = obj.iteration
+        return summarise(model, v, v0, obj, names, status, iterations, say)
 
 
 def _solve(model: Model, obj: _Objective, v: np.ndarray, lo: np.ndarray, hi: np.ndarray,

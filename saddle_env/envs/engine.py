@@ -208,6 +208,15 @@ class TrapEngine:
         what a copy of a ball's state must carry too (the clairvoyant reference's copies)."""
         return ("_commands", "_in_force", "_samples") if self.delays.active else ()
 
+    def frames_in_flight(self, ball: int) -> np.ndarray:
+        """The frames of ``ball`` taken but not yet shown (the camera's latency), oldest
+        first, one per control period; the next observation is the first. Empty without
+        an observation delay."""
+        if not self.delays.active:
+            return np.zeros((0, self.frame_dim), dtype=np.float32)
+        m = self.delays.obs_periods      # the queue is newest first; the last row is shown
+        return self._samples[ball, m - 1::-1].copy() if m else self._samples[ball, :0].copy()
+
     def _init_delays(self) -> None:
         """The queues of the delayed step (`_step_delayed`): commands given, newest first
         (NaN: none yet, the motor holds its speed), the Ω̇ (or voltage) in force, and the

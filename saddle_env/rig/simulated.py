@@ -248,17 +248,11 @@ class SimulatedRig:
 
     def _keep_frames_before(self, event: float, shown: float) -> None:
         """At a loss: the frames the camera took before it, still in the latency's queue."""
-        engine = self.env.engine
-        if not engine.delays.active:
-            return
-        queue = engine._samples[0]           # newest first; the frame just shown is the last
-        m = engine.delays.obs_periods
-        for i in range(1, m + 1):
+        for i, frame in enumerate(self.env.engine.frames_in_flight(0), 1):
             when = shown + i * self.frame_interval
             if when > event + TIME_TOLERANCE:
                 break
-            self._pending.append((when, np.array(queue[m - i], dtype=np.float64),
-                                  self._theta_offset))
+            self._pending.append((when, np.array(frame, dtype=np.float64), self._theta_offset))
 
     def _reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> None:
         if self._k > 0 or self._frame is not None:   # the angle carries on from this episode
