@@ -29,7 +29,7 @@ from saddle_env.interrupts import SignalRecord
 # learned agent can beat mpc. Gusty, not Capture: on Capture mpc is within 0.02 s of the
 # clairvoyant reference (docs/benchmark.md), and the fast recipe's agents stay 0.1-0.5 s
 # below it; on Gusty they pass mpc with every seed in 3x10^6 steps (4.5 min of training on
-# the faster of the machines it was timed on, 9.6 min on the slower; docs/agents.md).
+# the faster of the machines it was timed on, 9.6 min on the slower; docs/training_profile.md).
 MAIN_JOB_ENV_ID = "SaddleTrap-Gusty-v0"
 # The algorithms each back end trains (the first back end's are the command line's choices).
 BACKEND_ALGOS = {"sb3": ("ppo", "sac", "td3", "a2c"), "sbx": ("ppo",), "rllib": ("ppo", "sac")}
@@ -50,7 +50,7 @@ class TrainSettings:
 
     algo: str = "ppo"
     # The main job (`python train.py`) trains on a level where learning shows within minutes:
-    # the untrained policy loses balls that the trained one keeps (docs/agents.md).
+    # the untrained policy loses balls that the trained one keeps (docs/shipped-agents.md).
     env_id: str = MAIN_JOB_ENV_ID
     env_kwargs: dict[str, Any] = field(default_factory=dict)   # options over the level's
     seed: int = 0
