@@ -189,7 +189,8 @@ def test_no_module_is_over_900_lines():
 @pytest.mark.parametrize("old, new", [("agents.leaderboard", "agents.benchmark.leaderboard"),
                                       ("agents.mpc", "agents.control.mpc"),
                                       ("saddle_env.precompile",
-                                       "saddle_env.compilation.precompile")])
+                                       "saddle_env.compilation.precompile"),
+                                      ("saddle_env.files", "saddle_env.jobs.files")])
 def test_an_old_module_name_says_where_the_module_went(old, new):
     import importlib
     import importlib.util

@@ -164,9 +164,9 @@ def test_a_shipped_model_is_named_by_its_path_in_the_repository(tmp_path):
 
 def test_a_results_file_is_written_whole_or_not_at_all(tmp_path):
     """The leaderboard's, the benchmark's and the figures' files go through
-    `saddle_env.files`: a stop in the middle of a write keeps the previous file (what
+    `saddle_env.jobs.files`: a stop in the middle of a write keeps the previous file (what
     ``--resume`` reads) and leaves no temporary file."""
-    from saddle_env.files import atomic_open, write_text_atomically
+    from saddle_env.jobs.files import atomic_open, write_text_atomically
 
     path = tmp_path / "leaderboard.json"
     write_text_atomically(path, '{"old": 1}\n')

@@ -34,8 +34,8 @@ from agents.evaluation.user_code import parse_policy_kwargs, source_digest
 from agents.paths import DOCS_DIR, MODELS_DIR, REPO_ROOT
 from agents.seeds import RESELECT_SEED, SEARCH_SEED, TEST_SEED, VALIDATION_SEED
 from saddle_env.envs import LEVELS, EnvConfig, get_level
-from saddle_env.files import write_text_atomically
-from saddle_env.interrupts import sigterm_interrupts
+from saddle_env.jobs.files import write_text_atomically
+from saddle_env.jobs.signals import sigterm_interrupts
 
 TEST_EPISODES = 1000           # 200-episode sets move the kept fraction by about 7 points
 BASELINE_POLICIES = ("zero", "random", "const-1.0", "const-1.2", "const-1.5", "best-const",

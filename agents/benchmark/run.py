@@ -36,8 +36,8 @@ from agents.paths import BENCHMARK_DIR
 from agents.seeds import TEST_SEED
 from agents.training.recipes import HYPERPARAMS_DIR
 from saddle_env.envs import LEVELS, get_level
-from saddle_env.files import write_text_atomically
-from saddle_env.interrupts import SignalRecord, sigterm_interrupts
+from saddle_env.jobs.files import write_text_atomically
+from saddle_env.jobs.signals import SignalRecord, sigterm_interrupts
 
 RESULTS = BENCHMARK_DIR / "results"
 TEST_EPISODES = 1000          # the leaderboard's frozen test set

@@ -28,7 +28,7 @@ from agents.control.controllers import ConstantSpeed, critical_speed
 from agents.control.rollout import run_episodes
 from agents.seeds import SEARCH_SEED
 from saddle_env.envs import DEFAULT_EPISODE_STEPS, EnvConfig
-from saddle_env.files import write_text_atomically
+from saddle_env.jobs.files import write_text_atomically
 from saddle_env.linear import critical_omega
 
 CACHE_FILE = Path(__file__).with_name("best_const.json")

@@ -31,7 +31,7 @@ from agents.control.rollout import same_episodes
 from agents.seeds import COMPARE_SEED
 from agents.training.runs import TrainSettings
 from saddle_env.envs import EnvConfig
-from saddle_env.files import write_text_atomically
+from saddle_env.jobs.files import write_text_atomically
 
 WALL_CSV = "evaluations_wall.csv"
 CURVE_EPISODES = "curve_episodes.json"    # written by agents.training.selection

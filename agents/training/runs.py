@@ -23,7 +23,7 @@ from typing import Any
 from agents.cli_args import parse_address, resolve_env, saved_settings
 from agents.seeds import MAX_EVAL_EPISODES
 from saddle_env.envs import LEVEL_IDS, EnvConfig, Level
-from saddle_env.interrupts import SignalRecord
+from saddle_env.jobs.signals import SignalRecord
 
 # The main job (`python train.py`): a level where learning shows within minutes and a
 # learned agent can beat mpc. Gusty, not Capture: on Capture mpc is within 0.02 s of the
@@ -229,7 +229,7 @@ def stops_held() -> Iterator[None]:
 class StopRequest(SignalRecord):
     """Set by SIGTERM (or Ctrl-C under `sigterm_stops`), remembering the stop it raised; its
     `raise_if_lost`, called once per training step, raises a stop that a ``__del__`` swallowed
-    (`saddle_env.interrupts`). A stop held by `stops_held` is not lost: it comes when the
+    (`saddle_env.jobs.signals`). A stop held by `stops_held` is not lost: it comes when the
     save ends."""
 
     def lost(self) -> bool:

@@ -14,8 +14,8 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from ..envs.levels import LEVEL_IDS, get_level
-from ..files import write_text_atomically
-from ..interrupts import sigterm_interrupts
+from ..jobs.files import write_text_atomically
+from ..jobs.signals import sigterm_interrupts
 from .fit import FitResult, FitWarning, fit_tracks
 from .model import PARAMETERS
 from .tracks import TrackError, read_tracks

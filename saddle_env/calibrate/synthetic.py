@@ -30,7 +30,7 @@ from ..envs import _step as S
 from ..envs.config import EnvConfig
 from ..envs.levels import get_level
 from ..envs.saddle_trap import SaddleTrapEnv
-from ..files import write_text_atomically
+from ..jobs.files import write_text_atomically
 from .tracks import COLUMNS, Track, write_track
 
 MAX_TRACKS = 1000

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from saddle_env.files import write_text_atomically
+from saddle_env.jobs.files import write_text_atomically
 
 REQUIRED = ("t", "x", "y")
 OPTIONAL = ("omega", "voltage", "theta")

@@ -25,7 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from .. import __version__
-from ..files import atomic_open
+from ..jobs.files import atomic_open
 from ..scene import Scene
 from ..simulate import simulate_batch
 

@@ -15,7 +15,7 @@ with SimulatedRig("SaddleTrap-Lab-v0") as rig:
 ```
 """
 
-from ..interrupts import Terminated
+from ..jobs.signals import Terminated
 from .clock import Clock, MonotonicClock, VirtualClock
 from .interface import Frame, Rig
 from .loop import run

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from ..envs import EnvConfig, level_config
-from ..interrupts import SignalRecord, Terminated, sigterm_interrupts
+from ..jobs.signals import SignalRecord, Terminated, sigterm_interrupts
 from .clock import Clock, MonotonicClock
 from .interface import Frame, Rig
 from .observe import Observer, as_policy

@@ -34,7 +34,7 @@ import numpy as np
 
 from ..calibrate.tracks import MIN_POSITIONS, Track, TrackError, write_track
 from ..envs import EnvConfig
-from ..files import write_text_atomically
+from ..jobs.files import write_text_atomically
 from .interface import Frame
 
 PERIOD_COLUMNS = ("release", "period", "start", "lateness", "compute", "written", "missed",

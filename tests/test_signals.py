@@ -1,4 +1,4 @@
-"""saddle_env.interrupts: SIGTERM stops a command as Ctrl-C does, puts the previous handler
+"""saddle_env.jobs.signals: SIGTERM stops a command as Ctrl-C does, puts the previous handler
 back, and a SIGTERM that Python dropped inside a ``__del__`` is raised again by the loop's
 check (the rig loop, saddle-fit, the leaderboard and the benchmark runner use it)."""
 from __future__ import annotations
@@ -11,7 +11,7 @@ import threading
 import pytest
 from helpers import SignalledWhileFreed
 
-from saddle_env.interrupts import Terminated, sigterm_interrupts
+from saddle_env.jobs.signals import Terminated, sigterm_interrupts
 
 
 def test_sigterm_raises_terminated_and_the_previous_handler_comes_back():
