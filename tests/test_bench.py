@@ -70,6 +70,7 @@ def quick_run(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow  # an end-to-end run: CI runs it with -m slow
 def test_quick_bench_writes_csv_figures_and_summary(quick_run):
     rows = read_rows(quick_run / "bench.csv")
     tiers = {r["tier"] for r in rows}
@@ -88,6 +89,7 @@ def test_quick_bench_writes_csv_figures_and_summary(quick_run):
     assert summary["target_jacobi"]["jacobi_drift_relative"] < 1e-9
 
 
+@pytest.mark.slow  # an end-to-end run: CI runs it with -m slow
 def test_summary_is_reproducible_from_the_csv(quick_run, tmp_path):
     before = json.loads((quick_run / "summary.json").read_text())
     assert bench_main(["--replot", str(quick_run / "bench.csv"), "--out", str(tmp_path),
@@ -98,6 +100,7 @@ def test_summary_is_reproducible_from_the_csv(quick_run, tmp_path):
         assert after[key] == before[key]
 
 
+@pytest.mark.slow  # an end-to-end run: CI runs it with -m slow
 def test_csv_rows_can_be_rerun(quick_run):
     # Every row carries its case and setting: re-running one gives the same error.
     row = next(r for r in read_rows(quick_run / "bench.csv")

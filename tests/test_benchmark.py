@@ -123,6 +123,7 @@ def test_a_killed_suite_resumes_where_it_stopped(tmp_path, monkeypatch):
     assert len(list(tmp_path.rglob("seed*.json"))) == 8
 
 
+@pytest.mark.slow  # an end-to-end run: CI runs it with -m slow
 def test_the_report_is_generated_from_the_result_files(tmp_path, monkeypatch, capsys):
     import agents.benchmark.report as R
 

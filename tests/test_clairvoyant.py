@@ -41,6 +41,7 @@ def test_registered_as_a_baseline(gusty):
         policy.predict(np.zeros(policy.input_dim, dtype=np.float32))
 
 
+@pytest.mark.slow  # an end-to-end run: CI runs it with -m slow
 def test_foresight_beats_mpc_on_a_gust(gusty):
     """Episode GUST_SEED: the same start in still air (the same draws up to the air current's)
     is kept by the same mpc (same reference speed) for the whole episode;
@@ -85,6 +86,7 @@ def test_never_shorter_than_the_shipped_agent(gusty):
     assert np.all(clair["time"] >= agent["time"])
 
 
+@pytest.mark.slow  # an end-to-end run: CI runs it with -m slow
 def test_deterministic_and_batch_independent(gusty):
     one, a1 = _run(ClairvoyantController(gusty, max_rounds=20), gusty, [GUST_SEED])
     two, a2 = _run(ClairvoyantController(gusty, max_rounds=20), gusty, [GUST_SEED])

@@ -287,6 +287,7 @@ def _train_py(tmp_path, *args):
                           timeout=300)
 
 
+@pytest.mark.slow  # an end-to-end run: CI runs it with -m slow
 def test_train_on_a_level_records_it_and_honours_normalize_and_frame_stack(tmp_path, capsys):
     pytest.importorskip("stable_baselines3")
     hyper = tmp_path / "small.yml"

@@ -367,6 +367,7 @@ def test_shipped_models_load_and_act_in_the_task_they_were_trained_on():
                 break
 
 
+@pytest.mark.slow  # an end-to-end run: CI runs it with -m slow
 def test_a_finished_run_compares_the_agent_with_best_const_and_mpc(tmp_path):
     proc = _train(tmp_path, "--n-envs", "4", "--total-timesteps", "1024", "--run-name", "cmp",
                   "--compare-episodes", "3")
@@ -387,6 +388,7 @@ def test_the_main_job_trains_on_a_level_where_learning_shows():
     assert hyper["warm_start"] == "best-const" and float(hyper["n_timesteps"]) <= 5e6
 
 
+@pytest.mark.slow  # an end-to-end run: CI runs it with -m slow
 def test_a_run_warm_started_by_imitating_mpc_records_it_and_can_select_it(tmp_path):
     hyper = tmp_path / "ppo.yml"
     hyper.write_text("SaddleTrap-Storm-v0:\n  n_envs: 4\n  n_steps: 64\n  batch_size: 64\n"
