@@ -271,3 +271,20 @@ def test_the_clairvoyant_reference_is_at_or_above_mpc_and_every_shipped_agent():
         lost = int(np.sum(clair < 10.0 - 1e-9))
         assert ref["doomed"] == lost / len(clair)
         assert ref["doomed_ci"]["low"] - 1e-12 <= ref["doomed"] <= ref["doomed_ci"]["high"]
+
+
+def test_a_rows_intervals_do_not_depend_on_the_other_rows(monkeypatch):
+    """Each row's bootstrap has its own seeded stream: adding a row or reordering the rows
+    leaves the others' intervals as they were (a shared stream moved them in the second
+    decimal whenever the benchmark gained a row)."""
+    import agents.benchmark.report as R
+
+    monkeypatch.setattr(R, "REPS", 200)
+    rng = np.random.default_rng(0)
+    a, b = rng.uniform(0, 1, (3, 2)), rng.uniform(0, 1, (3, 2))
+    alone = R._aggregates({"ppo": a})
+    np.random.seed(7)                        # whatever the global stream was
+    assert R._aggregates({"sac": b, "ppo": a})["ppo"] == alone["ppo"]
+    assert R._aggregates({"ppo": a, "sac": b})["ppo"] == alone["ppo"]
+    assert R._improvement(a, b[:1]) == R._improvement(a, b[:1])
+    assert np.random.randint(1 << 30) == np.random.RandomState(7).randint(1 << 30)  # given back

@@ -16,6 +16,9 @@ from __future__ import annotations
 import json
 import sys
 import warnings
+import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -83,13 +86,33 @@ def _aggregates(score_dict: dict[str, np.ndarray]) -> dict[str, dict[str, Any]]:
     def both(x):
         return np.array([metrics.aggregate_iqm(x), metrics.aggregate_mean(x)])
 
-    with warnings.catch_warnings():   # arch's notice that random_state will change name
-        warnings.simplefilter("ignore", FutureWarning)
-        point, interval = rly.get_interval_estimates(
-            score_dict, both, reps=REPS, random_state=np.random.RandomState(0))
-    return {a: {"iqm": float(point[a][0]), "iqm_ci": [float(v) for v in interval[a][:, 0]],
-                "mean": float(point[a][1]), "mean_ci": [float(v) for v in interval[a][:, 1]]}
-            for a in score_dict}
+    out = {}
+    for a, scores in score_dict.items():
+        # One stream per row, seeded by its name, so that a row's interval is the same in
+        # every run whatever the other rows are
+        with _bootstrap_stream(zlib.crc32(a.encode())) as stream:
+            point, interval = rly.get_interval_estimates({a: scores}, both, reps=REPS,
+                                                         random_state=stream)
+        out[a] = {"iqm": float(point[a][0]), "iqm_ci": [float(v) for v in interval[a][:, 0]],
+                  "mean": float(point[a][1]), "mean_ci": [float(v) for v in interval[a][:, 1]]}
+    return out
+
+
+@contextmanager
+def _bootstrap_stream(seed: int) -> Iterator[np.random.RandomState]:
+    """A seeded stream for one of rliable's bootstraps. rliable 1.2's stratified bootstraps
+    draw their indices from numpy's global stream (``np.random.choice``) and ignore the
+    ``random_state`` they pass on to arch, so the global stream is seeded here too, and
+    given back as it was after: without this the intervals changed from run to run in
+    the second decimal."""
+    saved = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        with warnings.catch_warnings():   # arch's notice that random_state will change name
+            warnings.simplefilter("ignore", FutureWarning)
+            yield np.random.RandomState(seed)
+    finally:
+        np.random.set_state(saved)
 
 
 def _improvement(scores: np.ndarray, baseline: np.ndarray) -> tuple[float, list[float]]:
@@ -99,11 +122,10 @@ def _improvement(scores: np.ndarray, baseline: np.ndarray) -> tuple[float, list[
     from rliable import metrics
 
     y = np.broadcast_to(baseline, scores.shape).copy()
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)
+    with _bootstrap_stream(1) as stream:
         point, interval = rly.get_interval_estimates(
             {"x": (scores, y)}, metrics.probability_of_improvement, reps=REPS // 5,
-            random_state=np.random.RandomState(1))
+            random_state=stream)
     return float(point["x"]), [float(v) for v in np.ravel(interval["x"])]
 
 
