@@ -229,21 +229,10 @@ def test_blas_threads_are_one_within_the_block_and_the_callers_after():
     """The fit pins BLAS to one thread while it runs (a threaded OpenBLAS waking its workers
     on a busy machine made its SVDs 40x slower) and gives a program that called it its own
     thread count back."""
-    import ctypes
-
-    from saddle_env.bench.blas import _GETTERS, _loaded_openblas, blas_threads
+    from saddle_env.bench.blas import _thread_controls, blas_threads
 
     def counts():
-        found = []
-        for path in _loaded_openblas():
-            lib = ctypes.CDLL(path)
-            for getter in dict.fromkeys(_GETTERS.values()):
-                fn = getattr(lib, getter, None)
-                if fn is not None:
-                    fn.restype = ctypes.c_int
-                    found.append(int(fn()))
-                    break
-        return found
+        return [int(get()) for _, _, get in _thread_controls() if get is not None]
 
     with blas_threads(2):
         before = counts()              # a caller's own setting, whatever the machine's

@@ -14,6 +14,7 @@ import ctypes
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import Any
 
 _SYMBOLS = ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
             "openblas_set_num_threads64_", "openblas_set_num_threads")
@@ -29,47 +30,46 @@ def _loaded_openblas() -> list[str]:
     return sorted(p for p in paths if os.path.isfile(p))
 
 
-def limit_blas_threads(n: int = 1) -> list[str]:
-    """Set every loaded OpenBLAS to ``n`` threads; return the libraries changed (may be
-    empty: on a platform without /proc, or another BLAS, this does nothing)."""
+def _thread_controls() -> list[tuple[str, Any, Any]]:
+    """Each loaded OpenBLAS's thread-count setter and getter (None where it has none), named
+    ``library:symbol``."""
     import numpy  # noqa: F401  (load the libraries first)
     import scipy.linalg  # noqa: F401
 
-    changed = []
+    controls = []
     for path in _loaded_openblas():
         try:
             lib = ctypes.CDLL(path)
         except OSError:
             continue
         for sym in _SYMBOLS:
-            fn = getattr(lib, sym, None)
-            if fn is not None:
-                fn(ctypes.c_int(n))
-                changed.append(f"{os.path.basename(path)}:{sym}")
+            set_fn = getattr(lib, sym, None)
+            if set_fn is not None:
+                get_fn = getattr(lib, _GETTERS[sym], None)
+                if get_fn is not None:
+                    get_fn.restype = ctypes.c_int
+                controls.append((f"{os.path.basename(path)}:{sym}", set_fn, get_fn))
                 break
-    return changed
+    return controls
+
+
+def limit_blas_threads(n: int = 1) -> list[str]:
+    """Set every loaded OpenBLAS to ``n`` threads; return the libraries changed (may be
+    empty: on a platform without /proc, or another BLAS, this does nothing)."""
+    controls = _thread_controls()
+    for _, set_fn, _ in controls:
+        set_fn(ctypes.c_int(n))
+    return [name for name, _, _ in controls]
 
 
 @contextmanager
 def blas_threads(n: int = 1) -> Iterator[list[str]]:
     """Within the block every loaded OpenBLAS uses ``n`` threads; each gets its own count
     back after, so a library call (the fit's) leaves its caller's BLAS as it found it."""
-    import numpy  # noqa: F401  (load the libraries first)
-    import scipy.linalg  # noqa: F401
-
-    restore = []
-    for path in _loaded_openblas():
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for sym in _SYMBOLS:
-            set_fn, get_fn = getattr(lib, sym, None), getattr(lib, _GETTERS[sym], None)
-            if set_fn is not None and get_fn is not None:
-                get_fn.restype = ctypes.c_int
-                restore.append((f"{os.path.basename(path)}:{sym}", set_fn, int(get_fn())))
-                set_fn(ctypes.c_int(n))
-                break
+    restore = [(name, set_fn, int(get_fn())) for name, set_fn, get_fn in _thread_controls()
+               if get_fn is not None]
+    for _, set_fn, _ in restore:
+        set_fn(ctypes.c_int(n))
     try:
         yield [name for name, _, _ in restore]
     finally:
