@@ -19,26 +19,63 @@ if TYPE_CHECKING:
     from .rendering import SaddleRenderer
 
 
+# The single env's per-step info entries, each read from a column of the engine's arrays.
+_INFO_COLUMNS = (("omega", "balls", S.B_OMEGA), ("time", "balls", S.B_TIME),
+                 ("N_over_mg", "out", S.O_NORMAL), ("trapped_fraction", "out", S.O_TRAPPED))
+
+
+def check_autoreset_mode(value: Any) -> AutoresetMode:
+    """``value`` as an `AutoresetMode` (the enum or its string value, e.g. ``"SameStep"``)."""
+    if isinstance(value, AutoresetMode):
+        return value
+    try:
+        return AutoresetMode(value)
+    except (ValueError, TypeError):
+        allowed = ", ".join(f"AutoresetMode.{m.name} ({m.value!r})" for m in AutoresetMode)
+        raise ValueError(f"autoreset_mode must be one of {allowed}, got {value!r}") from None
+
+
 class SaddleTrapVectorEnv(VectorEnv):
     """``num_envs`` independent SaddleTrap balls stepped as one batch.
 
-    Same options as `SaddleTrapEnv`, plus ``num_envs`` and ``max_episode_steps`` (default
-    500; ``None`` for no time limit — truncation is handled here, not by a wrapper). Uses
-    next-step autoreset (Gymnasium's default): the step after an episode ends resets that
-    ball and returns its first observation with reward 0. Finished balls are not integrated
-    until they are reset. Seeding follows ``SyncVectorEnv``: ``reset(seed=s)`` seeds ball i
-    with ``s + i``, so ball i reproduces ``gym.make("SaddleTrap-v0").reset(seed=s + i)``
-    step by step. Balls are stepped on all cores (numba threads) from 128 balls up.
+    Same options as `SaddleTrapEnv`, plus ``num_envs``, ``max_episode_steps`` (default 500;
+    ``None`` for no time limit — truncation is handled here, not by a wrapper, and as
+    Gymnasium's ``TimeLimit`` does: a ball lost on the last step is terminated and
+    truncated) and ``autoreset_mode`` (`gymnasium.vector.AutoresetMode` or its string
+    value; ``metadata["autoreset_mode"]`` holds the one in use):
 
-    ``reset(options={"reset_mask": mask, ...})`` resets only the masked balls; other keys
-    place them exactly, as in `SaddleTrapEnv`.
+    * ``NEXT_STEP`` (default): the ``step`` after a ball's episode ends resets it (its action
+      ignored) and returns its first observation with reward 0, neither terminated nor
+      truncated, and its reset info.
+    * ``SAME_STEP``: the ``step`` that ends an episode resets the ball at once and returns
+      the new episode's first observation and reset info; the last observation is in
+      ``info["final_obs"]``, the last step's info in ``info["final_info"]``.
+    * ``DISABLED``: the ball waits for ``reset(options={"reset_mask": mask})``; a ``step``
+      before that raises ``RuntimeError``.
+
+    Every mode returns what Gymnasium's ``SyncVectorEnv`` in that mode returns over
+    ``gym.make`` of the same options, bit for bit, info included (each key with its
+    ``_key`` mask). Finished balls are not integrated until they are reset. Seeding follows
+    ``SyncVectorEnv``: ``reset(seed=s)`` seeds ball i with ``s + i``, so ball i reproduces
+    ``gym.make("SaddleTrap-v0").reset(seed=s + i)`` step by step. Balls are stepped on all
+    cores (numba threads) from 128 balls up.
+
+    ``reset(options={"reset_mask": mask, ...})`` resets only the balls where ``mask`` (a
+    bool array of shape ``(num_envs,)``) is True, in any mode; other keys place them
+    exactly, as in `SaddleTrapEnv`.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": ["rgb_array"],
                 "render_fps": 50}
+    # A class default, so that close() (which Gymnasium's __del__ calls) works on an
+    # instance whose constructor raised before setting it.
+    _renderer: SaddleRenderer | None = None
 
     def __init__(self, num_envs: int = 1, max_episode_steps: int | None = DEFAULT_EPISODE_STEPS,
-                 render_mode: str | None = None, **kwargs: Any):
+                 render_mode: str | None = None,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP, **kwargs: Any):
+        self.autoreset_mode = check_autoreset_mode(autoreset_mode)
+        self.metadata = dict(type(self).metadata, autoreset_mode=self.autoreset_mode)
         self.config = EnvConfig.from_kwargs(**kwargs)
         if max_episode_steps is not None and (
                 isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, (int, np.integer))
@@ -60,8 +97,9 @@ class SaddleTrapVectorEnv(VectorEnv):
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
         self._active = np.ones(self.num_envs, dtype=bool)
         self._action_buf = np.zeros(self.num_envs)
-        self._renderer: SaddleRenderer | None = None
-        self._started = False
+        self._all = np.ones(self.num_envs, dtype=bool)  # every ball (never written)
+        self._placed = np.zeros(self.num_envs, dtype=bool)  # balls reset at least once
+        self._started = False  # every ball placed
 
     def reset(self, *, seed: int | list[int | None] | None = None,
               options: dict[str, Any] | None = None):
@@ -74,24 +112,45 @@ class SaddleTrapVectorEnv(VectorEnv):
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed must be an int, None or {self.num_envs} seeds, got {len(seeds)}")
         opts = dict(options or {})
-        mask = np.asarray(opts.pop("reset_mask", np.ones(self.num_envs, dtype=bool)))
-        if mask.shape != (self.num_envs,) or mask.dtype != bool:
-            raise ValueError(f"reset_mask must be a bool array of shape ({self.num_envs},)")
+        if "reset_mask" in opts:
+            mask = self._check_reset_mask(opts.pop("reset_mask"))
+        else:
+            mask = np.ones(self.num_envs, dtype=bool)
         idx = np.flatnonzero(mask)
         for i in idx:
-            if seeds[i] is not None or not self._started:
+            if seeds[i] is not None or not self._placed[i]:
                 self._rngs[i] = seeding.np_random(seeds[i])[0]
         self.engine.reset(idx, self._rngs, opts)
         self._steps[idx] = 0
         self._autoreset[idx] = False
-        self._started = True
-        return self.engine.obs.copy(), self._infos(np.zeros(self.num_envs, dtype=bool))
+        self._placed[idx] = True
+        self._started = bool(self._placed.all())
+        return self.engine.obs.copy(), self._infos(mask, np.zeros(self.num_envs, dtype=bool))
+
+    def _check_reset_mask(self, mask: Any) -> np.ndarray:
+        """The ``reset_mask`` option, checked as ``SyncVectorEnv`` checks it."""
+        want = f"a numpy bool array of shape ({self.num_envs},) with at least one True"
+        if not isinstance(mask, np.ndarray) or mask.dtype != np.bool_ \
+                or mask.shape != (self.num_envs,):
+            got = f"{type(mask).__name__}" + (f" of dtype {mask.dtype} and shape {mask.shape}"
+                                              if isinstance(mask, np.ndarray) else "")
+            raise ValueError(f"reset option 'reset_mask' must be {want}, got {got}")
+        if not mask.any():
+            raise ValueError(f"reset option 'reset_mask' must be {want}, got no True")
+        return mask.copy()
 
     def step(self, actions):
         if not self._started:
-            raise RuntimeError("call reset() before step()")
+            never = np.flatnonzero(~self._placed).tolist()
+            raise RuntimeError(f"call reset() before step() (balls {never} were never reset)")
+        mode = self.autoreset_mode
+        if mode is AutoresetMode.DISABLED and self._autoreset.any():
+            finished = np.flatnonzero(self._autoreset).tolist()
+            raise RuntimeError(
+                f"balls {finished} ended their episodes and autoreset_mode is DISABLED: reset "
+                f"them first with reset(options={{'reset_mask': mask}}), mask True at those balls")
         a = check_actions(actions, self.num_envs, self._action_buf)
-        restart = self._autoreset
+        restart = self._autoreset  # all False unless NEXT_STEP (reset on the step after the end)
         if restart.any():
             self.engine.reset(np.flatnonzero(restart), self._rngs)
             self._steps[restart] = 0
@@ -102,21 +161,48 @@ class SaddleTrapVectorEnv(VectorEnv):
         rewards = np.empty(n)
         S.episode_flags(active, self.engine.out, self._steps, self.max_episode_steps or 0,
                         terminated, truncated, rewards)
-        self._autoreset = terminated | truncated
-        return (self.engine.obs.copy(), rewards, terminated, truncated, self._infos(terminated))
+        if self.max_episode_steps is not None:
+            # TimeLimit's rule: the last step truncates even where the ball was lost in it
+            # (episode_flags leaves those terminated only). Restarted balls have 0 steps.
+            truncated |= self._steps >= self.max_episode_steps
+        obs = self.engine.obs.copy()
+        ended = terminated | truncated
+        if mode is AutoresetMode.SAME_STEP and ended.any():
+            final_info = self._infos(ended, terminated)
+            final_obs = np.full(n, None, dtype=object)
+            done = np.flatnonzero(ended)
+            for i in done:
+                final_obs[i] = obs[i].copy()
+            self.engine.reset(done, self._rngs)
+            self._steps[done] = 0
+            obs[done] = self.engine.obs[done]
+            info = self._infos(self._all, np.zeros(n, dtype=bool))
+            info.update(final_obs=final_obs, _final_obs=ended.copy(), final_info=final_info,
+                        _final_info=ended.copy())
+            self._autoreset = np.zeros(n, dtype=bool)
+        else:
+            info = self._infos(self._all, terminated)
+            self._autoreset = ended
+        return obs, rewards, terminated, truncated, info
 
-    def _infos(self, terminated: np.ndarray) -> dict[str, Any]:
+    def _infos(self, rows: np.ndarray, terminated: np.ndarray) -> dict[str, Any]:
+        """The single env's info of the balls ``rows``, batched as ``SyncVectorEnv`` batches
+        it: each key an array over all balls (0 or None where a ball has no entry) beside
+        its ``_key`` mask; ``cause`` and ``event_time`` where ``terminated``."""
         e = self.engine
-        info: dict[str, Any] = {"omega": e.balls[:, S.B_OMEGA].copy(),
-                                "time": e.balls[:, S.B_TIME].copy(),
-                                "N_over_mg": e.out[:, S.O_NORMAL].copy(),
-                                "trapped_fraction": e.out[:, S.O_TRAPPED].copy()}
+        arrays = {"balls": e.balls, "out": e.out}
+        every = rows is self._all
+        info: dict[str, Any] = {}
+        for key, array, column in _INFO_COLUMNS:
+            values = arrays[array][:, column]
+            info[key] = values.copy() if every else np.where(rows, values, 0.0)
+            info["_" + key] = rows.copy()
         if terminated.any():
             cause = np.full(self.num_envs, None, dtype=object)
             for i in np.flatnonzero(terminated):
                 cause[i] = e.cause(i)
             info["cause"], info["_cause"] = cause, terminated.copy()
-            info["event_time"] = np.where(terminated, info["time"], np.nan)
+            info["event_time"] = np.where(terminated, e.balls[:, S.B_TIME], 0.0)
             info["_event_time"] = terminated.copy()
         return info
 
