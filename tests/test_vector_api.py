@@ -256,12 +256,40 @@ def test_gymnasiums_vector_wrappers_see_the_same_as_over_sync_vector_env(wrapper
     assert terminated and truncated
 
 
-@pytest.mark.parametrize("mode", MODES, ids=[m.name for m in MODES])
-def test_record_episode_statistics_counts_every_episode_in_every_mode(mode):
-    """RecordEpisodeStatistics reports each episode's return and length as summed here.
-    (Over SyncVectorEnv with autoreset disabled it cannot: SyncVectorEnv pops ``reset_mask``
-    out of the options before the wrapper reads them, so the wrapper restarts every ball's
-    tally. The native env leaves the caller's options alone.)"""
+def _same_but_wall_clock(a, b, where="result"):
+    """`assert_same` on step results, leaving out RecordEpisodeStatistics' wall-clock times."""
+    if len(a) == 5 and "episode" in a[4]:
+        a, b = (a[:4] + ({**a[4], "episode": {**a[4]["episode"], "t": None}},),
+                b[:4] + ({**b[4], "episode": {**b[4]["episode"], "t": None}},))
+    assert_same(a, b, where)
+
+
+@pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP],
+                         ids=["NEXT_STEP", "SAME_STEP"])
+def test_record_episode_statistics_sees_the_same_as_over_sync_vector_env(mode):
+    """(DISABLED: SyncVectorEnv pops ``reset_mask`` out of the options before the wrapper
+    reads them, so over it the wrapper restarts every ball's tally at a masked reset; the
+    native env leaves the caller's options alone, and the next test checks its counts.)"""
+    native, sync = pair("SaddleTrap-Gusty-v0", mode, 3, **HARSH)
+    terminated, truncated = drive(vw.RecordEpisodeStatistics(native),
+                                  vw.RecordEpisodeStatistics(sync), mode, 40,
+                                  compare=_same_but_wall_clock)
+    assert terminated and truncated
+
+
+GYMNASIUM = tuple(int(part) for part in gym.__version__.split(".")[:2])
+
+
+@pytest.mark.parametrize("mode", [
+    AutoresetMode.NEXT_STEP, AutoresetMode.DISABLED,
+    pytest.param(AutoresetMode.SAME_STEP, marks=pytest.mark.skipif(
+        GYMNASIUM < (1, 4), reason="Gymnasium's RecordEpisodeStatistics counts SAME_STEP "
+        "episodes from 1.4 on (1.2.2 leaves out the first step of each episode after an "
+        "autoreset); "
+        "the comparison with SyncVectorEnv above covers the mode"))],
+    ids=["NEXT_STEP", "DISABLED", "SAME_STEP"])
+def test_record_episode_statistics_counts_every_episode(mode):
+    """RecordEpisodeStatistics reports each episode's return and length as summed here."""
     env = vw.RecordEpisodeStatistics(SaddleTrapVectorEnv(num_envs=3, autoreset_mode=mode,
                                                          **HARSH))
     env.reset(seed=2)
