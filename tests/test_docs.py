@@ -461,6 +461,17 @@ def test_generated_command_reference_lists_every_flag(name):
         assert f"`{flag}`" in generated, f"{name}: {flag} missing from its reference"
 
 
+@pytest.mark.parametrize("name", sorted(HOOKS.CLIS))
+def test_every_argument_has_help(name):
+    """Each flag and positional of every documented command line says what it does, in
+    --help and in its generated reference."""
+    parser = HOOKS.parser_for(name)
+    bare = [a.option_strings[0] if a.option_strings else a.dest for a in parser._actions
+            if not isinstance(a, argparse._HelpAction) and a.help is not argparse.SUPPRESS
+            and not (a.help or "").strip()]
+    assert not bare, f"{name}: {', '.join(bare)} without help text"
+
+
 def test_every_documented_tool_has_a_reference():
     """A command the docs show is one the reference documents (docs/hooks.py's CLIS)."""
     known = {"saddle-sim": "saddle-sim", "saddle-eval": "saddle-eval",

@@ -268,7 +268,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true",
                    help="keep the results already in DIR/leaderboard.json with the same "
                         "episodes and seed (per level and policy)")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-progress", action="store_true",
+                   help="print no progress while the episodes run")
     p.add_argument("--policy", action="append", default=[], metavar="SPEC",
                    help="an extra row on every level: your controller class "
                         "(path/to/file.py:ClassName or package.module:ClassName; imported and "
