@@ -7,6 +7,11 @@ A page asks for a generated section with an HTML comment on a line of its own:
   that the docstring does not name fails the build.
 * ``<!-- generated: cli NAME -->``: the command line NAME (a key of ``CLIS``), read from its
   own argparse parser: usage, description and one table per argument group.
+* ``<!-- generated: level-summary -->``: one row per registered task level (Gymnasium's
+  registry), and ``<!-- generated: level-summary ID -->`` the same facts for one level as a
+  two-column table: action space, observation shape, reward, episode length,
+  ``reward_threshold`` and the line that makes it, read from ``gym.spec(ID)`` and from the
+  spaces of an environment made from it.
 
 The same functions serve the tests (tests/test_docs.py), which check that every documented
 command line has a page section and that the generated text matches the parsers.
@@ -223,6 +228,72 @@ def env_options_markdown() -> str:
     return "\n".join(lines)
 
 
+# -- the task levels at a glance -------------------------------------------------------------
+
+def registered_levels() -> list[str]:
+    """Every id of Gymnasium's registry that makes a SaddleTrap environment, in registration
+    order (importing ``saddle_env`` registers them)."""
+    import gymnasium as gym
+
+    import saddle_env  # noqa: F401  (registers the levels)
+
+    return [env_id for env_id, spec in gym.registry.items()
+            if str(spec.entry_point).startswith("saddle_env.")]
+
+
+def level_facts(env_id: str) -> dict[str, str]:
+    """What a Gymnasium user looks up first about ``env_id``, as Markdown cells: from its
+    registered spec and the spaces of an environment made from it."""
+    import gymnasium as gym
+
+    from saddle_env.envs import EnvConfig
+
+    spec = gym.spec(env_id)
+    env = gym.make(env_id)
+    try:
+        action, observation = env.action_space, env.observation_space
+        config = env.unwrapped.config
+    finally:
+        env.close()
+    if not isinstance(config, EnvConfig):
+        raise RuntimeError(f"{env_id}: its environment has no EnvConfig")
+    box = observation
+    low, high = float(box.low.min()), float(box.high.max())
+    worst = -(config.loss_penalty + config.distance_cost + config.effort_cost)
+    steps = spec.max_episode_steps
+    seconds = steps * config.control_period if steps else None
+    return {
+        "id": f"`{env_id}`",
+        "action space": f"`{_cell(action)}`",
+        "observation shape": f"`{box.shape}` {box.dtype}, in [{low:g}, {high:g}]",
+        "reward per step": f"[{worst:g}, 1]",
+        "episode": (f"{steps} steps ({seconds:g} s)" if steps else "no time limit"),
+        "reward_threshold": "none" if spec.reward_threshold is None else f"{spec.reward_threshold:g}",
+        "make it": f'`gym.make("{env_id}")`',
+    }
+
+
+_IMPORT_LINE = "`import gymnasium as gym; import saddle_env` (registers every level)"
+
+
+def level_summary_markdown(env_id: str | None = None) -> str:
+    """All levels, one row each; or one level, one fact a row."""
+    if env_id is None:
+        rows = [level_facts(i) for i in registered_levels()]
+        keys = [k for k in rows[0] if k != "make it"]  # the id is the argument of gym.make
+        lines = [f"| {' | '.join(keys)} |", "|" + "---|" * len(keys)]
+        lines += [f"| {' | '.join(r[k] for k in keys)} |" for r in rows]
+        return "\n".join([*lines, "", f"Import: {_IMPORT_LINE}. Generated from Gymnasium's "
+                           "registry when the site is built."])
+    if env_id not in registered_levels():
+        raise RuntimeError(f"no registered level {env_id!r}")
+    facts = level_facts(env_id)
+    lines = ["| | |", "|---|---|"]
+    lines += [f"| {k} | {v} |" for k, v in facts.items() if k != "id"]
+    lines.append(f"| import | {_IMPORT_LINE} |")
+    return "\n".join(lines)
+
+
 # -- the hook --------------------------------------------------------------------------------
 
 def generate(what: str, arg: str | None) -> str:
@@ -232,6 +303,8 @@ def generate(what: str, arg: str | None) -> str:
         if arg not in CLIS:
             raise RuntimeError(f"no command line {arg!r} in docs/hooks.py's CLIS")
         return cli_markdown(arg)
+    if what == "level-summary":
+        return level_summary_markdown(arg)
     raise RuntimeError(f"unknown generated section {what!r}")
 
 

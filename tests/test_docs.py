@@ -445,6 +445,56 @@ def test_every_env_option_is_in_the_generated_table():
     assert "<!-- generated: env-options -->" in (DOCS / "environment.md").read_text()
 
 
+def _table_rows(markdown: str) -> list[list[str]]:
+    return [[c.strip() for c in line.strip().strip("|").split("|")]
+            for line in markdown.splitlines()
+            if line.startswith("|") and not line.startswith("|---")]
+
+
+def _spec_facts(env_id: str) -> dict[str, str]:
+    """What the summary tables must say about ``env_id``, read from Gymnasium directly."""
+    import gymnasium as gym
+
+    spec = gym.spec(env_id)
+    env = gym.make(env_id)
+    try:
+        return {"action space": f"`{env.action_space}`",
+                "observation shape": f"`{env.observation_space.shape}`",
+                "episode": f"{spec.max_episode_steps} steps",
+                "reward_threshold": f"{spec.reward_threshold:g}"}
+    finally:
+        env.close()
+
+
+def test_the_level_summary_has_every_registered_level_as_registered():
+    """The environment page's table: one row per id of Gymnasium's registry that makes a
+    SaddleTrap environment, each cell as its spec and its spaces say."""
+    import gymnasium as gym
+
+    from saddle_env.envs import LEVEL_IDS
+
+    registered = [i for i, spec in gym.registry.items() if "saddle_env" in str(spec.entry_point)]
+    assert registered == list(LEVEL_IDS)
+    header, *rows = _table_rows(HOOKS.level_summary_markdown())
+    assert [row[0] for row in rows] == [f"`{i}`" for i in registered]
+    for row in rows:
+        cells = dict(zip(header, row))
+        for key, value in _spec_facts(row[0].strip("`")).items():
+            assert cells[key].startswith(value), f"{row[0]}: {key} {cells[key]!r}, spec {value!r}"
+    assert "<!-- generated: level-summary -->" in (DOCS / "environment.md").read_text()
+
+
+@pytest.mark.parametrize("env_id", HOOKS.registered_levels())
+def test_each_level_section_opens_with_its_summary(env_id):
+    text = (DOCS / "levels.md").read_text()
+    assert f"## {env_id}\n\n<!-- generated: level-summary {env_id} -->\n" in text, \
+        f"docs/levels.md: the section {env_id} does not open with its summary table"
+    cells = {row[0]: row[1] for row in _table_rows(HOOKS.level_summary_markdown(env_id))}
+    for key, value in _spec_facts(env_id).items():
+        assert cells[key].startswith(value), f"{env_id}: {key} {cells[key]!r}, spec {value!r}"
+    assert cells["make it"] == f'`gym.make("{env_id}")`'
+
+
 def test_every_command_line_has_its_generated_reference():
     text = (DOCS / "reference" / "cli.md").read_text()
     for name in HOOKS.CLIS:

@@ -184,7 +184,7 @@ def level_markdown(table: dict[str, Any], figure: str | None) -> str:
                   f"of these episodes; {100 * clair['doomed']:.1f} % "
                   f"[{100 * clair['doomed_ci']['low']:.1f}, {100 * clair['doomed_ci']['high']:.1f}] "
                   f"of its starts are doomed (lost even by it). *Score*: (T − T_random) / "
-                  f"(T_clairvoyant − T_random) ([benchmark.md](benchmark.md))."]
+                  f"(T_clairvoyant − T_random) ([Benchmark](benchmark.md))."]
     if figure:
         lines += ["", f"![{level.id} survival]({figure})"]
     return "\n".join(lines) + "\n"
@@ -230,14 +230,14 @@ def levels_markdown() -> str:
              "`gym.make_vec(ID, num_envs=n)` need no keywords, and keywords still override one "
              "option (`gym.make(\"SaddleTrap-Gusty-v0\", air_force=0.1)`). A change of "
              "meaning gets a new version, never a silent edit. How every baseline and agent "
-             "does on each: [leaderboard.md](leaderboard.md).", "",
+             "does on each: [Leaderboard](leaderboard.md).", "",
              "**Reward threshold.** Each level's `gym.spec(ID).reward_threshold`, Gymnasium's "
              "\"solved\" marker (read by tools such as SB3's `StopTrainingOnRewardThreshold`), "
              "is the mean return of `mpc` on the level's frozen test set (1,000 episodes, "
-             "[leaderboard.md](leaderboard.md)), rounded down to 0.1: an agent that reaches it "
+             "[Leaderboard](leaderboard.md)), rounded down to 0.1: an agent that reaches it "
              "traps as long as the model-predictive controller. A return is the sum over the "
              "episode's control steps of the per-step reward (the fraction of the step the ball "
-             "stayed trapped, less 10 in the step it is lost; [environment.md](environment.md#reward)), so 500 is "
+             "stayed trapped, less 10 in the step it is lost; [Reward](environment.md#reward)), so 500 is "
              "a ball kept for the full 10 s. The "
              "tests check each threshold against the committed leaderboard.", "",
              "| id | summary | episode | reward threshold |", "|---|---|---|---|"]
@@ -247,7 +247,10 @@ def levels_markdown() -> str:
     for level in LEVELS:
         opts = ", ".join(f"`{k}={v!r}`" for k, v in level.options.items()) or \
             "none: every option at its default"
-        lines += ["", f"## {level.id}", "", f"**What it models.** {level.models}", "",
+        # the docs build fills in the level's spaces, reward and limits from its spec
+        # (docs/hooks.py)
+        lines += ["", f"## {level.id}", "", f"<!-- generated: level-summary {level.id} -->", "",
+                  f"**What it models.** {level.models}", "",
                   f"**Why it is hard.** {level.why_hard}", "", f"**Options.** {opts}."]
     return "\n".join(lines) + "\n"
 
