@@ -12,6 +12,9 @@ A page asks for a generated section with an HTML comment on a line of its own:
   two-column table: action space, observation shape, reward, episode length,
   ``reward_threshold`` and the line that makes it, read from ``gym.spec(ID)`` and from the
   spaces of an environment made from it.
+* ``<!-- generated: public-api -->``: every name of ``saddle_env.__all__``: its kind
+  (function, class, constant), its docstring's first line or its value, and for a function
+  or class a link to its entry below on the API page.
 
 The same functions serve the tests (tests/test_docs.py), which check that every documented
 command line has a page section and that the generated text matches the parsers.
@@ -294,6 +297,50 @@ def level_summary_markdown(env_id: str | None = None) -> str:
     return "\n".join(lines)
 
 
+# -- the public API --------------------------------------------------------------------------
+
+# Where the API page renders a public name, when not under ``saddle_env.NAME`` itself (a
+# submodule of the same name takes that path: ``saddle_env.simulate`` is also a module).
+API_IDENTIFIER = {"simulate": "saddle_env.simulate.simulate"}
+
+
+def _api_value(value: object) -> str:
+    if isinstance(value, (tuple, list)) and value and all(hasattr(v, "id") for v in value):
+        return "the registered levels: " + ", ".join(f"`{v.id}`" for v in value)
+    if callable(getattr(value, "keys", None)):
+        return "by name: " + ", ".join(f"`{k}`" for k in value.keys())
+    return f"`{_cell(repr(value))}`"
+
+
+def public_api() -> list[tuple[str, str, str]]:
+    """(name, kind, summary) for each name of ``saddle_env.__all__``, in its order."""
+    import inspect
+
+    import saddle_env
+
+    rows = []
+    for name in saddle_env.__all__:
+        obj = getattr(saddle_env, name)
+        if inspect.isclass(obj) or inspect.isfunction(obj):
+            kind = "class" if inspect.isclass(obj) else "function"
+            summary = _rst_to_markdown((inspect.getdoc(obj) or "").split("\n\n")[0])
+        else:
+            kind, summary = "constant", _api_value(obj)
+        rows.append((name, kind, summary))
+    return rows
+
+
+def public_api_markdown() -> str:
+    lines = ["| name | kind | what it is |", "|---|---|---|"]
+    order = {"function": 0, "class": 1, "constant": 2}
+    for name, kind, summary in sorted(public_api(), key=lambda row: order[row[1]]):
+        cell = f"`saddle_env.{name}`"
+        if kind != "constant":
+            cell = f"[{cell}][{API_IDENTIFIER.get(name, f'saddle_env.{name}')}]"
+        lines.append(f"| {cell} | {kind} | {_cell(summary) if kind != 'constant' else summary} |")
+    return "\n".join(lines)
+
+
 # -- the hook --------------------------------------------------------------------------------
 
 def generate(what: str, arg: str | None) -> str:
@@ -303,6 +350,8 @@ def generate(what: str, arg: str | None) -> str:
         if arg not in CLIS:
             raise RuntimeError(f"no command line {arg!r} in docs/hooks.py's CLIS")
         return cli_markdown(arg)
+    if what == "public-api":
+        return public_api_markdown()
     if what == "level-summary":
         return level_summary_markdown(arg)
     raise RuntimeError(f"unknown generated section {what!r}")

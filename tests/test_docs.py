@@ -495,6 +495,22 @@ def test_each_level_section_opens_with_its_summary(env_id):
     assert cells["make it"] == f'`gym.make("{env_id}")`'
 
 
+def test_the_api_page_renders_every_public_function_and_class():
+    """Each function and class of ``saddle_env.__all__`` has its entry on the API page, at the
+    identifier the generated overview links to (a function as the function, not the module
+    of the same name), and the tutorials' calls are there too."""
+    text = (DOCS / "reference" / "api.md").read_text()
+    directives = set(re.findall(r"^::: ([\w.]+)$", text, flags=re.MULTILINE))
+    assert "<!-- generated: public-api -->" in text
+    for name, kind, _ in HOOKS.public_api():
+        if kind == "constant":
+            continue
+        identifier = HOOKS.API_IDENTIFIER.get(name, f"saddle_env.{name}")
+        assert identifier in directives, f"docs/reference/api.md lacks ::: {identifier}"
+    assert "saddle_env.simulate" not in directives, "::: saddle_env.simulate renders the module"
+    assert "agents.evaluation.evaluate.evaluate_controller" in directives
+
+
 def test_every_command_line_has_its_generated_reference():
     text = (DOCS / "reference" / "cli.md").read_text()
     for name in HOOKS.CLIS:
