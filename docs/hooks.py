@@ -12,9 +12,17 @@ A page asks for a generated section with an HTML comment on a line of its own:
   two-column table: action space, observation shape, reward, episode length,
   ``reward_threshold`` and the line that makes it, read from ``gym.spec(ID)`` and from the
   spaces of an environment made from it.
+* ``<!-- generated: include FILE -->``: FILE of the repository's top folder (CHANGELOG.md,
+  CONTRIBUTING.md) as it is, so the site shows it without a second copy; its links, written
+  from the top folder, are made to work from the page: ``docs/X`` to the site's page X, any
+  other file of the repository to its address in ``repo_url``.
 * ``<!-- generated: public-api -->``: every name of ``saddle_env.__all__``: its kind
   (function, class, constant), its docstring's first line or its value, and for a function
   or class a link to its entry below on the API page.
+
+The engineering notes (``notes/``) are ranked below the user pages in the site's search
+(``NOTES_SEARCH_BOOST``, the theme's per-page ``search: boost``): a reader looking up the
+observation space should meet the reference first, not a dated measurement.
 
 The same functions serve the tests (tests/test_docs.py), which check that every documented
 command line has a page section and that the generated text matches the parsers.
@@ -341,15 +349,51 @@ def public_api_markdown() -> str:
     return "\n".join(lines)
 
 
+# -- files of the top folder as pages ---------------------------------------------------------
+
+INCLUDABLE = ("CHANGELOG.md", "CONTRIBUTING.md")
+_MD_LINK = re.compile(r"(?<!!)\[(?P<text>[^\]]*)\]\((?P<target>[^)\s]+)\)")
+
+
+def _repo_url() -> str:
+    text = (ROOT / "mkdocs.yml").read_text()
+    m = re.search(r"^repo_url:\s*(\S+)", text, flags=re.MULTILINE)
+    if not m:
+        raise RuntimeError("mkdocs.yml has no repo_url: the included files' links need it")
+    return m.group(1).rstrip("/")
+
+
+def include_markdown(name: str, page_dir: str = "") -> str:
+    """The top folder's file ``name`` for a page in ``docs/page_dir``, its links rewritten."""
+    if name not in INCLUDABLE:
+        raise RuntimeError(f"include {name!r}: only {', '.join(INCLUDABLE)}")
+    up = "../" * len([p for p in page_dir.split("/") if p])
+
+    def relink(m: re.Match) -> str:
+        target = m.group("target")
+        if re.match(r"[a-z]+:", target) or target.startswith("#"):
+            return m.group(0)
+        path, _, anchor = target.partition("#")
+        if path.startswith("docs/"):
+            new = up + path[len("docs/"):]
+        else:
+            new = f"{_repo_url()}/blob/main/{path}"
+        return f"[{m.group('text')}]({new}{'#' + anchor if anchor else ''})"
+
+    return _MD_LINK.sub(relink, (ROOT / name).read_text())
+
+
 # -- the hook --------------------------------------------------------------------------------
 
-def generate(what: str, arg: str | None) -> str:
+def generate(what: str, arg: str | None, page_dir: str = "") -> str:
     if what == "env-options":
         return env_options_markdown()
     if what == "cli":
         if arg not in CLIS:
             raise RuntimeError(f"no command line {arg!r} in docs/hooks.py's CLIS")
         return cli_markdown(arg)
+    if what == "include":
+        return include_markdown(arg or "", page_dir)
     if what == "public-api":
         return public_api_markdown()
     if what == "level-summary":
@@ -357,9 +401,15 @@ def generate(what: str, arg: str | None) -> str:
     raise RuntimeError(f"unknown generated section {what!r}")
 
 
-def expand(markdown: str) -> str:
-    return MARKER.sub(lambda m: generate(m.group("what"), m.group("arg")), markdown)
+def expand(markdown: str, page_dir: str = "") -> str:
+    return MARKER.sub(lambda m: generate(m.group("what"), m.group("arg"), page_dir), markdown)
+
+
+# The notes' weight in the search ranking (the user pages' is 1): still found, listed after.
+NOTES_SEARCH_BOOST = 0.1
 
 
 def on_page_markdown(markdown, page, config, files):
-    return expand(markdown)
+    if page.file.src_uri.startswith("notes/"):
+        page.meta.setdefault("search", {"boost": NOTES_SEARCH_BOOST})
+    return expand(markdown, Path(page.file.src_uri).parent.as_posix().strip("."))

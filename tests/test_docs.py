@@ -377,6 +377,36 @@ def test_every_docs_page_is_in_the_site_navigation():
         assert (DOCS / rel).is_file(), f"mkdocs.yml's nav lists {rel}, which does not exist"
 
 
+@pytest.mark.parametrize("name", HOOKS.INCLUDABLE)
+def test_top_folder_files_are_site_pages_without_a_copy(name):
+    """CHANGELOG.md and CONTRIBUTING.md are on the site through a page that includes them
+    (docs/hooks.py), and their links, rewritten for the page, resolve."""
+    stubs = [p for p in USER_PAGES if f"<!-- generated: include {name} -->" in p.read_text()]
+    assert len(stubs) == 1, f"no page of docs/ (or more than one) includes {name}: {stubs}"
+    stub = stubs[0]
+    assert len(stub.read_text().splitlines()) == 1, f"{_rel(stub)}: the include and nothing else"
+    text = HOOKS.include_markdown(name, stub.parent.relative_to(DOCS).as_posix().strip("."))
+    for target in _LINK.findall(_text_outside_code(text)):
+        if re.match(r"[a-z]+:", target):
+            assert "docs/" not in target, f"{name}: {target} should be a page of the site"
+            continue
+        path, _, anchor = target.partition("#")
+        dest = (stub.parent / path).resolve() if path else stub
+        assert dest.is_file(), f"{name} on the site: link {target} points at nothing"
+        if anchor:
+            assert anchor in _anchors(dest), f"{name} on the site: link {target}: no such heading"
+
+
+def test_the_supported_python_and_the_repository_are_stated():
+    minimum = re.search(r'requires-python = ">=(\d+\.\d+)"', (ROOT / "pyproject.toml").read_text())
+    assert minimum, "pyproject.toml has no requires-python"
+    for page in ("index.md", "install.md"):
+        head = "\n".join((DOCS / page).read_text().splitlines()[:8])
+        assert f"Python {minimum.group(1)} or newer" in head, f"docs/{page}: no Python version on top"
+    repo = HOOKS._repo_url()
+    assert f"]({repo})" in (DOCS / "index.md").read_text()
+
+
 def test_the_readme_links_into_each_part_of_the_docs():
     readme = (ROOT / "README.md").read_text()
     for part in ("tutorials/", "how-to/", "reference/", "physics.md", "notes/"):
