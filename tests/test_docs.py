@@ -361,6 +361,13 @@ def test_local_link_resolves(page, target):
         assert anchor in _anchors(dest), f"{_rel(page)}: link {target}: no such heading in {rel}"
 
 
+@pytest.mark.parametrize("page", [*PAGES, *NOTE_PAGES], ids=_rel)
+def test_links_are_named_by_title_not_file(page):
+    """A link reads as what it leads to ("[Task levels](levels.md)"), not as a file name."""
+    named = re.findall(r"\[[^\]]*\.md\]\([^)\s]+\)", _text_outside_code(page.read_text()))
+    assert not named, f"{_rel(page)}: links named by their file: {named}"
+
+
 def _nav_pages() -> set[str]:
     """The pages mkdocs.yml's navigation lists (paths under docs/)."""
     text = (ROOT / "mkdocs.yml").read_text()
