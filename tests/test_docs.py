@@ -433,6 +433,15 @@ def test_no_dated_section_headings_on_user_pages(page):
     assert not dated, f"{_rel(page)}: dated headings {dated}: move them to docs/notes/"
 
 
+@pytest.mark.parametrize("page", PAGES, ids=_rel)
+def test_one_notation_for_the_critical_speed_and_one_unit_for_speeds(page):
+    """Ω_crt in prose (`omega_crt` only as a name in code), and speeds in rad/s (rates such
+    as a drag coefficient in 1/s), never s⁻¹."""
+    prose = re.sub(r"`[^`\n]*`", "", _text_outside_code(page.read_text()))
+    for wrong in ("Omega_crt", "omega_crt", "s⁻¹"):
+        assert wrong not in prose, f"{_rel(page)}: {wrong!r} in prose"
+
+
 def _words(page: Path) -> int:
     return len(page.read_text().split())
 

@@ -8,7 +8,7 @@ default suite).
 * the built site, served on localhost, opened in Debian's headless Chromium through
   its chromedriver (selenium): the home page, the environment reference and the physics
   page render, the equations are typeset by the bundled KaTeX (no raw TeX left), nothing is
-  requested from another host, a search for "Omega_crt" lists the physics page, and one for
+  requested from another host, a search for "critical speed" lists the physics page, and one for
   "observation space" lists the user pages before the engineering notes.
   Screenshots go to a folder the test prints.
 """
@@ -188,22 +188,23 @@ def test_the_site_renders_in_a_browser(served_site, browser, capsys):
     browser.execute_script("arguments[0].scrollIntoView({block: 'center'});", crt)
     browser.save_screenshot(str(shots / "physics-equations.png"))
 
-    # search, in the browser's own index (no server): "Omega_crt" lists the physics page
+    # search, in the browser's own index (no server): "critical speed" (Ω_crt) lists the
+    # physics page
     browser.get(served_site + "/")
     _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "label.md-header__button[for='__search']")
           or browser.find_elements(By.CSS_SELECTOR, "input.md-search__input"), what="search box")
     box = browser.find_element(By.CSS_SELECTOR, "input.md-search__input")
     box.click()
-    box.send_keys("Omega_crt")
+    box.send_keys("critical speed")
     results = _wait(lambda: [a.get_attribute("href") for a in
                              browser.find_elements(By.CSS_SELECTOR, ".md-search-result__link")],
-                    what="search results for Omega_crt")
+                    what="search results for critical speed")
     time.sleep(2.0)  # let the result list paint before the screenshot
-    browser.save_screenshot(str(shots / "search-omega-crt.png"))
+    browser.save_screenshot(str(shots / "search-critical-speed.png"))
     from urllib.parse import urlparse
 
     pages = {urlparse(href).path for href in results}
-    assert "/physics/" in pages, f"search for Omega_crt: {sorted(pages)}"
+    assert "/physics/" in pages, f"search for critical speed: {sorted(pages)}"
 
     # the engineering notes rank below the user pages (docs/hooks.py's NOTES_SEARCH_BOOST)
     browser.get(served_site + "/")
