@@ -4,7 +4,8 @@ the dated engineering notes, only have their links checked).
 * every command in a ```bash block is one the project knows, and its arguments are accepted
   by the tool's own argument parser (the parsers are imported, not copied); files a command
   reads (a model for saddle-eval, a test file for pytest, an extra for pip) exist;
-* every ```python block runs, page by page in one namespace, in bounded time; a block that
+* every ```python block runs, page by page in one namespace, in bounded time, and prints
+  what the page shows after it (a ```text title="Output" block right below); a block that
   cannot run here says why on the line before it (`<!-- skip: reason -->`, or
   `<!-- skip-unless: module:attribute (reason) -->` for an API that is not there yet);
 * every repository path the docs mention (docs/..., agents/..., saddle_env/..., tests/...,
@@ -22,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import doctest
 import importlib
 import importlib.util
 import io
@@ -94,6 +96,22 @@ def _rel(path: Path) -> str:
 
 def _text_outside_code(text: str) -> str:
     return re.sub(r"```.*?```", "", text, flags=re.DOTALL)
+
+
+# A block's printed output, shown right after it: ```text title="Output"; "..." stands for any
+# text (doctest's ELLIPSIS), and runs of white space match any white space.
+_OUTPUT = re.compile(r'\s*```text title="Output"\n(.*?)```', flags=re.DOTALL)
+
+
+def _expected_outputs(page: Path) -> dict[int, str]:
+    """{k: the output shown for the page's k-th python block} for the blocks that show one."""
+    text = page.read_text()
+    found = {}
+    for k, m in enumerate(re.finditer(r"```python\n(.*?)```", text, flags=re.DOTALL)):
+        shown = _OUTPUT.match(text, m.end())
+        if shown:
+            found[k] = shown.group(1)
+    return found
 
 
 def _blocks(page: Path, lang: str) -> list[tuple[str, tuple[str, bool] | None]]:
@@ -638,6 +656,9 @@ def test_python_blocks_run(page, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("MPLBACKEND", "Agg")
     namespace: dict = {"__name__": f"docs_{page.stem}"}
     skipped = []
+    expected = _expected_outputs(page)
+    checker = doctest.OutputChecker()
+    flags = doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE
 
     def too_long(signum, frame):
         raise _TooLong(f"{_rel(page)}: its Python blocks took over {PYTHON_SECONDS} s")
@@ -647,8 +668,10 @@ def test_python_blocks_run(page, tmp_path, monkeypatch, capsys):
     try:
         for k, (block, skip) in enumerate(_blocks(page, "python")):
             if skip:
+                assert k not in expected, f"{_rel(page)}: block {k} shows an output it never prints"
                 skipped.append(f"block {k}: {skip[0]}")
                 continue
+            capsys.readouterr()
             try:
                 # the repository's own pages, not a file from elsewhere
                 exec(compile(block, f"{_rel(page)}:python-block-{k}", "exec"), namespace)  # noqa: S102
@@ -656,6 +679,10 @@ def test_python_blocks_run(page, tmp_path, monkeypatch, capsys):
                 raise
             except Exception as exc:  # noqa: BLE001 (any error of a block fails the page)
                 pytest.fail(f"{_rel(page)}, Python block {k} raised {exc!r}:\n{block}")
+            printed = capsys.readouterr().out
+            if k in expected and not checker.check_output(expected[k], printed, flags):
+                pytest.fail(f"{_rel(page)}, Python block {k} printed\n{printed}\n"
+                            f"where the page shows\n{expected[k]}")
     finally:
         signal.alarm(0)
         signal.signal(signal.SIGALRM, previous)
