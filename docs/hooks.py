@@ -284,22 +284,36 @@ def level_facts(env_id: str) -> dict[str, str]:
     }
 
 
+def _level_summary(env_id: str) -> str:
+    from saddle_env.envs import LEVEL_IDS, get_level
+
+    return get_level(env_id).summary if env_id in LEVEL_IDS else ""
+
+
 _IMPORT_LINE = "`import gymnasium as gym; import saddle_env` (registers every level)"
 
 
 def level_summary_markdown(env_id: str | None = None) -> str:
-    """All levels, one row each; or one level, one fact a row."""
+    """All levels, one row each (a fact every level shares said once, above the table); or
+    one level, one fact a row."""
     if env_id is None:
-        rows = [level_facts(i) for i in registered_levels()]
-        keys = [k for k in rows[0] if k != "make it"]  # the id is the argument of gym.make
-        lines = [f"| {' | '.join(keys)} |", "|" + "---|" * len(keys)]
+        rows = []
+        for level_id in registered_levels():
+            facts = level_facts(level_id)
+            del facts["make it"]  # the id is the argument of gym.make
+            rows.append({"id": facts.pop("id"), "what it is": _cell(_level_summary(level_id)),
+                         **facts})
+        shared = [k for k in list(rows[0])[2:] if len({r[k] for r in rows}) == 1]
+        keys = [k for k in rows[0] if k not in shared]
+        lines = ["Every level: " + "; ".join(f"**{k}** {rows[0][k]}" for k in shared) + ".", "",
+                 f"| {' | '.join(keys)} |", "|" + "---|" * len(keys)]
         lines += [f"| {' | '.join(r[k] for k in keys)} |" for r in rows]
         return "\n".join([*lines, "", f"Import: {_IMPORT_LINE}. Generated from Gymnasium's "
                            "registry when the site is built."])
     if env_id not in registered_levels():
         raise RuntimeError(f"no registered level {env_id!r}")
     facts = level_facts(env_id)
-    lines = ["| | |", "|---|---|"]
+    lines = [f"| level | `{env_id}` |", "|---|---|"]
     lines += [f"| {k} | {v} |" for k, v in facts.items() if k != "id"]
     lines.append(f"| import | {_IMPORT_LINE} |")
     return "\n".join(lines)
@@ -339,13 +353,24 @@ def public_api() -> list[tuple[str, str, str]]:
 
 
 def public_api_markdown() -> str:
-    lines = ["| name | kind | what it is |", "|---|---|---|"]
-    order = {"function": 0, "class": 1, "constant": 2}
-    for name, kind, summary in sorted(public_api(), key=lambda row: order[row[1]]):
-        cell = f"`saddle_env.{name}`"
-        if kind != "constant":
-            cell = f"[{cell}][{API_IDENTIFIER.get(name, f'saddle_env.{name}')}]"
-        lines.append(f"| {cell} | {kind} | {_cell(summary) if kind != 'constant' else summary} |")
+    """One table per kind: the functions, the classes (each linked to its entry on the API
+    page), the constants with their values."""
+    rows = public_api()
+    lines: list[str] = []
+    for kind, title, what in (("function", "Functions", "what it does"),
+                              ("class", "Classes", "what it is"),
+                              ("constant", "Constants", "value")):
+        lines += [f"**{title}**", "", f"| name | {what} |", "|---|---|"]
+        for name, k, summary in rows:
+            if k != kind:
+                continue
+            if kind == "constant":
+                lines.append(f"| `{name}` | {summary} |")
+            else:
+                target = API_IDENTIFIER.get(name, f"saddle_env.{name}")
+                shown = f"{name}()" if kind == "function" else name
+                lines.append(f"| [`{shown}`][{target}] | {_cell(summary)} |")
+        lines.append("")
     return "\n".join(lines)
 
 
