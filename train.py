@@ -21,7 +21,7 @@ import time
 
 def build_parser() -> argparse.ArgumentParser:
     # Only the core install is needed to build the parser (and print --help).
-    from agents.training.runs import ALGO_NAMES, BACKENDS, TrainSettings
+    from agents.training.runs import ALGO_NAMES, BACKENDS, DEFAULT_EVAL_EPISODES, TrainSettings
     from saddle_env.envs import LEVEL_IDS
 
     d = TrainSettings()
@@ -29,13 +29,16 @@ def build_parser() -> argparse.ArgumentParser:
                                              "Stable-Baselines3 in this process, or Ray RLlib "
                                              "(--backend rllib).",
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument("--algo", choices=ALGO_NAMES, default=d.algo)
+    ap.add_argument("--algo", choices=ALGO_NAMES, default=d.algo,
+                    help="the learning algorithm (its recipe: agents/hyperparams/<algo>.yml)")
     ap.add_argument("--env", default=d.env_id, metavar="ID",
                     help=f"task level: {', '.join(LEVEL_IDS)} (also the hyperparams entry)")
     ap.add_argument("--env-kwargs", nargs="*", default=[], metavar="KEY=VALUE",
                     help="options over the level's: key=value items (values as JSON/Python/YAML "
                          "literals, e.g. R=0.033 air_force=0.1) or one JSON object")
-    ap.add_argument("--seed", type=int, default=d.seed)
+    ap.add_argument("--seed", type=int, default=d.seed,
+                    help="seed of the learner and of the training episodes (the validation "
+                         "and comparison episodes have their own fixed seeds)")
     ap.add_argument("--n-envs", type=int, default=d.n_envs,
                     help="parallel balls (None: the hyperparams' n_envs)")
     ap.add_argument("--total-timesteps", type=int, default=d.total_timesteps,
@@ -45,11 +48,16 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--recipe-of", default=d.recipe_of, metavar="ID",
                     help="train with another level's entry of the hyperparams (e.g. "
                          "SaddleTrap-Capture-v0: the fast recipe, on any level)")
-    ap.add_argument("--log-dir", default=d.log_dir)
-    ap.add_argument("--run-name", default=d.run_name)
+    ap.add_argument("--log-dir", default=d.log_dir, metavar="DIR",
+                    help="folder that holds the run folders")
+    ap.add_argument("--run-name", default=d.run_name, metavar="NAME",
+                    help="the run folder's name under --log-dir (None: algorithm, back end, "
+                         "seed and start time)")
     ap.add_argument("--eval-freq", type=int, default=d.eval_freq,
                     help="env steps between evaluations on the validation seeds")
-    ap.add_argument("--eval-episodes", type=int, default=d.eval_episodes)
+    ap.add_argument("--eval-episodes", type=int, default=d.eval_episodes,
+                    help="validation episodes per evaluation (None: the recipe's, else "
+                         f"{DEFAULT_EVAL_EPISODES})")
     ap.add_argument("--save-freq", type=int, default=d.save_freq,
                     help="env steps between checkpoints")
     ap.add_argument("--max-episode-steps", type=int, default=d.max_episode_steps,
@@ -59,7 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--compare-episodes", type=int, default=d.compare_episodes,
                     help="fresh episodes on which the trained agent is compared with best-const "
                          "and mpc at the end (0: skip)")
-    ap.add_argument("--no-progress-bar", action="store_true")
+    ap.add_argument("--no-progress-bar", action="store_true",
+                    help="print no progress bar (for logs and batch jobs)")
     ap.add_argument("--resume", default=None, metavar="CHECKPOINT",
                     help="continue a run from a checkpoint (its config.json supplies the rest): "
                          "a .zip (sb3) or an RLlib checkpoint directory (rllib)")

@@ -7,6 +7,22 @@ A page asks for a generated section with an HTML comment on a line of its own:
   that the docstring does not name fails the build.
 * ``<!-- generated: cli NAME -->``: the command line NAME (a key of ``CLIS``), read from its
   own argparse parser: usage, description and one table per argument group.
+* ``<!-- generated: level-summary -->``: one row per registered task level (Gymnasium's
+  registry), and ``<!-- generated: level-summary ID -->`` the same facts for one level as a
+  two-column table: action space, observation shape, reward, episode length,
+  ``reward_threshold`` and the line that makes it, read from ``gym.spec(ID)`` and from the
+  spaces of an environment made from it.
+* ``<!-- generated: include FILE -->``: FILE of the repository's top folder (CHANGELOG.md,
+  CONTRIBUTING.md) as it is, so the site shows it without a second copy; its links, written
+  from the top folder, are made to work from the page: ``docs/X`` to the site's page X, any
+  other file of the repository to its address in ``repo_url``.
+* ``<!-- generated: public-api -->``: every name of ``saddle_env.__all__``: its kind
+  (function, class, constant), its docstring's first line or its value, and for a function
+  or class a link to its entry below on the API page.
+
+The engineering notes (``notes/``) are ranked below the user pages in the site's search
+(``NOTES_SEARCH_BOOST``, the theme's per-page ``search: boost``): a reader looking up the
+observation space should meet the reference first, not a dated measurement.
 
 The same functions serve the tests (tests/test_docs.py), which check that every documented
 command line has a page section and that the generated text matches the parsers.
@@ -223,21 +239,202 @@ def env_options_markdown() -> str:
     return "\n".join(lines)
 
 
+# -- the task levels at a glance -------------------------------------------------------------
+
+def registered_levels() -> list[str]:
+    """Every id of Gymnasium's registry that makes a SaddleTrap environment, in registration
+    order (importing ``saddle_env`` registers them)."""
+    import gymnasium as gym
+
+    import saddle_env  # noqa: F401  (registers the levels)
+
+    return [env_id for env_id, spec in gym.registry.items()
+            if str(spec.entry_point).startswith("saddle_env.")]
+
+
+def level_facts(env_id: str) -> dict[str, str]:
+    """What a Gymnasium user looks up first about ``env_id``, as Markdown cells: from its
+    registered spec and the spaces of an environment made from it."""
+    import gymnasium as gym
+
+    from saddle_env.envs import EnvConfig
+
+    spec = gym.spec(env_id)
+    env = gym.make(env_id)
+    try:
+        action, observation = env.action_space, env.observation_space
+        config = env.unwrapped.config
+    finally:
+        env.close()
+    if not isinstance(config, EnvConfig):
+        raise RuntimeError(f"{env_id}: its environment has no EnvConfig")
+    box = observation
+    low, high = float(box.low.min()), float(box.high.max())
+    worst = -(config.loss_penalty + config.distance_cost + config.effort_cost)
+    steps = spec.max_episode_steps
+    seconds = steps * config.control_period if steps else None
+    return {
+        "id": f"`{env_id}`",
+        "action space": f"`{_cell(action)}`",
+        "observation shape": f"`{box.shape}` {box.dtype}, in [{low:g}, {high:g}]",
+        "reward per step": f"[{worst:g}, 1]",
+        "episode": (f"{steps} steps ({seconds:g} s)" if steps else "no time limit"),
+        "reward_threshold": "none" if spec.reward_threshold is None else f"{spec.reward_threshold:g}",
+        "make it": f'`gym.make("{env_id}")`',
+    }
+
+
+def _level_summary(env_id: str) -> str:
+    from saddle_env.envs import LEVEL_IDS, get_level
+
+    return get_level(env_id).summary if env_id in LEVEL_IDS else ""
+
+
+_IMPORT_LINE = "`import gymnasium as gym; import saddle_env` (registers every level)"
+
+
+def level_summary_markdown(env_id: str | None = None) -> str:
+    """All levels, one row each (a fact every level shares said once, above the table); or
+    one level, one fact a row."""
+    if env_id is None:
+        rows = []
+        for level_id in registered_levels():
+            facts = level_facts(level_id)
+            del facts["make it"]  # the id is the argument of gym.make
+            rows.append({"id": facts.pop("id"), "what it is": _cell(_level_summary(level_id)),
+                         **facts})
+        shared = [k for k in list(rows[0])[2:] if len({r[k] for r in rows}) == 1]
+        keys = [k for k in rows[0] if k not in shared]
+        lines = ["Every level: " + "; ".join(f"**{k}** {rows[0][k]}" for k in shared) + ".", "",
+                 f"| {' | '.join(keys)} |", "|" + "---|" * len(keys)]
+        lines += [f"| {' | '.join(r[k] for k in keys)} |" for r in rows]
+        return "\n".join([*lines, "", f"Import: {_IMPORT_LINE}. Generated from Gymnasium's "
+                           "registry when the site is built."])
+    if env_id not in registered_levels():
+        raise RuntimeError(f"no registered level {env_id!r}")
+    facts = level_facts(env_id)
+    lines = [f"| level | `{env_id}` |", "|---|---|"]
+    lines += [f"| {k} | {v} |" for k, v in facts.items() if k != "id"]
+    lines.append(f"| import | {_IMPORT_LINE} |")
+    return "\n".join(lines)
+
+
+# -- the public API --------------------------------------------------------------------------
+
+# Where the API page renders a public name, when not under ``saddle_env.NAME`` itself (a
+# submodule of the same name takes that path: ``saddle_env.simulate`` is also a module).
+API_IDENTIFIER = {"simulate": "saddle_env.simulate.simulate"}
+
+
+def _api_value(value: object) -> str:
+    if isinstance(value, (tuple, list)) and value and all(hasattr(v, "id") for v in value):
+        return "the registered levels: " + ", ".join(f"`{v.id}`" for v in value)
+    if callable(getattr(value, "keys", None)):
+        return "by name: " + ", ".join(f"`{k}`" for k in value.keys())
+    return f"`{_cell(repr(value))}`"
+
+
+def public_api() -> list[tuple[str, str, str]]:
+    """(name, kind, summary) for each name of ``saddle_env.__all__``, in its order."""
+    import inspect
+
+    import saddle_env
+
+    rows = []
+    for name in saddle_env.__all__:
+        obj = getattr(saddle_env, name)
+        if inspect.isclass(obj) or inspect.isfunction(obj):
+            kind = "class" if inspect.isclass(obj) else "function"
+            summary = _rst_to_markdown((inspect.getdoc(obj) or "").split("\n\n")[0])
+        else:
+            kind, summary = "constant", _api_value(obj)
+        rows.append((name, kind, summary))
+    return rows
+
+
+def public_api_markdown() -> str:
+    """One table per kind: the functions, the classes (each linked to its entry on the API
+    page), the constants with their values."""
+    rows = public_api()
+    lines: list[str] = []
+    for kind, title, what in (("function", "Functions", "what it does"),
+                              ("class", "Classes", "what it is"),
+                              ("constant", "Constants", "value")):
+        lines += [f"**{title}**", "", f"| name | {what} |", "|---|---|"]
+        for name, k, summary in rows:
+            if k != kind:
+                continue
+            if kind == "constant":
+                lines.append(f"| `{name}` | {summary} |")
+            else:
+                target = API_IDENTIFIER.get(name, f"saddle_env.{name}")
+                shown = f"{name}()" if kind == "function" else name
+                lines.append(f"| [`{shown}`][{target}] | {_cell(summary)} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+# -- files of the top folder as pages ---------------------------------------------------------
+
+INCLUDABLE = ("CHANGELOG.md", "CONTRIBUTING.md")
+_MD_LINK = re.compile(r"(?<!!)\[(?P<text>[^\]]*)\]\((?P<target>[^)\s]+)\)")
+
+
+def _repo_url() -> str:
+    text = (ROOT / "mkdocs.yml").read_text()
+    m = re.search(r"^repo_url:\s*(\S+)", text, flags=re.MULTILINE)
+    if not m:
+        raise RuntimeError("mkdocs.yml has no repo_url: the included files' links need it")
+    return m.group(1).rstrip("/")
+
+
+def include_markdown(name: str, page_dir: str = "") -> str:
+    """The top folder's file ``name`` for a page in ``docs/page_dir``, its links rewritten."""
+    if name not in INCLUDABLE:
+        raise RuntimeError(f"include {name!r}: only {', '.join(INCLUDABLE)}")
+    up = "../" * len([p for p in page_dir.split("/") if p])
+
+    def relink(m: re.Match) -> str:
+        target = m.group("target")
+        if re.match(r"[a-z]+:", target) or target.startswith("#"):
+            return m.group(0)
+        path, _, anchor = target.partition("#")
+        if path.startswith("docs/"):
+            new = up + path[len("docs/"):]
+        else:
+            new = f"{_repo_url()}/blob/main/{path}"
+        return f"[{m.group('text')}]({new}{'#' + anchor if anchor else ''})"
+
+    return _MD_LINK.sub(relink, (ROOT / name).read_text())
+
+
 # -- the hook --------------------------------------------------------------------------------
 
-def generate(what: str, arg: str | None) -> str:
+def generate(what: str, arg: str | None, page_dir: str = "") -> str:
     if what == "env-options":
         return env_options_markdown()
     if what == "cli":
         if arg not in CLIS:
             raise RuntimeError(f"no command line {arg!r} in docs/hooks.py's CLIS")
         return cli_markdown(arg)
+    if what == "include":
+        return include_markdown(arg or "", page_dir)
+    if what == "public-api":
+        return public_api_markdown()
+    if what == "level-summary":
+        return level_summary_markdown(arg)
     raise RuntimeError(f"unknown generated section {what!r}")
 
 
-def expand(markdown: str) -> str:
-    return MARKER.sub(lambda m: generate(m.group("what"), m.group("arg")), markdown)
+def expand(markdown: str, page_dir: str = "") -> str:
+    return MARKER.sub(lambda m: generate(m.group("what"), m.group("arg"), page_dir), markdown)
+
+
+# The notes' weight in the search ranking (the user pages' is 1): still found, listed after.
+NOTES_SEARCH_BOOST = 0.1
 
 
 def on_page_markdown(markdown, page, config, files):
-    return expand(markdown)
+    if page.file.src_uri.startswith("notes/"):
+        page.meta.setdefault("search", {"boost": NOTES_SEARCH_BOOST})
+    return expand(markdown, Path(page.file.src_uri).parent.as_posix().strip("."))

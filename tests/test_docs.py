@@ -4,7 +4,8 @@ the dated engineering notes, only have their links checked).
 * every command in a ```bash block is one the project knows, and its arguments are accepted
   by the tool's own argument parser (the parsers are imported, not copied); files a command
   reads (a model for saddle-eval, a test file for pytest, an extra for pip) exist;
-* every ```python block runs, page by page in one namespace, in bounded time; a block that
+* every ```python block runs, page by page in one namespace, in bounded time, and prints
+  what the page shows after it (a ```text title="Output" block right below); a block that
   cannot run here says why on the line before it (`<!-- skip: reason -->`, or
   `<!-- skip-unless: module:attribute (reason) -->` for an API that is not there yet);
 * every repository path the docs mention (docs/..., agents/..., saddle_env/..., tests/...,
@@ -22,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import doctest
 import importlib
 import importlib.util
 import io
@@ -94,6 +96,22 @@ def _rel(path: Path) -> str:
 
 def _text_outside_code(text: str) -> str:
     return re.sub(r"```.*?```", "", text, flags=re.DOTALL)
+
+
+# A block's printed output, shown right after it: ```text title="Output"; "..." stands for any
+# text (doctest's ELLIPSIS), and runs of white space match any white space.
+_OUTPUT = re.compile(r'\s*```text title="Output"\n(.*?)```', flags=re.DOTALL)
+
+
+def _expected_outputs(page: Path) -> dict[int, str]:
+    """{k: the output shown for the page's k-th python block} for the blocks that show one."""
+    text = page.read_text()
+    found = {}
+    for k, m in enumerate(re.finditer(r"```python\n(.*?)```", text, flags=re.DOTALL)):
+        shown = _OUTPUT.match(text, m.end())
+        if shown:
+            found[k] = shown.group(1)
+    return found
 
 
 def _blocks(page: Path, lang: str) -> list[tuple[str, tuple[str, bool] | None]]:
@@ -361,6 +379,13 @@ def test_local_link_resolves(page, target):
         assert anchor in _anchors(dest), f"{_rel(page)}: link {target}: no such heading in {rel}"
 
 
+@pytest.mark.parametrize("page", [*PAGES, *NOTE_PAGES], ids=_rel)
+def test_links_are_named_by_title_not_file(page):
+    """A link reads as what it leads to ("[Task levels](levels.md)"), not as a file name."""
+    named = re.findall(r"\[[^\]]*\.md\]\([^)\s]+\)", _text_outside_code(page.read_text()))
+    assert not named, f"{_rel(page)}: links named by their file: {named}"
+
+
 def _nav_pages() -> set[str]:
     """The pages mkdocs.yml's navigation lists (paths under docs/)."""
     text = (ROOT / "mkdocs.yml").read_text()
@@ -375,6 +400,36 @@ def test_every_docs_page_is_in_the_site_navigation():
         assert rel in nav, f"mkdocs.yml's nav does not list {rel}"
     for rel in nav:
         assert (DOCS / rel).is_file(), f"mkdocs.yml's nav lists {rel}, which does not exist"
+
+
+@pytest.mark.parametrize("name", HOOKS.INCLUDABLE)
+def test_top_folder_files_are_site_pages_without_a_copy(name):
+    """CHANGELOG.md and CONTRIBUTING.md are on the site through a page that includes them
+    (docs/hooks.py), and their links, rewritten for the page, resolve."""
+    stubs = [p for p in USER_PAGES if f"<!-- generated: include {name} -->" in p.read_text()]
+    assert len(stubs) == 1, f"no page of docs/ (or more than one) includes {name}: {stubs}"
+    stub = stubs[0]
+    assert len(stub.read_text().splitlines()) == 1, f"{_rel(stub)}: the include and nothing else"
+    text = HOOKS.include_markdown(name, stub.parent.relative_to(DOCS).as_posix().strip("."))
+    for target in _LINK.findall(_text_outside_code(text)):
+        if re.match(r"[a-z]+:", target):
+            assert "docs/" not in target, f"{name}: {target} should be a page of the site"
+            continue
+        path, _, anchor = target.partition("#")
+        dest = (stub.parent / path).resolve() if path else stub
+        assert dest.is_file(), f"{name} on the site: link {target} points at nothing"
+        if anchor:
+            assert anchor in _anchors(dest), f"{name} on the site: link {target}: no such heading"
+
+
+def test_the_supported_python_and_the_repository_are_stated():
+    minimum = re.search(r'requires-python = ">=(\d+\.\d+)"', (ROOT / "pyproject.toml").read_text())
+    assert minimum, "pyproject.toml has no requires-python"
+    for page in ("index.md", "install.md"):
+        head = "\n".join((DOCS / page).read_text().splitlines()[:8])
+        assert f"Python {minimum.group(1)} or newer" in head, f"docs/{page}: no Python version on top"
+    repo = HOOKS._repo_url()
+    assert f"]({repo})" in (DOCS / "index.md").read_text()
 
 
 def test_the_readme_links_into_each_part_of_the_docs():
@@ -394,6 +449,15 @@ def test_no_dated_section_headings_on_user_pages(page):
     headings = re.findall(r"^#{1,6} .*$", _text_outside_code(page.read_text()), flags=re.MULTILINE)
     dated = [h for h in headings if _DATE.search(h)]
     assert not dated, f"{_rel(page)}: dated headings {dated}: move them to docs/notes/"
+
+
+@pytest.mark.parametrize("page", PAGES, ids=_rel)
+def test_one_notation_for_the_critical_speed_and_one_unit_for_speeds(page):
+    """Ω_crt in prose (`omega_crt` only as a name in code), and speeds in rad/s (rates such
+    as a drag coefficient in 1/s), never s⁻¹."""
+    prose = re.sub(r"`[^`\n]*`", "", _text_outside_code(page.read_text()))
+    for wrong in ("Omega_crt", "omega_crt", "s⁻¹"):
+        assert wrong not in prose, f"{_rel(page)}: {wrong!r} in prose"
 
 
 def _words(page: Path) -> int:
@@ -445,6 +509,77 @@ def test_every_env_option_is_in_the_generated_table():
     assert "<!-- generated: env-options -->" in (DOCS / "environment.md").read_text()
 
 
+def _table_rows(markdown: str) -> list[list[str]]:
+    return [[c.strip() for c in line.strip().strip("|").split("|")]
+            for line in markdown.splitlines()
+            if line.startswith("|") and not line.startswith("|---")]
+
+
+def _spec_facts(env_id: str) -> dict[str, str]:
+    """What the summary tables must say about ``env_id``, read from Gymnasium directly."""
+    import gymnasium as gym
+
+    spec = gym.spec(env_id)
+    env = gym.make(env_id)
+    try:
+        return {"action space": f"`{env.action_space}`",
+                "observation shape": f"`{env.observation_space.shape}`",
+                "episode": f"{spec.max_episode_steps} steps",
+                "reward_threshold": f"{spec.reward_threshold:g}"}
+    finally:
+        env.close()
+
+
+def test_the_level_summary_has_every_registered_level_as_registered():
+    """The environment page's table: one row per id of Gymnasium's registry that makes a
+    SaddleTrap environment, each cell as its spec and its spaces say."""
+    import gymnasium as gym
+
+    from saddle_env.envs import LEVEL_IDS
+
+    registered = [i for i, spec in gym.registry.items() if "saddle_env" in str(spec.entry_point)]
+    assert registered == list(LEVEL_IDS)
+    summary = HOOKS.level_summary_markdown()
+    shared = summary.split("\n\n")[0]       # "Every level: **key** value; ..."
+    header, *rows = _table_rows(summary)
+    assert [row[0] for row in rows] == [f"`{i}`" for i in registered]
+    for row in rows:
+        cells = dict(zip(header, row))
+        for key, value in _spec_facts(row[0].strip("`")).items():
+            if key in cells:
+                assert cells[key].startswith(value), f"{row[0]}: {key} {cells[key]!r}, spec {value!r}"
+            else:
+                assert f"**{key}** {value}" in shared, f"{row[0]}: {key} {value!r} in neither"
+    assert "<!-- generated: level-summary -->" in (DOCS / "environment.md").read_text()
+
+
+@pytest.mark.parametrize("env_id", HOOKS.registered_levels())
+def test_each_level_section_opens_with_its_summary(env_id):
+    text = (DOCS / "levels.md").read_text()
+    assert f"## {env_id}\n\n<!-- generated: level-summary {env_id} -->\n" in text, \
+        f"docs/levels.md: the section {env_id} does not open with its summary table"
+    cells = {row[0]: row[1] for row in _table_rows(HOOKS.level_summary_markdown(env_id))}
+    for key, value in _spec_facts(env_id).items():
+        assert cells[key].startswith(value), f"{env_id}: {key} {cells[key]!r}, spec {value!r}"
+    assert cells["make it"] == f'`gym.make("{env_id}")`'
+
+
+def test_the_api_page_renders_every_public_function_and_class():
+    """Each function and class of ``saddle_env.__all__`` has its entry on the API page, at the
+    identifier the generated overview links to (a function as the function, not the module
+    of the same name), and the tutorials' calls are there too."""
+    text = (DOCS / "reference" / "api.md").read_text()
+    directives = set(re.findall(r"^::: ([\w.]+)$", text, flags=re.MULTILINE))
+    assert "<!-- generated: public-api -->" in text
+    for name, kind, _ in HOOKS.public_api():
+        if kind == "constant":
+            continue
+        identifier = HOOKS.API_IDENTIFIER.get(name, f"saddle_env.{name}")
+        assert identifier in directives, f"docs/reference/api.md lacks ::: {identifier}"
+    assert "saddle_env.simulate" not in directives, "::: saddle_env.simulate renders the module"
+    assert "agents.evaluation.evaluate.evaluate_controller" in directives
+
+
 def test_every_command_line_has_its_generated_reference():
     text = (DOCS / "reference" / "cli.md").read_text()
     for name in HOOKS.CLIS:
@@ -459,6 +594,17 @@ def test_generated_command_reference_lists_every_flag(name):
         if any(a.help is argparse.SUPPRESS for a in parser._actions if flag in a.option_strings):
             continue
         assert f"`{flag}`" in generated, f"{name}: {flag} missing from its reference"
+
+
+@pytest.mark.parametrize("name", sorted(HOOKS.CLIS))
+def test_every_argument_has_help(name):
+    """Each flag and positional of every documented command line says what it does, in
+    --help and in its generated reference."""
+    parser = HOOKS.parser_for(name)
+    bare = [a.option_strings[0] if a.option_strings else a.dest for a in parser._actions
+            if not isinstance(a, argparse._HelpAction) and a.help is not argparse.SUPPRESS
+            and not (a.help or "").strip()]
+    assert not bare, f"{name}: {', '.join(bare)} without help text"
 
 
 def test_every_documented_tool_has_a_reference():
@@ -515,6 +661,9 @@ def test_python_blocks_run(page, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("MPLBACKEND", "Agg")
     namespace: dict = {"__name__": f"docs_{page.stem}"}
     skipped = []
+    expected = _expected_outputs(page)
+    checker = doctest.OutputChecker()
+    flags = doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE
 
     def too_long(signum, frame):
         raise _TooLong(f"{_rel(page)}: its Python blocks took over {PYTHON_SECONDS} s")
@@ -524,8 +673,10 @@ def test_python_blocks_run(page, tmp_path, monkeypatch, capsys):
     try:
         for k, (block, skip) in enumerate(_blocks(page, "python")):
             if skip:
+                assert k not in expected, f"{_rel(page)}: block {k} shows an output it never prints"
                 skipped.append(f"block {k}: {skip[0]}")
                 continue
+            capsys.readouterr()
             try:
                 # the repository's own pages, not a file from elsewhere
                 exec(compile(block, f"{_rel(page)}:python-block-{k}", "exec"), namespace)  # noqa: S102
@@ -533,6 +684,10 @@ def test_python_blocks_run(page, tmp_path, monkeypatch, capsys):
                 raise
             except Exception as exc:  # noqa: BLE001 (any error of a block fails the page)
                 pytest.fail(f"{_rel(page)}, Python block {k} raised {exc!r}:\n{block}")
+            printed = capsys.readouterr().out
+            if k in expected and not checker.check_output(expected[k], printed, flags):
+                pytest.fail(f"{_rel(page)}, Python block {k} printed\n{printed}\n"
+                            f"where the page shows\n{expected[k]}")
     finally:
         signal.alarm(0)
         signal.signal(signal.SIGALRM, previous)

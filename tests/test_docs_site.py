@@ -8,7 +8,8 @@ default suite).
 * the built site, served on localhost, opened in Debian's headless Chromium through
   its chromedriver (selenium): the home page, the environment reference and the physics
   page render, the equations are typeset by the bundled KaTeX (no raw TeX left), nothing is
-  requested from another host, and a search for "Omega_crt" lists the physics page.
+  requested from another host, a search for "critical speed" lists the physics page, and one for
+  "observation space" lists the user pages before the engineering notes.
   Screenshots go to a folder the test prints.
 """
 
@@ -47,7 +48,8 @@ def test_the_site_builds_with_warnings_as_errors(tmp_path):
     site = tmp_path / "site"
     for page in ("index.html", "environment/index.html", "physics/index.html",
                  "reference/cli/index.html", "reference/api/index.html",
-                 "notes/index.html", "search/search_index.json"):
+                 "notes/index.html", "search/search_index.json", "changelog/index.html",
+                 "contributing/index.html"):
         assert (site / page).is_file(), f"the site has no {page}"
     env = (site / "environment" / "index.html").read_text()
     assert "obs_history" in env and "air_force_tau" in env     # the generated options table
@@ -55,6 +57,10 @@ def test_the_site_builds_with_warnings_as_errors(tmp_path):
     assert "--total-timesteps" in cli and "--policy" in cli    # the generated command lines
     api = (site / "reference" / "api" / "index.html").read_text()
     assert "saddle_env.simulate" in api                       # mkdocstrings
+    assert 'id="agents.evaluation.evaluate.evaluate_controller"' in api
+    home = (site / "index.html").read_text()
+    assert 'class="md-source"' in home and "github.com/saddle-env/saddle-env" in home
+    assert 'data-md-component="source"' not in home  # would ask GitHub's API for its stars
     # nothing is loaded from another host: no CDN, no web fonts
     for html in site.rglob("*.html"):
         text = html.read_text()
@@ -182,22 +188,41 @@ def test_the_site_renders_in_a_browser(served_site, browser, capsys):
     browser.execute_script("arguments[0].scrollIntoView({block: 'center'});", crt)
     browser.save_screenshot(str(shots / "physics-equations.png"))
 
-    # search, in the browser's own index (no server): "Omega_crt" lists the physics page
+    # search, in the browser's own index (no server): "critical speed" (Ω_crt) lists the
+    # physics page
     browser.get(served_site + "/")
     _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "label.md-header__button[for='__search']")
           or browser.find_elements(By.CSS_SELECTOR, "input.md-search__input"), what="search box")
     box = browser.find_element(By.CSS_SELECTOR, "input.md-search__input")
     box.click()
-    box.send_keys("Omega_crt")
+    box.send_keys("critical speed")
     results = _wait(lambda: [a.get_attribute("href") for a in
                              browser.find_elements(By.CSS_SELECTOR, ".md-search-result__link")],
-                    what="search results for Omega_crt")
+                    what="search results for critical speed")
     time.sleep(2.0)  # let the result list paint before the screenshot
-    browser.save_screenshot(str(shots / "search-omega-crt.png"))
+    browser.save_screenshot(str(shots / "search-critical-speed.png"))
     from urllib.parse import urlparse
 
     pages = {urlparse(href).path for href in results}
-    assert "/physics/" in pages, f"search for Omega_crt: {sorted(pages)}"
+    assert "/physics/" in pages, f"search for critical speed: {sorted(pages)}"
+
+    # the engineering notes rank below the user pages (docs/hooks.py's NOTES_SEARCH_BOOST)
+    browser.get(served_site + "/")
+    box = _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "input.md-search__input"),
+                what="search box")[0]
+    box.click()
+    box.send_keys("observation space")
+    _wait(lambda: browser.find_elements(By.CSS_SELECTOR, ".md-search-result__link"),
+          what="search results for observation space")
+    time.sleep(2.0)  # the list is filled in as the index answers
+    ranked: list[str] = []
+    for a in browser.find_elements(By.CSS_SELECTOR, ".md-search-result__link"):
+        path = urlparse(a.get_attribute("href")).path
+        if path not in ranked:
+            ranked.append(path)
+    assert "/environment/" in ranked[:8], f"search for observation space: {ranked}"
+    assert not [p for p in ranked[:8] if p.startswith("/notes/")], \
+        f"search for observation space: notes among the first pages {ranked[:8]}"
 
     hosts = _hosts_requested(browser)
     assert hosts <= {"127.0.0.1"}, f"the site requested other hosts: {hosts}"

@@ -99,12 +99,22 @@ def main(argv: Any = None) -> int:
     from saddle_env.envs import LEVEL_IDS
 
     p = argparse.ArgumentParser(prog="python -m agents.benchmark.headroom", description=main.__doc__)
-    p.add_argument("--levels", nargs="+", default=list(LEVEL_IDS[1:]), metavar="ID")
-    p.add_argument("--episodes", type=int, default=100)
-    p.add_argument("--seed", type=int, default=2_000_000)
-    p.add_argument("--batch", type=int, default=100)
-    p.add_argument("--max-rounds", type=int, default=400)
-    p.add_argument("--out", default=None, metavar="FILE")
+    p.add_argument("--levels", nargs="+", default=list(LEVEL_IDS[1:]), metavar="ID",
+                   help="level ids (default: every level but the calm SaddleTrap-v0)")
+    p.add_argument("--episodes", type=int, default=100,
+                   help="episodes per level (default 100)")
+    p.add_argument("--seed", type=int, default=2_000_000,
+                   help="first episode seed; episodes use SEED .. SEED + EPISODES - 1 "
+                        "(default 2000000, the leaderboard's test seeds)")
+    p.add_argument("--batch", type=int, default=100,
+                   help="episodes per engine (memory against speed; the results do not "
+                        "depend on it; default 100)")
+    p.add_argument("--max-rounds", type=int, default=400,
+                   help="candidate batches the clairvoyant scores per lost ball at most "
+                        "(default 400)")
+    p.add_argument("--out", default=None, metavar="FILE",
+                   help="also append each level's JSON line, with its per-episode results, "
+                        "to FILE")
     args = p.parse_args(argv)
     for lvl in args.levels:
         r = evaluate_clairvoyant(lvl, args.episodes, args.seed, batch=args.batch, progress=True,

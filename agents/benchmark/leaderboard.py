@@ -184,7 +184,7 @@ def level_markdown(table: dict[str, Any], figure: str | None) -> str:
                   f"of these episodes; {100 * clair['doomed']:.1f} % "
                   f"[{100 * clair['doomed_ci']['low']:.1f}, {100 * clair['doomed_ci']['high']:.1f}] "
                   f"of its starts are doomed (lost even by it). *Score*: (T − T_random) / "
-                  f"(T_clairvoyant − T_random) ([benchmark.md](benchmark.md))."]
+                  f"(T_clairvoyant − T_random) ([Benchmark](benchmark.md))."]
     if figure:
         lines += ["", f"![{level.id} survival]({figure})"]
     return "\n".join(lines) + "\n"
@@ -201,7 +201,8 @@ def write_markdown(results: dict[str, Any], path: Path, figures: dict[str, str],
         "Every policy runs the same frozen test episodes of each level (episode i is "
         "`reset(seed=seed + i)`); trapping time is the time until the ball detaches or "
         "leaves the rim, the episode length if it is kept. Mean [95 % interval]: percentile "
-        "bootstrap for times, distances and effort, Wilson for rates. `zero` always sends "
+        "bootstrap for times, distances and effort, Wilson score intervals (binomial) for "
+        "rates. `zero` always sends "
         "action 0, `random` uniform actions; `const-K` holds K·Ω_crt of the nominal ball, "
         "`best-const` the best constant speed of the level (a grid searched on 64 seeded "
         "episodes, its choice checked against the next four speeds on 512 more, paired), "
@@ -230,14 +231,14 @@ def levels_markdown() -> str:
              "`gym.make_vec(ID, num_envs=n)` need no keywords, and keywords still override one "
              "option (`gym.make(\"SaddleTrap-Gusty-v0\", air_force=0.1)`). A change of "
              "meaning gets a new version, never a silent edit. How every baseline and agent "
-             "does on each: [leaderboard.md](leaderboard.md).", "",
+             "does on each: [Leaderboard](leaderboard.md).", "",
              "**Reward threshold.** Each level's `gym.spec(ID).reward_threshold`, Gymnasium's "
              "\"solved\" marker (read by tools such as SB3's `StopTrainingOnRewardThreshold`), "
              "is the mean return of `mpc` on the level's frozen test set (1,000 episodes, "
-             "[leaderboard.md](leaderboard.md)), rounded down to 0.1: an agent that reaches it "
+             "[Leaderboard](leaderboard.md)), rounded down to 0.1: an agent that reaches it "
              "traps as long as the model-predictive controller. A return is the sum over the "
              "episode's control steps of the per-step reward (the fraction of the step the ball "
-             "stayed trapped, less 10 in the step it is lost; [environment.md](environment.md#reward)), so 500 is "
+             "stayed trapped, less 10 in the step it is lost; [Reward](environment.md#reward)), so 500 is "
              "a ball kept for the full 10 s. The "
              "tests check each threshold against the committed leaderboard.", "",
              "| id | summary | episode | reward threshold |", "|---|---|---|---|"]
@@ -247,7 +248,10 @@ def levels_markdown() -> str:
     for level in LEVELS:
         opts = ", ".join(f"`{k}={v!r}`" for k, v in level.options.items()) or \
             "none: every option at its default"
-        lines += ["", f"## {level.id}", "", f"**What it models.** {level.models}", "",
+        # the docs build fills in the level's spaces, reward and limits from its spec
+        # (docs/hooks.py)
+        lines += ["", f"## {level.id}", "", f"<!-- generated: level-summary {level.id} -->", "",
+                  f"**What it models.** {level.models}", "",
                   f"**Why it is hard.** {level.why_hard}", "", f"**Options.** {opts}."]
     return "\n".join(lines) + "\n"
 
@@ -268,7 +272,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true",
                    help="keep the results already in DIR/leaderboard.json with the same "
                         "episodes and seed (per level and policy)")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-progress", action="store_true",
+                   help="print no progress while the episodes run")
     p.add_argument("--policy", action="append", default=[], metavar="SPEC",
                    help="an extra row on every level: your controller class "
                         "(path/to/file.py:ClassName or package.module:ClassName; imported and "

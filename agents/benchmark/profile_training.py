@@ -280,22 +280,31 @@ def profile_imitation(env_id: str, rounds: int, episodes: int, epochs: int = 10,
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument("--env", default="SaddleTrap-Capture-v0", metavar="ID")
-    ap.add_argument("--total-timesteps", type=int, default=600_000)
+    ap.add_argument("--env", default="SaddleTrap-Capture-v0", metavar="ID",
+                    help="the task level to train on (an id of saddle_env.LEVELS)")
+    ap.add_argument("--total-timesteps", type=int, default=600_000,
+                    help="length of the profiled training in env steps")
     ap.add_argument("--eval-freq", type=int, default=150_000,
                     help="steps between evaluations (the main job's: a twentieth of 3e6)")
-    ap.add_argument("--algo", default="ppo", choices=("ppo", "sac", "td3", "a2c"))
+    ap.add_argument("--algo", default="ppo", choices=("ppo", "sac", "td3", "a2c"),
+                    help="the learning algorithm (sbx and rllib: ppo; rllib also sac)")
     ap.add_argument("--backend", default="sb3", choices=("sb3", "sbx", "rllib"),
                     help="sbx: SBX's PPO (JAX, the [sbx] extra); rllib: RLlib's PPO or SAC "
                          "with its env runner in this process")
-    ap.add_argument("--hyperparams", default=None, metavar="FILE.yml")
-    ap.add_argument("--n-envs", type=int, default=None)
+    ap.add_argument("--hyperparams", default=None, metavar="FILE.yml",
+                    help="the recipe (None: the back end's file in agents/hyperparams/)")
+    ap.add_argument("--n-envs", type=int, default=None,
+                    help="balls stepped together (None: the recipe's n_envs)")
     ap.add_argument("--imitation", action="store_true",
                     help="profile the imitation rounds instead of PPO")
-    ap.add_argument("--rounds", type=int, default=2)
-    ap.add_argument("--episodes", type=int, default=64)
-    ap.add_argument("--epochs", type=int, default=10)
-    ap.add_argument("--json", default=None, metavar="FILE")
+    ap.add_argument("--rounds", type=int, default=2,
+                    help="--imitation: DAgger rounds to profile")
+    ap.add_argument("--episodes", type=int, default=64,
+                    help="--imitation: episodes recorded per round")
+    ap.add_argument("--epochs", type=int, default=10,
+                    help="--imitation: passes over the recorded data per round")
+    ap.add_argument("--json", default=None, metavar="FILE",
+                    help="also write the table, the wall time and the command as JSON")
     args = ap.parse_args(argv)
     if args.imitation:
         result = profile_imitation(args.env, args.rounds, args.episodes, args.epochs)

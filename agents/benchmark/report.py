@@ -314,7 +314,8 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
              "", "## Scores", "",
              "**Normalised score**: a run's mean trapping time T mapped so that uniform random "
              "actions score 0 and the level's upper reference 1, (T - T_random) / (T_upper - "
-             "T_random). Aggregates are rliable's: the interquartile mean (IQM) and the mean "
+             "T_random). Aggregates are rliable's: the interquartile mean (IQM: the mean of "
+             "the middle half of the runs' scores) and the mean "
              "over runs with stratified-bootstrap 95 % intervals; P(>best-const) and P(>mpc) "
              "are the probability that a run beats the deterministic baseline's score (0.5 "
              "for a tie), with bootstrap intervals.", ""]
@@ -324,7 +325,8 @@ def markdown(data: dict[str, Any], figure_paths: list[str], results_dir: str,
               "ball and the future disturbances and plans with the true simulator, never "
               "keeping a ball shorter than mpc or the shipped agent) from "
               "`benchmark/references.json` (`python -m agents.benchmark.headroom`). *Doomed*: the share "
-              "of starts the clairvoyant still loses (Wilson 95 % interval), an estimate of "
+              "of starts the clairvoyant still loses (Wilson score 95 % interval, a binomial "
+              "interval), an estimate of "
               "what no controller can win.", "",
               "| level | random | best-const | mpc | clairvoyant | doomed | upper reference |",
               "|---|---|---|---|---|---|---|"]

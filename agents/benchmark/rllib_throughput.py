@@ -226,10 +226,12 @@ def build_parser() -> argparse.ArgumentParser:
                          "SaddleTrap-v0 recipe's)")
     ap.add_argument("--runners", type=_ints, default=[1, 2], help="env runner counts (1,2)")
     ap.add_argument("--num-cpus", type=int, default=None, help="CPUs of the local Ray")
-    ap.add_argument("--out", type=Path, default=Path("bench_results/rllib"), metavar="DIR")
+    ap.add_argument("--out", type=Path, default=Path("bench_results/rllib"), metavar="DIR",
+                    help="folder for throughput.json, .csv and .png (default bench_results/rllib)")
     ap.add_argument("--no-sync", action="store_true",
                     help="skip RLlib's sync mode (one Python env per ball)")
-    ap.add_argument("--no-figure", action="store_true")
+    ap.add_argument("--no-figure", action="store_true",
+                    help="write no throughput.png (matplotlib not needed)")
     return ap
 
 

@@ -136,7 +136,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m agents.benchmark.ship", description=__doc__.split("\n")[0])
     p.add_argument("runs", nargs="+", type=Path, help="run folders of one recipe")
     p.add_argument("--name", required=True, help="model name in agents/models/ (no .zip)")
-    p.add_argument("--models-dir", type=Path, default=MODELS_DIR)
+    p.add_argument("--models-dir", type=Path, default=MODELS_DIR, metavar="DIR",
+                   help="where the model, its sidecar and its curve go (default agents/models/)")
     args = p.parse_args(argv)
     try:
         path = ship(args.runs, args.name, args.models_dir)

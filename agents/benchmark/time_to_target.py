@@ -273,7 +273,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="Wall-clock time for a recipe to beat "
                                              "best-const and reach mpc (median over seeds).",
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument("--env", default="SaddleTrap-Capture-v0", metavar="ID")
+    ap.add_argument("--env", default="SaddleTrap-Capture-v0", metavar="ID",
+                    help="the task level to train on (an id of saddle_env.LEVELS)")
     ap.add_argument("--hyperparams", default=None, metavar="FILE.yml",
                     help="the recipe (None: agents/hyperparams/ppo.yml)")
     ap.add_argument("--recipe-of", default=None, metavar="ID",
@@ -284,17 +285,26 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--backend", choices=("sb3", "sbx"), default="sb3",
                     help="the learner (train.py --backend); sbx reads "
                          "agents/hyperparams/ppo_sbx.yml unless --hyperparams")
-    ap.add_argument("--label", default="recipe")
-    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    ap.add_argument("--total-timesteps", type=int, default=None)
-    ap.add_argument("--eval-freq", type=int, default=None)
+    ap.add_argument("--label", default="recipe",
+                    help="name of this recipe in the results; each seed's run folder is "
+                         "OUT/runs/LABEL_seedS")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2],
+                    help="training seeds, one run each (the report gives the median)")
+    ap.add_argument("--total-timesteps", type=int, default=None,
+                    help="budget of each run in env steps (None: the recipe's n_timesteps)")
+    ap.add_argument("--eval-freq", type=int, default=None,
+                    help="env steps between evaluations on the validation episodes (None: the "
+                         "recipe's)")
     ap.add_argument("--eval-episodes", type=int, default=None,
                     help="validation episodes per evaluation (None: the recipe's, else 64)")
     ap.add_argument("--final-episodes", type=int, default=200,
                     help="fresh episodes for each seed's selected model (0: skip)")
-    ap.add_argument("--max-episode-steps", type=int, default=None)
-    ap.add_argument("--out", default="time-to-target")
-    ap.add_argument("--figure", default=None, metavar="PNG")
+    ap.add_argument("--max-episode-steps", type=int, default=None,
+                    help="control steps per episode (None: the level's)")
+    ap.add_argument("--out", default="time-to-target", metavar="DIR",
+                    help="folder for the runs, time_to_target.csv and .json")
+    ap.add_argument("--figure", default=None, metavar="PNG",
+                    help="where the figure goes (None: OUT/time_to_target.png)")
     ap.add_argument("--budgets", type=float, nargs="+", default=[], metavar="STEPS",
                     help="also score, on the same fresh episodes, the network each run would "
                          "have selected with this shorter budget (from its checkpoints)")

@@ -74,7 +74,7 @@ LEVELS: tuple[Level, ...] = (
         "calm: one ball, no disturbances, the saddle already spinning above threshold",
         "The paper's saddle and its 2.65 cm ball released within 1 cm of the centre at rest in "
         "the laboratory, the saddle at 15-25 rad/s.",
-        "It is not: every constant speed from 1.1 Omega_crt to the motor's top speed keeps every "
+        "It is not: every constant speed from 1.1 Ω_crt to the motor's top speed keeps every "
         "ball. It is the level for checking an agent learns the basics and for benchmarks.",
         reward_threshold=500.0),
     _level(
@@ -94,10 +94,10 @@ LEVELS: tuple[Level, ...] = (
     _level(
         "SaddleTrap-Capture-v0",
         "capture: the saddle starts below the threshold, the ball up to 2 cm out",
-        "Starting the apparatus: the saddle turns at 10-13 rad/s, below every ball's Omega_crt "
+        "Starting the apparatus: the saddle turns at 10-13 rad/s, below every ball's Ω_crt "
         "(13.09-14.52 rad/s), and one of the paper's three balls is put down at rest in the "
         "laboratory up to 2 cm from the centre; no disturbances.",
-        "Below Omega_crt the centre repels the ball, exponentially; the motor needs 0.1-0.2 s to "
+        "Below Ω_crt the centre repels the ball, exponentially; the motor needs 0.1-0.2 s to "
         "reach the threshold, and by then the ball is on a wide orbit that a high speed throws "
         "off the saddle and a low one lets escape. Spinning straight up to the best constant "
         "loses one ball in five; how fast and how far to go depends on where the ball is.",
@@ -132,7 +132,7 @@ LEVELS: tuple[Level, ...] = (
         "drains the motion that holds it. Measured on 200 exploration episodes (seeds "
         "500,000-500,199): the best constant speed keeps 77.5 % [71, 83] of the balls for 10 s "
         "(39 % of those with mu below 0.04, all above 0.07), holding the start speed 68 %, "
-        "Omega_crt 67 %, where the same starts with balls that roll without slipping are all "
+        "Ω_crt 67 %, where the same starts with balls that roll without slipping are all "
         "kept by holding the start speed. No constant speed from 11 to 45 rad/s keeps 17 % of the balls, yet "
         "only 1 % were lost by every policy tried: the rest need feedback. mpc keeps 97 % "
         "[94, 99], but not by knowing the ball: it predicts the nominal one (mu = 0.01, the "
