@@ -60,6 +60,8 @@ from .scene import (
     P_R,
     P_RESIST,
     P_SPIN_BAND,
+    P_SURFACE_DRAG,
+    P_TILT_FORCE,
     ROLLING,
     SLIPPING,
 )
@@ -184,16 +186,29 @@ def _normal_rate(a, b, s, nx, ny, nz, vx, vy):
 
 
 @jit
-def frame_terms(prof, t):
+def frame_terms(prof, t, tilt_force):
     """Ω(t) [rad/s], Ω̇(t) [rad/s²] and the lab-fixed force per unit mass turned into the
-    saddle's axes at t [m/s²]: everything the rates need from the drive row."""
+    saddle's axes at t [m/s²]: everything the rates need from the drive row, with a tilted
+    axis's share of gravity, ``tilt_force`` = g·sin(tilt) along the laboratory's x axis
+    (the scene's `P_TILT_FORCE`), added to the drive's own force."""
     Om, Omd = omega_at(prof, t)
-    fx, fy = prof[DRIVE_FX], prof[DRIVE_FY]
+    fx, fy = prof[DRIVE_FX] + tilt_force, prof[DRIVE_FY]
     if fx == 0.0 and fy == 0.0:
         return Om, Omd, 0.0, 0.0
     th = angle_at(prof, t)
     ct, st = math.cos(th), math.sin(th)
     return Om, Omd, ct * fx + st * fy, -st * fx + ct * fy
+
+
+@inline
+def rim_margin(rim, square, x, y):
+    """Positive while the contact point (x, y) [m, saddle axes] is inside the saddle's edge:
+    rim² - (x² + y²) for a round saddle of radius ``rim``, rim - max(|x|, |y|) for a square
+    one of half-width ``rim`` (``square`` = the scene's `P_RIM_SQUARE`, 1.0 or 0.0). Both
+    are continuous and change sign on the edge, which is all event location needs."""
+    if square != 0.0:
+        return rim - max(abs(x), abs(y))
+    return rim * rim - (x * x + y * y)
 
 
 @jit
@@ -207,12 +222,12 @@ def _effective_gravity(g, Om, Omd, fx, fy, cx, cy, cdx, cdy):
 
 
 @jit
-def sized(model, drill, drag_linear, drag_quadratic, resist):
+def sized(model, drill, drag_linear, drag_quadratic, resist, surface_drag):
     """How many leading state slots the integrator advances: the dynamics (5 rolling, 4
-    otherwise), plus the work slot W when the scene dissipates (air drag; drilling friction
-    or rolling resistance on a rolling ball). From the scene's dissipation coefficients
-    (`integrated_size` takes the packed row)."""
-    drag = drag_linear != 0.0 or drag_quadratic != 0.0
+    otherwise), plus the work slot W when the scene dissipates (air or surface drag;
+    drilling friction or rolling resistance on a rolling ball). From the scene's dissipation
+    coefficients (`integrated_size` takes the packed row)."""
+    drag = drag_linear != 0.0 or drag_quadratic != 0.0 or surface_drag != 0.0
     if model == ROLLING:
         return 6 if (drag or drill != 0.0 or resist != 0.0) else 5
     if model == COULOMB:
@@ -231,14 +246,15 @@ def work_slot(model):
 @jit
 def integrated_size(model, p):
     """`sized` for the packed parameter row ``p``."""
-    return sized(model, p[P_DRILL], p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC], p[P_RESIST])
+    return sized(model, p[P_DRILL], p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC], p[P_RESIST],
+                 p[P_SURFACE_DRAG])
 
 
 @inline
-def _air_drag(drag_linear, drag_quadratic, Om, cx, cy, cdx, cdy, cdz):
-    """Air drag per unit mass on the centre [m/s²], in the saddle's axes, and its power
-    [W/kg] in the rotating frame, f·ċ. The air is still in the laboratory, so the centre
-    moves through it at u = ċ + Ω k×c."""
+def _air_drag(drag_linear, drag_quadratic, surface_drag, Om, cx, cy, cdx, cdy, cdz):
+    """Air and surface drag per unit mass on the centre [m/s²], in the saddle's axes, and
+    their power [W/kg] in the rotating frame, f·ċ. The air is still in the laboratory, so
+    the centre moves through it at u = ċ + Ω k×c; the surface drag acts against ċ itself."""
     ux = cdx - Om * cy
     uy = cdy + Om * cx
     uz = cdz
@@ -246,6 +262,8 @@ def _air_drag(drag_linear, drag_quadratic, Om, cx, cy, cdx, cdy, cdz):
     if drag_quadratic != 0.0:
         k += drag_quadratic * math.sqrt(ux * ux + uy * uy + uz * uz)
     fx, fy, fz = -k * ux, -k * uy, -k * uz
+    if surface_drag != 0.0:
+        fx, fy, fz = fx - surface_drag * cdx, fy - surface_drag * cdy, fz - surface_drag * cdz
     return fx, fy, fz, fx * cdx + fy * cdy + fz * cdz
 
 
@@ -299,8 +317,8 @@ def _static_resistance(cap, hx, hy, hz):
 
 
 @inline
-def rolling_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist, band, Om, Omd,
-                  fx, fy, x, y, wx, wy, wz):
+def rolling_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, surface_drag, resist,
+                  band, Om, Omd, fx, fy, x, y, wx, wy, wz):
     """Time derivatives of a rolling ball's state (x, y, wx, wy, wz), the dissipated power
     Ẇ [W/kg] and N/m [m/s²].
 
@@ -317,10 +335,11 @@ def rolling_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist,
     mdx, mdy, nm, ndx, ndy, ndz = _normal_rate(a, b, s, nx, ny, nz, vx, vy)
     gx, gy, gz = _effective_gravity(g, Om, Omd, fx, fy, cx, cy, cdx, cdy)
     power = 0.0
-    if drag_linear != 0.0 or drag_quadratic != 0.0:
+    if drag_linear != 0.0 or drag_quadratic != 0.0 or surface_drag != 0.0:
         # Drag is a force on the centre, like gravity: it joins g_eff (and so the contact
         # force, which keeps the ball rolling, takes its share).
-        dx, dy, dz, power = _air_drag(drag_linear, drag_quadratic, Om, cx, cy, cdx, cdy, cdz)
+        dx, dy, dz, power = _air_drag(drag_linear, drag_quadratic, surface_drag, Om, cx, cy, cdx,
+                                      cdy, cdz)
         gx, gy, gz = gx + dx, gy + dy, gz + dz
     # Euler's equation with the contact force eliminated:
     # [(1+α) 1 - n nᵀ] ẇ = -α(Ω̇ k + Ω k×w) - n×(w×ṅ) + n×g_eff/R, and n×(w×ṅ) = -(n·w) ṅ
@@ -367,8 +386,8 @@ def rolling_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist,
 
 
 @inline
-def _centre_motion(a, b, R, g, drag_linear, drag_quadratic, Om, Omd, fx, fy, s, nx, ny, nz, cx,
-                   cy, J1x, J1y, J1z, J2x, J2y, J2z, vx, vy):
+def _centre_motion(a, b, R, g, drag_linear, drag_quadratic, surface_drag, Om, Omd, fx, fy, s, nx,
+                   ny, nz, cx, cy, J1x, J1y, J1z, J2x, J2y, J2z, vx, vy):
     """What moving the contact point at (vx, vy) means for the centre, shared by the slipping
     and coulomb rates: ċ = J q̇, ṅ, κ = J̇ q̇ (c̈ when q̈ = 0), the effective field g_eff with
     the air drag in it, and the drag's power [W/kg]."""
@@ -383,20 +402,22 @@ def _centre_motion(a, b, R, g, drag_linear, drag_quadratic, Om, Omd, fx, fy, s, 
     kapz = 2.0 * (vx * vx / a - vy * vy / b) - kR * (2.0 * nm * ndz + ndm * nz)
     gx, gy, gz = _effective_gravity(g, Om, Omd, fx, fy, cx, cy, cdx, cdy)
     power = 0.0
-    if drag_linear != 0.0 or drag_quadratic != 0.0:
-        dx, dy, dz, power = _air_drag(drag_linear, drag_quadratic, Om, cx, cy, cdx, cdy, cdz)
+    if drag_linear != 0.0 or drag_quadratic != 0.0 or surface_drag != 0.0:
+        dx, dy, dz, power = _air_drag(drag_linear, drag_quadratic, surface_drag, Om, cx, cy, cdx,
+                                      cdy, cdz)
         gx, gy, gz = gx + dx, gy + dy, gz + dz
     return cdx, cdy, cdz, ndx, ndy, ndz, kapx, kapy, kapz, gx, gy, gz, power
 
 
 @inline
-def slipping_rates(a, b, R, g, drag_linear, drag_quadratic, Om, Omd, fx, fy, x, y, vx, vy):
+def slipping_rates(a, b, R, g, drag_linear, drag_quadratic, surface_drag, Om, Omd, fx, fy, x, y,
+                   vx, vy):
     """Time derivatives of a slipping ball's state (x, y, vx, vy), the dissipated power Ẇ
     [W/kg] and N/m [m/s²]; the point model is R = 0. Inlined like `rolling_rates`."""
     s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, x, y)
     (cdx, cdy, cdz, ndx, ndy, ndz, kapx, kapy, kapz, gx, gy, gz,
-     power) = _centre_motion(a, b, R, g, drag_linear, drag_quadratic, Om, Omd, fx, fy, s, nx, ny,
-                             nz, cx, cy, J1x, J1y, J1z, J2x, J2y, J2z, vx, vy)
+     power) = _centre_motion(a, b, R, g, drag_linear, drag_quadratic, surface_drag, Om, Omd, fx,
+                             fy, s, nx, ny, nz, cx, cy, J1x, J1y, J1z, J2x, J2y, J2z, vx, vy)
     # The centre is a particle on the offset surface: q̈ = (JᵀJ)⁻¹ Jᵀ (g_eff - J̇ q̇).
     rx, ry, rz = gx - kapx, gy - kapy, gz - kapz
     ax, ay = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, rx, ry, rz)
@@ -432,8 +453,8 @@ def _friction(phase, mu, normal, gain, a0x, a0y, a0z, vsx, vsy, vsz, speed):
 
 
 @inline
-def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist, band, mu, phase,
-                  Om, Omd, fx, fy, x, y, wx, wy, wz, vx, vy):
+def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, surface_drag, resist,
+                  band, mu, phase, Om, Omd, fx, fy, x, y, wx, wy, wz, vx, vy):
     """Time derivatives of a coulomb ball's state (x, y, wx, wy, wz, vx, vy), Ẇ [W/kg], N/m
     [m/s²], the friction per unit mass |f| [m/s²], the slip speed |v_s| [m/s] and the rate at
     which the slip speed grows [m/s²] (docs/physics.md, "Coulomb friction").
@@ -455,8 +476,8 @@ def coulomb_rates(a, b, R, alpha, g, drill, drag_linear, drag_quadratic, resist,
     if not slipping:
         vx, vy = _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z, R * wnx, R * wny, R * wnz)
     (cdx, cdy, cdz, ndx, ndy, ndz, kapx, kapy, kapz, gx, gy, gz,
-     power) = _centre_motion(a, b, R, g, drag_linear, drag_quadratic, Om, Omd, fx, fy, s, nx, ny,
-                             nz, cx, cy, J1x, J1y, J1z, J2x, J2y, J2z, vx, vy)
+     power) = _centre_motion(a, b, R, g, drag_linear, drag_quadratic, surface_drag, Om, Omd, fx,
+                             fy, s, nx, ny, nz, cx, cy, J1x, J1y, J1z, J2x, J2y, J2z, vx, vy)
     normal = nx * (kapx - gx) + ny * (kapy - gy) + nz * (kapz - gz)
     # e = Ω̇ k + Ω k×w; a0 = P g_eff + R e×n - R P(w×ṅ) (e×n is tangential already).
     ex, ey, ez = -Om * wy, Om * wx, Omd
@@ -523,9 +544,9 @@ def coulomb_contact(p, prof, t, y):
     (N/m, |f|, |v_s|, growth of |v_s|) as `coulomb_rates` defines them, the push |a0| [m/s²]
     the other forces give the slip, and the slip's part across a0, |v_s - (v_s·â0) â0| [m/s]
     (how far a slip that started along a0 lags behind a0's turning)."""
-    Om, Omd, fx, fy = frame_terms(prof, t)
+    Om, Omd, fx, fy = frame_terms(prof, t, p[P_TILT_FORCE])
     r = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
-                      p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_SPIN_BAND], p[P_MU], y[PHASE_SLOT], Om,
+                      p[P_DRAG_QUADRATIC], p[P_SURFACE_DRAG], p[P_RESIST], p[P_SPIN_BAND], p[P_MU], y[PHASE_SLOT], Om,
                       Omd, fx, fy, y[0], y[1], y[2], y[3], y[4], y[5], y[6])
     a0x, a0y, a0z = r[15], r[16], r[17]
     return (r[8], r[9], r[10], r[11], math.sqrt(a0x * a0x + a0y * a0y + a0z * a0z),
@@ -549,9 +570,9 @@ def slip_lag(vsx, vsy, vsz, a0x, a0y, a0z):
 def stick_margin(p, prof, t, y):
     """μ_s N/m - |f| [m/s²] for the friction that would keep the ball sticking at (t, y):
     positive while static friction can hold it."""
-    Om, Omd, fx, fy = frame_terms(prof, t)
+    Om, Omd, fx, fy = frame_terms(prof, t, p[P_TILT_FORCE])
     r = coulomb_rates(p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
-                      p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_SPIN_BAND], p[P_MU], STICK, Om, Omd,
+                      p[P_DRAG_QUADRATIC], p[P_SURFACE_DRAG], p[P_RESIST], p[P_SPIN_BAND], p[P_MU], STICK, Om, Omd,
                       fx, fy, y[0], y[1], y[2], y[3], y[4], y[5], y[6])
     return p[P_MU_STATIC] * r[8] - r[9]
 
@@ -692,18 +713,18 @@ def rhs(model, p, prof, t, y, dy, want_normal):
         lag behind the push [m/s] at onset, else 0.
     want_normal : bool — whether to return the normal force per unit mass.
     """
-    Om, Omd, fx, fy = frame_terms(prof, t)
+    Om, Omd, fx, fy = frame_terms(prof, t, p[P_TILT_FORCE])
     if ROLLING_ON and model == ROLLING:
         dy[0], dy[1], dy[2], dy[3], dy[4], dy[5], normal = rolling_rates(
             p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
-            p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_SPIN_BAND], Om, Omd, fx, fy, y[0], y[1], y[2],
+            p[P_DRAG_QUADRATIC], p[P_SURFACE_DRAG], p[P_RESIST], p[P_SPIN_BAND], Om, Omd, fx, fy, y[0], y[1], y[2],
             y[3], y[4])
     elif COULOMB_ON and model == COULOMB:
         phase = y[PHASE_SLOT]
         (dy[0], dy[1], dy[2], dy[3], dy[4], dy[5], dy[6], dy[7], normal, friction, _, _, vsx,
          vsy, vsz, a0x, a0y, a0z) = coulomb_rates(
             p[P_A], p[P_B], p[P_R], p[P_ALPHA], p[P_G], p[P_DRILL], p[P_DRAG_LINEAR],
-            p[P_DRAG_QUADRATIC], p[P_RESIST], p[P_SPIN_BAND], p[P_MU], phase, Om, Omd, fx, fy,
+            p[P_DRAG_QUADRATIC], p[P_SURFACE_DRAG], p[P_RESIST], p[P_SPIN_BAND], p[P_MU], phase, Om, Omd, fx, fy,
             y[0], y[1], y[2], y[3], y[4], y[5], y[6])
         # The phase is not integrated, so its slot carries what the loop checks a step with,
         # at no extra cost: sticking, the stick margin μ_s N/m - |f| (at every stage, so that
@@ -723,7 +744,8 @@ def rhs(model, p, prof, t, y, dy, want_normal):
         normal = np.inf
     elif SLIPPING_ON:
         dy[0], dy[1], dy[2], dy[3], dy[4], normal = slipping_rates(
-            p[P_A], p[P_B], p[P_R], p[P_G], p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC], Om, Omd,
+            p[P_A], p[P_B], p[P_R], p[P_G], p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC],
+            p[P_SURFACE_DRAG], Om, Omd,
             fx, fy, y[0], y[1], y[2], y[3])
         for j in range(5, STATE_WIDTH):
             dy[j] = 0.0

@@ -41,6 +41,7 @@ from ._kernels import (
     coulomb_contact,
     integrated_size,
     rhs,
+    rim_margin,
     rolling_spin,
     rolling_velocity,
     spin_held,
@@ -51,7 +52,18 @@ from ._kernels import (
 )
 from .compilation.jit import ir_inline, jit, python_entry
 from .compilation.specialise import COULOMB_ON, RESIST_ON, specialisable
-from .scene import COULOMB, P_A, P_B, P_G, P_R, P_RESIST, P_RIM, P_SPIN_BAND, ROLLING
+from .scene import (
+    COULOMB,
+    P_A,
+    P_B,
+    P_G,
+    P_R,
+    P_RESIST,
+    P_RIM,
+    P_RIM_SQUARE,
+    P_SPIN_BAND,
+    ROLLING,
+)
 
 # Event flags (a bit mask) and the status codes `integrate` returns.
 EVENT_DETACH, EVENT_ESCAPE = 1, 2
@@ -343,8 +355,7 @@ def _event_value(kind, model, p, prof, t, y, dy):
         return rhs(model, p, prof, t, y, dy, True)
     if COULOMB_ON and kind == TRANSITION:
         return stick_margin(p, prof, t, y)
-    rim = p[P_RIM]
-    return rim * rim - (y[0] * y[0] + y[1] * y[1])
+    return rim_margin(p[P_RIM], p[P_RIM_SQUARE], y[0], y[1])
 
 
 @jit

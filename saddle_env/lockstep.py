@@ -22,7 +22,15 @@ from collections import namedtuple
 
 import numpy as np
 
-from ._kernels import DRIVE_WIDTH, ROW_WIDTH, frame_terms, rolling_rates, sized, slipping_rates
+from ._kernels import (
+    DRIVE_WIDTH,
+    ROW_WIDTH,
+    frame_terms,
+    rim_margin,
+    rolling_rates,
+    sized,
+    slipping_rates,
+)
 from .compilation.jit import jit
 from .integrators import ERR_EMBEDDED, EVENT_DETACH, EVENT_ESCAPE, step_factor
 from .scene import (
@@ -37,7 +45,10 @@ from .scene import (
     P_R,
     P_RESIST,
     P_RIM,
+    P_RIM_SQUARE,
     P_SPIN_BAND,
+    P_SURFACE_DRAG,
+    P_TILT_FORCE,
     ROLLING,
 )
 
@@ -108,33 +119,33 @@ def _rates(model, m, P, fr, Y, Kout, Nout, dragged, work):
             (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Kout[4, q], _,
              Nout[q]) = rolling_rates(
                 P[P_A, q], P[P_B, q], P[P_R, q], P[P_ALPHA, q], P[P_G, q], P[P_DRILL, q],
-                0.0, 0.0, 0.0, 0.0, fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q],
-                Y[2, q], Y[3, q], Y[4, q])
+                0.0, 0.0, 0.0, 0.0, 0.0, fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q],
+                Y[1, q], Y[2, q], Y[3, q], Y[4, q])
     elif model == ROLLING and not dragged:  # drilling friction only (of the dissipations)
         for q in range(m):
             (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Kout[4, q], Kout[5, q],
              Nout[q]) = rolling_rates(
                 P[P_A, q], P[P_B, q], P[P_R, q], P[P_ALPHA, q], P[P_G, q], P[P_DRILL, q],
-                0.0, 0.0, 0.0, 0.0, fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q],
-                Y[2, q], Y[3, q], Y[4, q])
+                0.0, 0.0, 0.0, 0.0, 0.0, fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q],
+                Y[1, q], Y[2, q], Y[3, q], Y[4, q])
     elif model == ROLLING:
         for q in range(m):
             (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Kout[4, q], Kout[5, q],
              Nout[q]) = rolling_rates(
                 P[P_A, q], P[P_B, q], P[P_R, q], P[P_ALPHA, q], P[P_G, q], P[P_DRILL, q],
-                P[P_DRAG_LINEAR, q], P[P_DRAG_QUADRATIC, q], P[P_RESIST, q], P[P_SPIN_BAND, q],
-                fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q], Y[2, q], Y[3, q],
-                Y[4, q])
+                P[P_DRAG_LINEAR, q], P[P_DRAG_QUADRATIC, q], P[P_SURFACE_DRAG, q],
+                P[P_RESIST, q], P[P_SPIN_BAND, q], fr[0, q], fr[1, q], fr[2, q], fr[3, q],
+                Y[0, q], Y[1, q], Y[2, q], Y[3, q], Y[4, q])
     elif not dragged:
         for q in range(m):
             (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], _, Nout[q]) = slipping_rates(
-                P[P_A, q], P[P_B, q], P[P_R, q], P[P_G, q], 0.0, 0.0, fr[0, q], fr[1, q],
+                P[P_A, q], P[P_B, q], P[P_R, q], P[P_G, q], 0.0, 0.0, 0.0, fr[0, q], fr[1, q],
                 fr[2, q], fr[3, q], Y[0, q], Y[1, q], Y[2, q], Y[3, q])
     else:
         for q in range(m):
             (Kout[0, q], Kout[1, q], Kout[2, q], Kout[3, q], Kout[4, q], Nout[q]) = slipping_rates(
                 P[P_A, q], P[P_B, q], P[P_R, q], P[P_G, q], P[P_DRAG_LINEAR, q],
-                P[P_DRAG_QUADRATIC, q], fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q],
+                P[P_DRAG_QUADRATIC, q], P[P_SURFACE_DRAG, q], fr[0, q], fr[1, q], fr[2, q], fr[3, q], Y[0, q], Y[1, q],
                 Y[2, q], Y[3, q])
 
 
@@ -172,16 +183,18 @@ def rk_step_block(model, m, h, tab, ctl, ws):
     dragged = False
     for q in range(m):
         d = max(d, sized(model, P[P_DRILL, q], P[P_DRAG_LINEAR, q], P[P_DRAG_QUADRATIC, q],
-                         P[P_RESIST, q]))
+                         P[P_RESIST, q], P[P_SURFACE_DRAG, q]))
         dragged |= (P[P_DRAG_LINEAR, q] != 0.0 or P[P_DRAG_QUADRATIC, q] != 0.0
-                    or P[P_RESIST, q] != 0.0)
-    work = d > sized(model, 0.0, 0.0, 0.0, 0.0)  # more than the dynamics
+                    or P[P_RESIST, q] != 0.0 or P[P_SURFACE_DRAG, q] != 0.0)
+    work = d > sized(model, 0.0, 0.0, 0.0, 0.0, 0.0)  # more than the dynamics
     # Drive terms at the stage times (trigonometry only with ripple or an external force).
     for q in range(m):
         prof = D[q]
+        tilt = P[P_TILT_FORCE, q]
         for i in range(s):
-            Fr[i, 0, q], Fr[i, 1, q], Fr[i, 2, q], Fr[i, 3, q] = frame_terms(prof, 0.0 + C[i] * h)
-        Fr[s, 0, q], Fr[s, 1, q], Fr[s, 2, q], Fr[s, 3, q] = frame_terms(prof, 0.0 + h)
+            Fr[i, 0, q], Fr[i, 1, q], Fr[i, 2, q], Fr[i, 3, q] = frame_terms(prof, 0.0 + C[i] * h,
+                                                                             tilt)
+        Fr[s, 0, q], Fr[s, 1, q], Fr[s, 2, q], Fr[s, 3, q] = frame_terms(prof, 0.0 + h, tilt)
     _rates(model, m, P, Fr[0], Y0, K[0], Nstart, dragged, work)
     for q in range(m):
         Nmin[q] = np.inf
@@ -242,20 +255,20 @@ def accepted(q, model, d, adaptive, events, ws):
     P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3 = ws
     s = K.shape[0] - 1
     if sized(model, P[P_DRILL, q], P[P_DRAG_LINEAR, q], P[P_DRAG_QUADRATIC, q],
-             P[P_RESIST, q]) != d:
+             P[P_RESIST, q], P[P_SURFACE_DRAG, q]) != d:
         return False  # the block integrated the work slot this lane does not have
     for j in range(d):
         if not math.isfinite(Ynew[j, q]) or not math.isfinite(K[s, j, q]):
             return False
     if adaptive and not Err[q] <= 1.0:
         return False
-    rim2 = P[P_RIM, q] * P[P_RIM, q]
+    rim, square = P[P_RIM, q], P[P_RIM_SQUARE, q]
     if events & EVENT_DETACH:
         if Nstart[q] < 0.0 or Nend[q] < 0.0 or Nmin[q] < 0.0:
             return False
     if events & EVENT_ESCAPE:
-        if (rim2 - (Y0[0, q] * Y0[0, q] + Y0[1, q] * Y0[1, q]) < 0.0
-                or rim2 - (Ynew[0, q] * Ynew[0, q] + Ynew[1, q] * Ynew[1, q]) < 0.0):
+        if (rim_margin(rim, square, Y0[0, q], Y0[1, q]) < 0.0
+                or rim_margin(rim, square, Ynew[0, q], Ynew[1, q]) < 0.0):
             return False
     return True
 

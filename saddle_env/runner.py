@@ -549,9 +549,14 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
                    rtol: float | None = None, atol: float | None = None,
                    dt: float | None = None, events: Sequence[str] = DEFAULT_EVENTS,
                    max_step: float | None = None, max_steps: int = 50_000_000,
-                   force: tuple[float, float] = (0.0, 0.0)) -> BatchResult:
+                   force: tuple[float, float] = (0.0, 0.0),
+                   angle: float | np.ndarray = 0.0) -> BatchResult:
     """Integrate many balls at once (threads over balls; same kernel as `run`), with the
     given integrator settings (``tol=`` is `saddle_env.simulate.simulate_batch`'s).
+
+    ``angle`` [rad] is the saddle's angle at t = 0 from the laboratory's x axis, one for all
+    balls or an (n,) array: where the saddle points when each ball is released, which
+    matters only when something is fixed in the laboratory (``force``, a scene's ``tilt``).
 
     ``scenes`` is one Scene for all balls or one per ball (contact models may differ).
     ``states`` is (n, k): each row a ball's state, padded with zeros to a common k ≤ 7.
@@ -582,7 +587,9 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
         Y[i] = _check_state(sc, row, f"states[{i}]")
     profiles = _profiles(omega, n)
     force = _check_force(force)
-    drives = np.array([drive_row(OmegaProfile(*row), force) for row in profiles])
+    angles = _angles(angle, n)
+    drives = np.array([drive_row(OmegaProfile(*row), force, theta0)
+                       for row, theta0 in zip(profiles, angles)])
     t_out = _output_times(t_end, dt_out)
     settings = Settings.build(method, rtol, atol, dt, events, max_step, max_steps)
     P = np.array([sc.params() for sc in scene_list])
@@ -606,6 +613,17 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
     width = padded_width(models)
     return BatchResult(t_out, Y_out[..., :width], stats[:, 3].copy(), status, t_final,
                        Y[:, :width], stats, settings.describe(), work)
+
+
+def _angles(angle: object, n: int) -> np.ndarray:
+    """The saddle's angle at t = 0 for each of n balls, checked: a number or an (n,) array."""
+    if isinstance(angle, np.ndarray) and angle.ndim >= 1:
+        if angle.shape != (n,) or not np.issubdtype(angle.dtype, np.number) \
+                or not np.all(np.isfinite(angle)):
+            raise ValueError(f"angle must be a finite number or an array of shape ({n},) of "
+                             f"finite angles [rad], got an array of shape {angle.shape}")
+        return angle.astype(float)
+    return np.full(n, _finite_number("angle", angle))
 
 
 def _profiles(omega: object, n: int) -> np.ndarray:

@@ -24,8 +24,13 @@ COULOMB = 4
 
 # Layout of the packed parameter vector read by the kernels (saddle_env._kernels).
 (P_A, P_B, P_R, P_ALPHA, P_G, P_DRILL, P_RIM, P_DRAG_LINEAR, P_DRAG_QUADRATIC, P_MU,
- P_MU_STATIC, P_RESIST, P_SPIN_BAND) = range(13)
-N_PARAMS = 13
+ P_MU_STATIC, P_RESIST, P_SPIN_BAND, P_TILT_FORCE, P_RIM_SQUARE, P_SURFACE_DRAG) = range(16)
+N_PARAMS = 16
+RimShape = Literal["circle", "square"]
+RIM_SHAPES: tuple[RimShape, ...] = ("circle", "square")
+# The largest tilt of the saddle's axis a scene accepts [rad] (about 11°): far beyond any
+# levelled rig (a few mrad), and small enough that the saddle stays a saddle under the ball.
+MAX_TILT = 0.2
 
 
 def _finite_number(name: str, value: object) -> float:
@@ -70,8 +75,19 @@ class Scene:
         with friction ``mu``·N against the slip otherwise (docs/physics.md, "Coulomb
         friction"); position, contact-point velocity and full spin are integrated.
     rim_radius : float
-        Horizontal radius [m] of the saddle's edge; the ball escapes when its contact point
-        leaves it. ``math.inf`` for an unbounded saddle.
+        Size [m] of the saddle's edge: its horizontal radius (``rim_shape="circle"``) or the
+        half-width of a square saddle (``"square"``); the ball escapes when its contact
+        point leaves it. ``math.inf`` for an unbounded saddle.
+    rim_shape : {"circle", "square"}
+        The saddle's outline seen from above. ``"square"``: |x| and |y| at most
+        ``rim_radius`` in the saddle's own axes (which turn with it), as a 3D-printed saddle
+        measured to ±80 mm is.
+    tilt : float
+        Angle [rad] between the saddle's rotation axis and the vertical, ``0 <= tilt <= 0.2``,
+        fixed in the laboratory: the axis leans toward the laboratory's x axis (the saddle's
+        x axis at t = 0). Exact, not linearised: gravity has g·cos(tilt) along the axis and
+        g·sin(tilt) across it, a force fixed in the laboratory that the rotating frame sees
+        turn at -Ω. A levelled rig has a few mrad.
     drilling_friction : float
         Rate [1/s] at which friction about the contact normal relaxes the spin about the
         normal toward the saddle's own rate (the paper's ω_z → 0). Acts on rolling balls only
@@ -84,6 +100,12 @@ class Scene:
         Quadratic air drag [1/m]: a force per unit mass ``-drag_quadratic · |u| · u`` (for a
         ball of density ρ_b in air of density ρ_a with drag coefficient C_d, this is
         3 C_d ρ_a / (8 ρ_b R)). Acts on every contact model. ``0`` disables it.
+    surface_drag : float
+        Linear drag [1/s] against the centre's velocity relative to the saddle's surface: a
+        force per unit mass ``-surface_drag · ċ`` (ċ in the rotating frame), as the vapour
+        film under a Leidenfrost droplet or a viscous contact gives. Unlike air drag it pulls
+        the ball along with the turning saddle, which undoes the trap's gyroscopic
+        stabilisation slowly. Acts on every contact model. ``0`` disables it.
     rolling_resistance : float
         Rolling-resistance coefficient c_rr (dimensionless, ``>= 0``): a torque c_rr·R·N
         about the centre against the rolling part of the spin (its component along the
@@ -110,6 +132,9 @@ class Scene:
     rolling_resistance: float = 0.0
     mu: float | None = None
     mu_static: float | None = None
+    rim_shape: RimShape = "circle"
+    tilt: float = 0.0
+    surface_drag: float = 0.0
 
     def __post_init__(self) -> None:
         a = _finite_number("a", self.a)
@@ -146,13 +171,21 @@ class Scene:
         drag_linear = _non_negative("drag_linear", self.drag_linear, "1/s")
         drag_quadratic = _non_negative("drag_quadratic", self.drag_quadratic, "1/m")
         resist = _non_negative("rolling_resistance", self.rolling_resistance, "dimensionless")
+        surface_drag = _non_negative("surface_drag", self.surface_drag, "1/s")
+        if not isinstance(self.rim_shape, str) or self.rim_shape not in RIM_SHAPES:
+            raise ValueError(f"rim_shape must be one of {RIM_SHAPES}, got {self.rim_shape!r}")
+        tilt = _finite_number("tilt", self.tilt)
+        if not 0 <= tilt <= MAX_TILT:
+            raise ValueError(f"tilt must satisfy 0 <= tilt <= {MAX_TILT} (rad, the axis's angle "
+                             f"from the vertical), got {tilt:g}")
         mu, mu_static = self._friction_coefficients()
         # Normalise to plain floats so equality, hashing and pickling behave.
         for name, value in (("a", a), ("b", b), ("R", R), ("alpha", alpha), ("g", g),
                             ("rim_radius", rim), ("drilling_friction", drill),
                             ("drag_linear", drag_linear), ("drag_quadratic", drag_quadratic),
                             ("rolling_resistance", resist), ("mu", mu),
-                            ("mu_static", mu_static)):
+                            ("mu_static", mu_static), ("tilt", tilt),
+                            ("surface_drag", surface_drag)):
             object.__setattr__(self, name, value)
 
     def _friction_coefficients(self) -> tuple[float | None, float | None]:
@@ -198,7 +231,13 @@ class Scene:
         """The packed float64 parameter vector read by the compiled kernels."""
         p = np.empty(N_PARAMS)
         p[P_A], p[P_B], p[P_R], p[P_ALPHA] = self.a, self.b, self.radius, self.alpha
-        p[P_G], p[P_DRILL], p[P_RIM] = self.g, self.drilling_friction, self.rim_radius
+        # A tilted axis: gravity's part along it, and its part across it as a force fixed in
+        # the laboratory (exact for any tilt; cos 0 = 1 keeps a level scene's g bit for bit).
+        p[P_G] = self.g * math.cos(self.tilt)
+        p[P_TILT_FORCE] = self.g * math.sin(self.tilt)
+        p[P_DRILL], p[P_RIM] = self.drilling_friction, self.rim_radius
+        p[P_RIM_SQUARE] = 1.0 if self.rim_shape == "square" else 0.0
+        p[P_SURFACE_DRAG] = self.surface_drag
         p[P_DRAG_LINEAR], p[P_DRAG_QUADRATIC] = self.drag_linear, self.drag_quadratic
         p[P_MU] = 0.0 if self.mu is None else self.mu
         p[P_MU_STATIC] = 0.0 if self.mu_static is None else self.mu_static
@@ -209,6 +248,31 @@ class Scene:
         # less as not rolling. 0 until a run sets it.
         p[P_SPIN_BAND] = 0.0
         return p
+
+    @classmethod
+    def from_curvatures(cls, c_plus: float, c_minus: float, **kwargs: object) -> Scene:
+        """A scene on the saddle z = c₊x² − c₋y², as experimenters measure it: ``a = 1/c₊``,
+        ``b = 1/c₋`` [m] (``c_plus``, ``c_minus`` in 1/m, both > 0). Other parameters as
+        keywords."""
+        cp = _finite_number("c_plus", c_plus)
+        cm = _finite_number("c_minus", c_minus)
+        for name, c in (("c_plus", cp), ("c_minus", cm)):
+            if c <= 0:
+                raise ValueError(f"{name} must be > 0 (saddle curvature in 1/m), got {c:g}")
+        if "a" in kwargs or "b" in kwargs:
+            raise ValueError("give the saddle either as c_plus, c_minus or as a, b, not both")
+        return cls(a=1.0 / cp, b=1.0 / cm, **kwargs)  # type: ignore[arg-type]
+
+    @property
+    def c_plus(self) -> float:
+        """Curvature c₊ = 1/a [1/m] of the rising direction."""
+        return 1.0 / self.a
+
+    @property
+    def c_minus(self) -> float:
+        """Curvature c₋ = 1/b [1/m] of the falling direction."""
+        assert self.b is not None  # __post_init__ sets b (None means b = a)
+        return 1.0 / self.b
 
     def with_(self, **changes: object) -> Scene:
         """A copy with some parameters changed (validated again)."""

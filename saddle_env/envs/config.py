@@ -57,8 +57,11 @@ class EnvConfig:
     """Options of `SaddleTrapEnv` (all are constructor keywords of the environment).
 
     Scene (see `saddle_env.Scene`): ``a, b, R, alpha, g, contact, rim_radius,
-    drilling_friction, drag_linear, drag_quadratic, rolling_resistance, mu, mu_static`` (the
-    friction coefficients apply to ``"coulomb"`` balls and are passed to no other).
+    drilling_friction, drag_linear, drag_quadratic, rolling_resistance, mu, mu_static,
+    rim_shape, tilt, surface_drag`` (the friction coefficients apply to ``"coulomb"`` balls
+    and are passed to no other). ``tilt`` [rad] leans the saddle's axis toward the
+    laboratory's x axis; ``rim_shape`` ``"square"`` makes the saddle a square of half-width
+    ``rim_radius``; ``surface_drag`` [1/s] drags the ball along with the saddle's surface.
 
     Control: ``control_period`` [s] (20 ms); ``max_accel`` [rad/s²], the motor's limit on
     |Ω̇| (20: 0 → 45 s⁻¹ in 2.25 s); ``omega_max`` [rad/s], the motor's top speed (45, about
@@ -136,6 +139,9 @@ class EnvConfig:
     rolling_resistance: float = Scene.rolling_resistance
     mu: float | None = Scene.mu
     mu_static: float | None = Scene.mu_static
+    rim_shape: str = Scene.rim_shape
+    tilt: float = Scene.tilt
+    surface_drag: float = Scene.surface_drag
     control_period: float = 0.02
     max_accel: float = 20.0
     omega_max: float = 45.0
