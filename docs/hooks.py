@@ -106,6 +106,8 @@ CLIS: dict[str, Callable[[], argparse.ArgumentParser]] = {
     "python -m saddle_env.compilation.profile": _build_parser("saddle_env.compilation.profile"),
     "python -m saddle_env.compilation.precompile": _build_parser("saddle_env.compilation.precompile"),
     "python -m saddle_env.rig": _build_parser("saddle_env.rig.__main__"),
+    "saddle-lifetimes": _build_parser("saddle_env.lifetimes.cli"),
+    "python -m saddle_env.lifetimes.fit": _from_main("saddle_env.lifetimes.fit"),
 }
 
 
@@ -423,7 +425,24 @@ def generate(what: str, arg: str | None, page_dir: str = "") -> str:
         return public_api_markdown()
     if what == "level-summary":
         return level_summary_markdown(arg)
+    if what in ("lifetimes-calibration", "lifetimes-validation"):
+        return lifetimes_markdown(what)
     raise RuntimeError(f"unknown generated section {what!r}")
+
+
+def lifetimes_markdown(what: str) -> str:
+    """The validation page's tables, from the files the calibration wrote: the shipped
+    calibration (saddle_env/lifetimes/calibration.json) and its leave-one-series-out check
+    (docs/figures/lifetimes_validation.json)."""
+    import json
+
+    from saddle_env.lifetimes import report
+
+    if what == "lifetimes-calibration":
+        record = json.loads((ROOT / "saddle_env" / "lifetimes" / "calibration.json").read_text())
+        return report.calibration_markdown(record)
+    rows = json.loads((ROOT / "docs" / "figures" / "lifetimes_validation.json").read_text())
+    return report.validation_markdown(rows)
 
 
 def expand(markdown: str, page_dir: str = "") -> str:

@@ -47,6 +47,7 @@ CSV_COLUMNS = {
                        "mass_point_ion_x", "mass_point_ion_y"],
     "damping": ["panel", "k1", "omega", "growth_theory", "growth_simulated"],
     "damping_bands": ["panel", "k1", "omega_low", "omega_high"],
+    "lifetimes": ["series", "rps", "lab_mean_s", "lab_std_s", "calibrated_s", "rigid_s"],
 }
 
 

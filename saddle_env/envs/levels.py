@@ -158,7 +158,12 @@ LEVELS: tuple[Level, ...] = (
         "three polyfoam balls (2.23, 2.65, 3.30 cm; 25 kg/m^3, so 1.2, 2.0 and 3.8 g, with the "
         "quadratic air drag of its size, 0.38-0.26 1/m, C_d 0.47), put down by hand at rest in "
         "the laboratory within 1 cm of the centre, the saddle at 15-25 rad/s; a draught and "
-        "motor ripple as in the gusty level.",
+        "motor ripple as in the gusty level. Against real saddles (docs/validation.md): the "
+        "level is level and loses nothing at the contact, where real balls show thresholds a "
+        "few per cent later and, from a rolling drag, lifetimes of tens of seconds; over the "
+        "episode's 10 s that matters only near Ω_crt. The lab's calibration is for steel balls "
+        "and droplets on PETG, not for the paper's polyfoam balls, so the level does not take "
+        "it over.",
         "Everything the controller sees is 30 ms old (the saddle turns 0.44 rad meanwhile at "
         "the 14.75 rad/s of the best constant voltage), and it must estimate velocities from "
         "pixel-rounded positions; what it commands is a voltage, which the saddle's inertia "

@@ -20,6 +20,7 @@ def _figures() -> dict[str, tuple[Callable[[Context], None], str]]:
     from .analogy_fig import fig_analogy
     from .damping_fig import fig_damping
     from .dynamics_figs import fig_feasible, fig_support, fig_trajectories, fig_trapping
+    from .lifetimes_fig import fig_lifetimes
     from .theory_figs import fig_asymmetric, fig_critical, fig_eigen
 
     return {
@@ -32,11 +33,12 @@ def _figures() -> dict[str, tuple[Callable[[Context], None], str]]:
         "asymmetric": (fig_asymmetric, "stable band of Omega on an asymmetric saddle"),
         "analogy": (fig_analogy, "ball vs RRF ion and Paul trap: trajectories, thresholds"),
         "damping": (fig_damping, "growth rate vs Omega with air drag; the stable band moves"),
+        "lifetimes": (fig_lifetimes, "real saddles: the lab's trapping times vs the calibration"),
     }
 
 
 FIGURE_NAMES = ("trajectories", "eigen", "critical", "trapping", "support", "feasible",
-                "asymmetric", "analogy", "damping")
+                "asymmetric", "analogy", "damping", "lifetimes")
 
 
 class _Parser(argparse.ArgumentParser):

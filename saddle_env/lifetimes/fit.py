@@ -1,0 +1,353 @@
+"""Calibrate the real-saddle model on the lab's series, with intervals and a held-out check.
+
+``python -m saddle_env.lifetimes.fit --out runs/lifetimes`` simulates the grid
+(`saddle_env.lifetimes.grid`), then:
+
+* **fits** the imperfections to every series at once. The objective is a weighted sum of
+  squares of log lifetimes: over series and speeds, (ln predicted − ln measured)² /
+  (σ_lab² + σ_sim² + 0.1²), where σ_lab and σ_sim are the standard errors of the log of the
+  lab's and the simulation's mean, and 0.1 stands for the model's own error (a tenth of a
+  lifetime). A steel ball's rolling resistance and a droplet's surface drag and evaporation
+  are its own; the tilt and the launcher's spread are shared by all series;
+* gives **intervals** by bootstrap: each speed's releases are drawn again from the lab's and
+  the fit repeated (the 2.5th and 97.5th percentiles of the grid values chosen);
+* checks the **prediction** series by series (leave-one-series-out): calibrated on the others,
+  each series is predicted and its onset, cutoff and median |ln(predicted/measured)| are
+  compared with the lab's; the same for restricted models (rigid ball; tilt only;
+  dissipation only), so the table shows what each effect buys.
+
+It writes ``calibration.json`` (``--ship`` also copies it into the package, where
+`saddle-lifetimes` reads it), ``validation.json``, ``validation.csv`` and ``lifetimes.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import shutil
+import sys
+from dataclasses import dataclass
+from datetime import date
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..jobs.files import atomic_open, write_text_atomically
+from ..linear import critical_omega, mass_point_band
+from ..scene import Scene
+from . import grid as G
+from .data import Series, cutoff, load_lab_series, median_log_error, onset
+from .model import CALIBRATION_FILE, STEEL_ALPHA, LabModel, lifetimes_of
+
+MODEL_ERROR = 0.1  # the model's own error in ln(lifetime), added to the standard errors
+COMMAND = "python -m saddle_env.lifetimes.fit --out runs/lifetimes --ship"
+
+# The restricted models of the validation table: which grid values each may use.
+VARIANTS: dict[str, dict[str, Any]] = {
+    "rigid ball": dict(tilt=(0.0,), own=False, evaporation=(math.inf,)),
+    "+ tilt": dict(own=False, evaporation=(math.inf,)),
+    "+ dissipation": dict(tilt=(0.0,)),
+    "calibrated": {},
+}
+
+
+@dataclass(frozen=True)
+class Choice:
+    """A fitted set of imperfections (a grid point per object) and its objective."""
+
+    tilt: float
+    launch_spread: float
+    launch_speed_spread: float
+    rolling_resistance: float
+    rolling_drag: float
+    film_drag: float
+    evaporation_mean: float
+    evaporation_fraction: float
+    objective: float
+
+    def model(self) -> LabModel:
+        finite = math.isfinite(self.evaporation_mean)
+        return LabModel(tilt=self.tilt, launch_spread=self.launch_spread,
+                        launch_speed_spread=self.launch_speed_spread,
+                        rolling_resistance=self.rolling_resistance,
+                        rolling_drag=self.rolling_drag, film_drag=self.film_drag,
+                        evaporation_mean=self.evaporation_mean,
+                        evaporation_spread=self.evaporation_fraction * self.evaporation_mean
+                        if finite else 0.0)
+
+    def point(self, obj: str) -> G.Point:
+        own = ((self.rolling_resistance, self.rolling_drag) if obj == "steel"
+               else (self.film_drag, 0.0))
+        return (self.tilt, self.launch_spread, self.launch_speed_spread, *own)
+
+
+def _evaporations(allowed: dict) -> list[tuple[float, float]]:
+    means = allowed.get("evaporation", G.EVAPORATION_MEANS)
+    return [(m, f) for m in means for f in (G.EVAPORATION_SPREADS if math.isfinite(m) else (0.0,))]
+
+
+def curve(escapes: np.ndarray, obj: str, evaporation: tuple[float, float],
+          seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mean lifetime per speed and the standard error of its log, from escape times."""
+    mean_s, frac = evaporation
+    model = LabModel(evaporation_mean=mean_s,
+                     evaporation_spread=frac * mean_s if math.isfinite(mean_s) else 0.0)
+    life = lifetimes_of(model, obj, escapes, seed)
+    m = life.mean(axis=1)
+    se = life.std(axis=1, ddof=1) / (m * math.sqrt(life.shape[1]))
+    return m, se
+
+
+def lab_terms(lab: Series) -> tuple[np.ndarray, np.ndarray]:
+    """ln of the lab's mean lifetime per speed and the square of its standard error."""
+    m = lab.mean
+    return np.log(m), (lab.std / (m * np.sqrt(lab.counts))) ** 2
+
+
+def series_cost(s: Series, predicted: np.ndarray, se_sim: np.ndarray,
+                measured: Series | None = None) -> float:
+    """The objective's share of one series (``measured`` replaces the lab's releases,
+    e.g. by a bootstrap draw)."""
+    log_m, var_lab = lab_terms(s if measured is None else measured)
+    r = np.log(predicted) - log_m
+    return float(np.sum(r * r / (var_lab + se_sim ** 2 + MODEL_ERROR ** 2)))
+
+
+class Fitter:
+    """Chooses grid points for a set of series (`fit`), from one simulated table."""
+
+    def __init__(self, series: list[Series], table: dict[str, np.ndarray], seed: int):
+        self.series, self.table, self.seed = series, table, seed
+        self._curves: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+
+    def curve(self, i: int, point: G.Point,
+              evaporation: tuple[float, float] = (math.inf, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+        key = (i, point, evaporation if self.series[i].obj == "ln2" else None)
+        if key not in self._curves:
+            self._curves[key] = curve(G.escapes_of(self.table, i, point), self.series[i].obj,
+                                      evaporation, self.seed)
+        return self._curves[key]
+
+    def log_curve(self, i: int, point: G.Point,
+                  evaporation: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+        """ln of `curve`'s means and the square of its standard errors (cached)."""
+        key = ("log", i, point, evaporation if self.series[i].obj == "ln2" else None)
+        if key not in self._curves:
+            m, se = self.curve(i, point, evaporation)
+            self._curves[key] = (np.log(m), se * se)
+        return self._curves[key]
+
+    def fit(self, use: list[int], allowed: dict | None = None,
+            measured: dict[int, Series] | None = None) -> Choice:
+        """The grid point with the least objective over the series ``use``: the tilt and the
+        launcher shared, each object's own dissipation (and a droplet's evaporation)."""
+        allowed = allowed or {}
+        measured = measured or {}
+        labs = {i: lab_terms(measured.get(i, self.series[i])) for i in use}
+
+        def cost_of(i: int, point: G.Point, ev: tuple[float, float]) -> float:
+            log_p, var_sim = self.log_curve(i, point, ev)
+            log_m, var_lab = labs[i]
+            r = log_p - log_m
+            return float(np.sum(r * r / (var_lab + var_sim + MODEL_ERROR ** 2)))
+
+        best: Choice | None = None
+        for shared in G.shared_points():
+            if shared[0] not in allowed.get("tilt", G.TILTS):
+                continue
+            total, parts = 0.0, {"steel": (0.0, 0.0, math.inf, 0.0),
+                                 "ln2": (0.0, 0.0, math.inf, 0.0)}
+            for obj in ("steel", "ln2"):
+                members = [i for i in use if self.series[i].obj == obj]
+                if not members:
+                    continue
+                owns = G.own_points(obj) if allowed.get("own", True) else [(0.0, 0.0)]
+                evaporations = _evaporations(allowed) if obj == "ln2" else [(math.inf, 0.0)]
+                options = []
+                for own in owns:
+                    for ev in evaporations:
+                        cost = sum(cost_of(i, shared + own, ev) for i in members)
+                        options.append((cost, own, ev))
+                cost, own, ev = min(options, key=lambda o: o[0])
+                total += cost
+                parts[obj] = (*own, *ev)
+            if best is None or total < best.objective:
+                best = Choice(*shared, parts["steel"][0], parts["steel"][1], parts["ln2"][0],
+                              parts["ln2"][2], parts["ln2"][3], total)
+        assert best is not None
+        return best
+
+    def predicted(self, i: int, choice: Choice) -> np.ndarray:
+        s = self.series[i]
+        return self.curve(i, choice.point(s.obj),
+                          (choice.evaporation_mean, choice.evaporation_fraction))[0]
+
+
+def theory_threshold(s: Series, g: float = 9.81) -> float:
+    """Rigid-ball theory's threshold [rps]: the rolling ball's Ω_crt, or the mass point's
+    lower band edge for a droplet."""
+    if s.obj == "steel" and s.diameter_mm is not None:
+        scene = Scene.from_curvatures(s.c_plus, s.c_minus, R=s.diameter_mm / 2000.0, g=g,
+                                      alpha=STEEL_ALPHA)
+        return critical_omega(scene) / (2 * math.pi)
+    band = mass_point_band(1.0 / s.c_plus, 1.0 / s.c_minus, g)
+    return math.nan if band is None else band[0] / (2 * math.pi)
+
+
+def bootstrap(fitter: Fitter, draws: int, seed: int) -> list[Choice]:
+    rng = np.random.default_rng(seed)
+    everything = list(range(len(fitter.series)))
+    out = []
+    for k in range(draws):
+        measured = {i: s.resampled(rng) for i, s in enumerate(fitter.series)}
+        out.append(fitter.fit(everything, measured=measured))
+        if (k + 1) % 20 == 0:
+            print(f"bootstrap: {k + 1}/{draws}", flush=True)
+    return out
+
+
+def validate(fitter: Fitter) -> list[dict[str, object]]:
+    """Leave-one-series-out rows: every series under every variant."""
+    rows = []
+    for i, s in enumerate(fitter.series):
+        others = [j for j in range(len(fitter.series)) if j != i]
+        lab_on, lab_cut = onset(s.rps, s.mean), cutoff(s.rps, s.mean)
+        for name, allowed in VARIANTS.items():
+            choice = fitter.fit(others, allowed)
+            pred = fitter.predicted(i, choice)
+            rows.append({
+                "series": s.name, "variant": name, "lab_onset_rps": lab_on,
+                "theory_threshold_rps": theory_threshold(s),
+                "onset_rps": onset(s.rps, pred), "lab_cutoff_rps": lab_cut,
+                "cutoff_rps": cutoff(s.rps, pred),
+                "median_abs_log_ratio": median_log_error(pred, s.mean),
+                "max_predicted_s": float(pred.max()),
+                "predicted_s": [float(v) for v in pred],
+                "rps": [float(v) for v in s.rps], "lab_mean_s": [float(v) for v in s.mean],
+                "lab_std_s": [float(v) for v in s.std],
+                "fitted_on_others": _choice_dict(choice),
+            })
+    return rows
+
+
+def _choice_dict(c: Choice) -> dict[str, float | None]:
+    m = c.model().as_dict()
+    return {k: (None if isinstance(v, float) and math.isinf(v) else v) for k, v in m.items()}
+
+
+def _interval(values: list[float]) -> list[float | None]:
+    finite = [v for v in values if math.isfinite(v)]
+    if len(finite) < len(values):  # some draws chose no evaporation at all
+        return [float(np.percentile(finite, 2.5)) if finite else None, None]
+    return [float(np.percentile(values, 2.5)), float(np.percentile(values, 97.5))]
+
+
+def calibration_record(fitter: Fitter, best: Choice, draws: list[Choice], releases: int,
+                       seed: int) -> dict[str, object]:
+    names = ("tilt", "launch_spread", "launch_speed_spread", "rolling_resistance",
+             "rolling_drag", "film_drag", "evaporation_mean")
+    intervals = {n: _interval([getattr(c, n) for c in draws]) for n in names} if draws else {}
+    if draws:
+        intervals["evaporation_spread"] = _interval(
+            [c.evaporation_fraction * c.evaporation_mean for c in draws
+             if math.isfinite(c.evaporation_mean)] or [math.nan])
+    return {
+        "model": _choice_dict(best),
+        "intervals_95": intervals,
+        "objective": best.objective,
+        "objective_definition": ("sum over series and speeds of (ln predicted - ln measured)^2 "
+                                 "/ (se_lab^2 + se_sim^2 + 0.1^2); se = standard error of the "
+                                 "log of a mean lifetime"),
+        "series": [s.name for s in fitter.series],
+        "releases_per_speed": releases, "seed": seed, "bootstrap_draws": len(draws),
+        "grid": {"tilt": G.TILTS, "launch_spread": G.LAUNCH_SPREADS,
+                 "launch_speed_spread": G.LAUNCH_SPEED_SPREADS,
+                 "rolling_resistance": G.ROLLING_RESISTANCES, "rolling_drag": G.ROLLING_DRAGS,
+                 "film_drag": G.FILM_DRAGS,
+                 "evaporation_mean": [m if math.isfinite(m) else None
+                                      for m in G.EVAPORATION_MEANS],
+                 "evaporation_spread_fraction": G.EVAPORATION_SPREADS},
+        "command": COMMAND, "date": date.today().isoformat(),
+    }
+
+
+def write_validation(rows: list[dict[str, object]], out: Path) -> None:
+    write_text_atomically(out / "validation.json", json.dumps(rows, indent=1) + "\n")
+    keys = ("series", "variant", "lab_onset_rps", "theory_threshold_rps", "onset_rps",
+            "lab_cutoff_rps", "cutoff_rps", "median_abs_log_ratio", "max_predicted_s")
+    with atomic_open(out / "validation.csv") as fh:
+        w = csv.writer(fh)
+        w.writerow(keys)
+        for r in rows:
+            w.writerow([r[k] if isinstance(r[k], str) else f"{r[k]:.4g}" for k in keys])
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="python -m saddle_env.lifetimes.fit",
+        description="Calibrate the real-saddle model on the lab's series (grid fit, bootstrap "
+                    "intervals, leave-one-series-out validation).")
+    p.add_argument("--out", type=Path, default=Path("runs/lifetimes"),
+                   help="folder for the grid's escape times, calibration.json, "
+                        "validation.json/.csv and lifetimes.png (resumes a grid found there)")
+    p.add_argument("--releases", type=int, default=24, help="releases simulated per speed")
+    p.add_argument("--seed", type=int, default=0, help="seed of the simulated releases")
+    p.add_argument("--bootstrap", type=int, default=200,
+                   help="bootstrap draws for the intervals (0: none)")
+    p.add_argument("--ship", action="store_true",
+                   help="copy calibration.json into the package (what saddle-lifetimes uses)")
+    p.add_argument("--no-progress", action="store_true", help="print no progress lines")
+    args = p.parse_args(argv)
+    if not 1 <= args.releases <= 2000:
+        p.error(f"--releases must lie in [1, 2000], got {args.releases}")
+    if args.bootstrap < 0:
+        p.error(f"--bootstrap must be >= 0, got {args.bootstrap}")
+    if args.seed < 0:
+        p.error(f"--seed must be >= 0, got {args.seed}")
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    series = load_lab_series()
+    table = G.simulate_grid(series, args.out, releases=args.releases, seed=args.seed,
+                            progress=not args.no_progress)
+    fitter = Fitter(series, table, args.seed)
+    best = fitter.fit(list(range(len(series))))
+    draws = bootstrap(fitter, args.bootstrap, args.seed + 1)
+    record = calibration_record(fitter, best, draws, args.releases, args.seed)
+    write_text_atomically(args.out / CALIBRATION_FILE, json.dumps(record, indent=1) + "\n")
+    calibrated = {s.name: [float(v) for v in fitter.predicted(i, best)]
+                  for i, s in enumerate(series)}
+    write_text_atomically(args.out / "calibrated.json", json.dumps(calibrated, indent=1) + "\n")
+    rows = validate(fitter)
+    write_validation(rows, args.out)
+    from .figure import plot_validation  # matplotlib only when the figure is made
+    plot_validation(series, rows, args.out / "lifetimes.png")
+    if args.ship:
+        ship(args.out)
+    print(json.dumps(record["model"], indent=1))
+    print(f"wrote {args.out}/calibration.json, calibrated.json, validation.json, "
+          "validation.csv, lifetimes.png")
+    return 0
+
+
+def ship(out: Path) -> None:
+    """Copy the calibration into the package and the check's files into the docs (a clone's
+    docs/figures, where the validation page reads them)."""
+    package = Path(__file__).parent
+    figures = package.parents[1] / "docs" / "figures"
+    if not figures.is_dir():
+        raise SystemExit(f"--ship needs the repository's docs/figures folder ({figures}): "
+                         "run it in a clone")
+    shutil.copyfile(out / CALIBRATION_FILE, package / CALIBRATION_FILE)
+    shutil.copyfile(out / "validation.json", figures / "lifetimes_validation.json")
+    shutil.copyfile(out / "calibrated.json", figures / "lifetimes_calibrated.json")
+    shutil.copyfile(out / "lifetimes.png", figures / "lifetimes_validation.png")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,214 @@
+"""saddle-lifetimes and saddle_env.lifetimes: the lab's data, the predictions, their refusals,
+and the shipped calibration's check against the lab (leave-one-series-out).
+
+Layers: the lab file reads as the lab's table says (836 releases, eight series, the onsets
+the issue quotes); onset and cutoff find the crossings of made-up curves; every flag of the
+command works and every bad input exits 2 naming the flag (hypothesis over the inputs);
+the JSON holds every parameter used; a tilt given overrides the calibrated one; the shipped
+validation meets the targets and matches the shipped calibration.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from saddle_env.lifetimes import (
+    LabModel,
+    cutoff,
+    load_calibration,
+    load_lab_series,
+    median_log_error,
+    onset,
+    predict_lifetimes,
+)
+from saddle_env.lifetimes.cli import main as lifetimes_main
+from saddle_env.lifetimes.data import Series
+
+ROOT = Path(__file__).resolve().parents[1]
+VALIDATION = ROOT / "docs" / "figures" / "lifetimes_validation.json"
+
+
+def test_the_lab_file_is_the_labs_table():
+    series = load_lab_series()
+    assert len(series) == 8
+    assert sum(int(s.counts.sum()) for s in series) == 836
+    by_name = {s.name: s for s in series}
+    assert set(by_name) >= {"2021-02-01 P2 steel 19 mm", "2021-02-02 P4 steel 19 mm",
+                            "2021-02-13 P4 LN2 droplets", "2021-02-24 P2 steel 6.3 mm"}
+    # the onsets the lab's curves give (linear between speeds)
+    for name, rps in (("2021-02-24 P2 steel 19 mm", 1.246), ("2021-02-01 P2 steel 19 mm", 1.254),
+                      ("2021-02-01 P3 steel 19 mm", 1.264), ("2021-02-02 P4 steel 19 mm", 1.215),
+                      ("2021-02-24 P2 steel 6.3 mm", 1.173)):
+        s = by_name[name]
+        assert onset(s.rps, s.mean) == pytest.approx(rps, abs=5e-4)
+    p4 = by_name["2021-02-02 P4 steel 19 mm"]
+    assert cutoff(p4.rps, p4.mean) == pytest.approx(1.567, abs=1e-3)
+
+
+def test_onset_and_cutoff_on_made_up_curves():
+    rps = np.array([1.0, 2.0, 3.0, 4.0, 5.0])
+    assert onset(rps, np.array([1.0, 3.0, 9.0, 10.0, 10.0])) == pytest.approx(2.0 + 2 / 6)
+    assert math.isnan(cutoff(rps, np.array([1.0, 3.0, 9.0, 10.0, 10.0])))
+    assert cutoff(rps, np.array([1.0, 10.0, 8.0, 2.0, 1.0])) == pytest.approx(3.5)
+    assert math.isnan(onset(rps, np.array([5.0, 4.0, 3.0, 2.0, 1.0])))
+    assert median_log_error(np.array([2.0, 1.0, 4.0]), np.array([1.0, 1.0, 1.0])) \
+        == pytest.approx(math.log(2))
+
+
+def test_a_series_resamples_within_each_speed():
+    s = load_lab_series()[0]
+    r = s.resampled(np.random.default_rng(0))
+    assert np.array_equal(r.counts, s.counts)
+    assert all(set(b) <= set(a) for a, b in zip(s.lifetimes, r.lifetimes))
+    assert isinstance(r, Series) and not all(np.array_equal(a, b)
+                                             for a, b in zip(s.lifetimes, r.lifetimes))
+
+
+def test_json_holds_the_curve_and_every_parameter(capsys):
+    code = lifetimes_main(["--c-plus", "2.67", "--c-minus", "2.51", "--object", "steel",
+                           "--diameter-mm", "19", "--rps", "0.6", "1.0", "--releases", "3",
+                           "--seed", "4", "--json"])
+    assert code == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) == {"rps", "mean_s", "std_s", "model"}
+    assert out["rps"] == [0.6, 1.0] and len(out["mean_s"]) == len(out["std_s"]) == 2
+    assert all(0 < m < 10 for m in out["mean_s"])  # below the threshold: seconds, not minutes
+    model = out["model"]
+    calibrated, _ = load_calibration()
+    for name, value in calibrated.as_dict().items():
+        assert name in model
+        assert model[name] == (None if math.isinf(value) else value)
+    assert model["c_plus"] == 2.67 and model["object"] == "steel" and model["diameter_mm"] == 19
+    assert model["releases"] == 3 and model["seed"] == 4
+
+
+def test_the_same_seed_gives_the_same_curve_and_tilt_overrides(capsys):
+    a = predict_lifetimes(2.67, 4.66, "ln2", [1.2, 2.0], releases=4, seed=1)
+    b = predict_lifetimes(2.67, 4.66, "ln2", [1.2, 2.0], releases=4, seed=1)
+    assert np.array_equal(a.lifetimes, b.lifetimes)
+    level = predict_lifetimes(2.67, 4.66, "ln2", [1.2, 2.0], releases=4, seed=1, tilt=0.0)
+    assert level.model["tilt"] == 0.0 and a.model["tilt"] == load_calibration()[0].tilt
+    lifetimes_main(["--c-plus", "2.67", "--c-minus", "4.66", "--object", "ln2", "--rps", "1.2",
+                    "--releases", "2", "--tilt", "0", "--json"])
+    assert json.loads(capsys.readouterr().out)["model"]["tilt"] == 0.0
+
+
+def test_a_level_rigid_ball_stays_trapped_above_the_threshold():
+    # With nothing a real saddle adds, a steel ball above Ω_crt stays the whole t_max.
+    rigid = LabModel(launch_spread=1e-3, t_max=5.0)
+    pred = predict_lifetimes(2.67, 2.51, "steel", [1.5], diameter_mm=19, releases=4,
+                             model=rigid)
+    assert np.all(pred.lifetimes == 5.0)
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["--c-plus", "0", "--c-minus", "2", "--object", "ln2", "--rps", "1"], "--c-plus"),
+    (["--c-plus", "2", "--c-minus", "-1", "--object", "ln2", "--rps", "1"], "--c-minus"),
+    (["--c-plus", "2", "--c-minus", "2", "--object", "ln2", "--rps", "0"], "--rps"),
+    (["--c-plus", "2", "--c-minus", "2", "--object", "ln2", "--rps", "nan"], "--rps"),
+    (["--c-plus", "2", "--c-minus", "2", "--object", "glass", "--rps", "1"], "--object"),
+    (["--c-plus", "2", "--c-minus", "2", "--object", "steel", "--rps", "1"], "--diameter-mm"),
+    (["--c-plus", "2", "--c-minus", "2", "--object", "steel", "--diameter-mm", "0.1",
+      "--rps", "1"], "--diameter-mm"),
+    (["--c-plus", "20", "--c-minus", "2", "--object", "steel", "--diameter-mm", "55",
+      "--rps", "1"], "--diameter-mm"),
+    (["--c-plus", "2", "--c-minus", "2", "--object", "ln2", "--diameter-mm", "5",
+      "--rps", "1"], "--diameter-mm"),
+    (["--c-plus", "2", "--c-minus", "2", "--object", "ln2", "--rps", "1", "--releases",
+      "5000"], "--releases"),
+    (["--c-plus", "2", "--c-minus", "2", "--object", "ln2", "--rps", "1", "--releases", "0"],
+     "--releases"),
+    (["--c-plus", "2", "--c-minus", "2", "--object", "ln2", "--rps", "1", "--tilt", "1"],
+     "--tilt"),
+    (["--c-plus", "2", "--c-minus", "2", "--object", "ln2", "--rps", "1", "--seed", "-3"],
+     "--seed"),
+    (["--c-minus", "2", "--object", "ln2", "--rps", "1"], "--c-plus"),
+])
+def test_bad_input_exits_2_naming_the_flag(argv, flag, capsys):
+    with pytest.raises(SystemExit) as exc:
+        lifetimes_main(argv)
+    assert exc.value.code == 2
+    assert flag in capsys.readouterr().err
+
+
+_numbers = st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=32),
+                     st.integers(-5, 5)).map(str)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(cp=_numbers, cm=_numbers, obj=st.sampled_from(["steel", "ln2", "wood"]),
+       diameter=st.one_of(st.none(), _numbers), rps=st.lists(_numbers, min_size=1, max_size=2),
+       releases=st.integers(-2, 3), tilt=st.one_of(st.none(), _numbers))
+def test_any_arguments_work_or_exit_2(cp, cm, obj, diameter, rps, releases, tilt):
+    argv = ["--c-plus", cp, "--c-minus", cm, "--object", obj, "--rps", *rps,
+            "--releases", str(releases), "--json"]
+    argv += [] if diameter is None else ["--diameter-mm", diameter]
+    argv += [] if tilt is None else ["--tilt", tilt]
+    # a short t_max keeps a trapped release from running its full two minutes
+    import saddle_env.lifetimes.model as M
+    short = M.load_calibration()[0].with_(t_max=2.0)
+    original = M.load_calibration
+    M.load_calibration = lambda: (short, {})  # type: ignore[assignment]
+    try:
+        code = lifetimes_main(argv)
+        assert code == 0
+    except SystemExit as exc:
+        assert exc.code == 2
+    finally:
+        M.load_calibration = original  # type: ignore[assignment]
+
+
+def _held_out() -> dict[str, dict]:
+    return {r["series"]: r for r in json.loads(VALIDATION.read_text())
+            if r["variant"] == "calibrated"}
+
+
+def test_the_shipped_validation_meets_the_targets():
+    # The leave-one-series-out check that `python -m saddle_env.lifetimes.fit` wrote, for the
+    # calibrated model: onset within 4 % of the lab's, median |ln(pred/meas)| <= ln 2, P4's
+    # window closed within 0.25 rev/s.
+    rows = _held_out()
+    assert len(rows) == 8
+    for name, r in rows.items():
+        assert r["median_abs_log_ratio"] <= math.log(2), name
+        if "P4 LN2" not in name:  # the lab never kept these: no onset to meet
+            assert abs(r["onset_rps"] / r["lab_onset_rps"] - 1) <= 0.04, name
+    p4 = rows["2021-02-02 P4 steel 19 mm"]
+    assert abs(p4["cutoff_rps"] - p4["lab_cutoff_rps"]) <= 0.25
+    # and the rigid ball, fitted the same way, misses: the check can tell
+    rigid = [r for r in json.loads(VALIDATION.read_text()) if r["variant"] == "rigid ball"]
+    assert max(r["median_abs_log_ratio"] for r in rigid) > math.log(2)
+
+
+@pytest.mark.xfail(strict=True, reason="missed: the held-out model keeps droplets on P4 5.3 s "
+                   "at 1.16 rev/s, where the target is under 5 s (docs/validation.md)")
+def test_droplets_on_p4_stay_under_5_s_when_held_out():
+    assert _held_out()["2021-02-13 P4 LN2 droplets"]["max_predicted_s"] < 5.0
+
+
+def test_the_shipped_calibration_is_the_fit_on_every_series():
+    model, record = load_calibration()
+    assert len(record["series"]) == 8 and record["command"].startswith("python -m ")
+    for name, (lo, hi) in record["intervals_95"].items():
+        value = getattr(model, name)
+        if lo is not None and math.isfinite(value):
+            assert lo <= value and (hi is None or value <= hi), name
+
+
+@pytest.mark.slow
+def test_the_calibrated_prediction_is_what_the_validation_used():
+    # The command and the fit share one simulation: the calibrated model's prediction for a
+    # series, at the fit's releases and seed, is the fit's curve for it, bit for bit.
+    model, record = load_calibration()
+    s = next(x for x in load_lab_series() if x.name == "2021-02-02 P4 steel 19 mm")
+    pred = predict_lifetimes(s.c_plus, s.c_minus, "steel", s.rps, diameter_mm=s.diameter_mm,
+                             releases=record["releases_per_speed"], seed=record["seed"])
+    full = json.loads((VALIDATION.parent / "lifetimes_calibrated.json").read_text())
+    assert pred.mean_s.tolist() == full[s.name]
