@@ -42,7 +42,8 @@ USER_PAGES = sorted(p for p in DOCS.rglob("*.md") if NOTES not in p.parents)
 NOTE_PAGES = sorted(NOTES.glob("*.md"))
 PAGES = [ROOT / "README.md", *USER_PAGES]
 PENDING: set[str] = set()  # pages another change still has to write (none now)
-TOOLS = ("saddle-sim", "saddle-eval", "saddle-export", "saddle-bench", "saddle-reproduce", "saddle-fit")
+TOOLS = ("saddle-sim", "saddle-eval", "saddle-export", "saddle-bench", "saddle-reproduce", "saddle-fit",
+         "saddle-lifetimes")
 
 
 def _load_hooks():
@@ -745,6 +746,8 @@ def _small(tool: str, args: list[str], tmp: Path) -> list[str]:
         for flag, value in (("--max-iterations", "2"), ("--out", str(tmp / "fit"))):
             setting(flag, value)
         args.append("--quiet")
+    elif tool == "saddle-lifetimes":
+        setting("--releases", "2")
     return args
 
 
@@ -761,6 +764,8 @@ def _main(tool: str):
         from saddle_env.reproduce.cli import main
     elif tool == "saddle-fit":
         from saddle_env.calibrate.cli import main
+    elif tool == "saddle-lifetimes":
+        from saddle_env.lifetimes.cli import main
     elif tool == "env-benchmark":
         from saddle_env.envs.benchmark import main
     elif tool == "rllib-benchmark":
