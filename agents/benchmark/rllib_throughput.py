@@ -75,8 +75,8 @@ def sb3_rates(n_envs: int, seconds: float) -> dict:
     import torch
     from stable_baselines3 import PPO
 
-    from agents.training.backends.sb3 import make_vec_env
-    from agents.training.recipes import load_hyperparams, parse_policy_kwargs
+    from ..training.backends.sb3 import make_vec_env
+    from ..training.recipes import load_hyperparams, parse_policy_kwargs
 
     torch.set_num_threads(1)
     hyper = load_hyperparams("ppo", ENV_ID)
@@ -129,9 +129,9 @@ def rllib_rates(runners: int, n_envs: int, seconds: float, mode: str = "vector_e
     from ray.rllib.execution.rollout_ops import synchronous_parallel_sample
     from ray.rllib.utils.metrics import NUM_ENV_STEPS_SAMPLED_LIFETIME
 
-    from agents.training.backends import rllib as rb
-    from agents.training.recipes import load_hyperparams
-    from agents.training.runs import TrainSettings
+    from ..training.backends import rllib as rb
+    from ..training.recipes import load_hyperparams
+    from ..training.runs import TrainSettings
 
     hyper = load_hyperparams("ppo", ENV_ID)
     settings = TrainSettings(backend="rllib", env_id=ENV_ID, num_env_runners=runners,
@@ -238,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if not args.seconds > 0 or args.n_envs < 1:
         ap.error("--seconds must be > 0 and --n-envs >= 1")
-    from agents.training.backends import rllib as rb
+    from ..training.backends import rllib as rb
 
     try:
         rb.check_dependencies()

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.cli_args import MissingExtra, install_hint, missing
+from ..cli_args import MissingExtra, install_hint, missing
 
 SIDECAR = "saddle_env.json"          # in every checkpoint directory train.py writes
 CHECKPOINT_MARKER = "rllib_checkpoint.json"  # RLlib writes it in every checkpoint directory
@@ -111,7 +111,7 @@ def _module_from_rllib(path: Path) -> Any:
 
 def _module_config(side: dict[str, Any], path: Path) -> dict[str, Any]:
     """The sidecar's ``module`` config, checked: layer widths and an activation by name."""
-    from agents.evaluation.model_files import MAX_LAYER_WIDTH, MAX_LAYERS
+    from .model_files import MAX_LAYER_WIDTH, MAX_LAYERS
 
     cfg = side.get("module")
     if not isinstance(cfg, dict) or set(cfg) - {"fcnet_hiddens", "fcnet_activation",
@@ -138,10 +138,11 @@ def _module_as_data(path: Path, side: dict[str, Any]) -> Any:
     from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
     from ray.rllib.core.rl_module.rl_module import RLModuleSpec
 
-    from agents.cli_args import resolve_env
-    from agents.evaluation.model_files import load_tensors, untrusted
     from saddle_env.envs.observation import observation_space
     from saddle_env.envs.saddle_trap import action_space
+
+    from ..cli_args import resolve_env
+    from .model_files import load_tensors, untrusted
 
     weights = path / WEIGHTS_FILE
     if not weights.is_file() or "module" not in side:

@@ -55,8 +55,10 @@ from typing import Any
 
 import numpy as np
 
-from agents.cli_args import MissingExtra, install_hint, level_overrides, missing, parse_address
-from agents.evaluation.rllib_policy import (
+from saddle_env.envs.vector import SaddleTrapVectorEnv
+
+from ...cli_args import MissingExtra, install_hint, level_overrides, missing, parse_address
+from ...evaluation.rllib_policy import (
     CHECKPOINT_MARKER,
     SIDECAR,
     WEIGHTS_FILE,
@@ -66,10 +68,9 @@ from agents.evaluation.rllib_policy import (
     latest_checkpoint,
     load_policy,
 )
-from agents.training.recipes import parse_policy_kwargs
-from agents.training.run_report import append_curve_point
-from agents.training.runs import BACKEND_ALGOS, Stop, TrainSettings, sigterm_stops
-from saddle_env.envs.vector import SaddleTrapVectorEnv
+from ..recipes import parse_policy_kwargs
+from ..run_report import append_curve_point
+from ..runs import BACKEND_ALGOS, Stop, TrainSettings, sigterm_stops
 
 RLLIB_ALGOS = BACKEND_ALGOS["rllib"]
 RLLIB_MODULES = ("ray", "torch", "yaml")
