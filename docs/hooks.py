@@ -7,6 +7,8 @@ A page asks for a generated section with an HTML comment on a line of its own:
   that the docstring does not name fails the build.
 * ``<!-- generated: cli NAME -->``: the command line NAME (a key of ``CLIS``), read from its
   own argparse parser: usage, description and one table per argument group.
+* ``<!-- generated: version -->``: the version these pages describe, ``saddle_env.__version__``
+  (pyproject.toml reads the same).
 
 The same functions serve the tests (tests/test_docs.py), which check that every documented
 command line has a page section and that the generated text matches the parsers.
@@ -225,7 +227,16 @@ def env_options_markdown() -> str:
 
 # -- the hook --------------------------------------------------------------------------------
 
+def version_markdown() -> str:
+    from saddle_env import __version__
+
+    return (f"These pages describe saddle-env {__version__} (`saddle_env.__version__`; "
+            "[changes](https://github.com/saddle-env/saddle-env/blob/main/CHANGELOG.md)).")
+
+
 def generate(what: str, arg: str | None) -> str:
+    if what == "version":
+        return version_markdown()
     if what == "env-options":
         return env_options_markdown()
     if what == "cli":
