@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import platform
 import sys
@@ -289,10 +290,10 @@ def _run_ray(todo: list[tuple[str, str, int]], out: Path, cell: dict[str, Any],
         check_reachable(address)
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     if address == "local":    # tests: a local Ray of two CPUs
-        ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR",
+        ray.init(num_cpus=2, include_dashboard=False, logging_level=logging.ERROR,
                  log_to_driver=False)
     else:
-        ray.init(address=address, logging_level="ERROR", log_to_driver=False)
+        ray.init(address=address, logging_level=logging.ERROR, log_to_driver=False)
     try:
         task = ray.remote(num_cpus=1)(run_cell)
         pending = {task.remote(lv, a, s, **cell): (lv, a, s)

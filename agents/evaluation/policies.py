@@ -172,7 +172,7 @@ def load_model(path: str | os.PathLike, config: EnvConfig | None = None, frame_s
     obs = observation_space(EnvConfig() if config is None else config)
     if frame_stack > 1:
         obs = gym.spaces.Box(np.tile(obs.low, frame_stack), np.tile(obs.high, frame_stack),
-                             dtype=obs.dtype)
+                             dtype=obs.low.dtype.type)
     policy = build_policy(archive, algo, obs, action_space(), side)
     policy.algo_name = algo
     return policy

@@ -148,17 +148,24 @@ def _module_as_data(path: Path, side: dict[str, Any]) -> Any:
     if not weights.is_file() or "module" not in side:
         raise untrusted(path, f"this RLlib checkpoint has no {WEIGHTS_FILE} and sidecar "
                               f"'module' config, and RLlib's own files are pickles")
+    from ray.rllib.algorithms.algorithm_config import AlgorithmConfig
+    from ray.rllib.core.rl_module.torch import TorchRLModule
+
+    config_class: type[AlgorithmConfig]
+    module_class: type[TorchRLModule]
     algo = str(side.get("algo", "")).lower()
     if algo == "ppo":
-        from ray.rllib.algorithms.ppo import PPOConfig as config_class
+        from ray.rllib.algorithms.ppo import PPOConfig
         from ray.rllib.algorithms.ppo.torch.default_ppo_torch_rl_module import (
-            DefaultPPOTorchRLModule as module_class,
+            DefaultPPOTorchRLModule,
         )
+        config_class, module_class = PPOConfig, DefaultPPOTorchRLModule
     elif algo == "sac":
-        from ray.rllib.algorithms.sac import SACConfig as config_class
+        from ray.rllib.algorithms.sac import SACConfig
         from ray.rllib.algorithms.sac.torch.default_sac_torch_rl_module import (
-            DefaultSACTorchRLModule as module_class,
+            DefaultSACTorchRLModule,
         )
+        config_class, module_class = SACConfig, DefaultSACTorchRLModule
     else:
         raise ValueError(f"{path}: sidecar algo must be 'ppo' or 'sac', got {algo!r}")
     env_kwargs = side.get("env_kwargs") or {}
@@ -173,6 +180,9 @@ def _module_as_data(path: Path, side: dict[str, Any]) -> Any:
                         action_space=action_space(), inference_only=False,
                         model_config=model_config)
     module = spec.build()
+    if not isinstance(module, TorchRLModule):  # RLModuleSpec.build is typed as any RLModule
+        raise TypeError(f"RLlib built a {type(module).__name__}, not the torch module "
+                        f"{module_class.__name__}")
     state = load_tensors(weights, str(weights))
     if isinstance(state, dict):
         # The learner's module also holds target networks (SAC's target_*), which a policy
