@@ -44,10 +44,9 @@ LEVEL_OPTIONS = st.fixed_dictionaries({}, optional={
 
 
 
-def _any_value_of(annotation: str) -> st.SearchStrategy:
-    """Values for an EnvConfig field of this annotation: the right kind, sensible to absurd,
-    and the wrong kinds (text for a number, a number for text, None)."""
-    kind = eval(annotation, {"tuple": tuple}, {})  # noqa: S307  (our own annotations, not data)
+def _any_value_of(kind: object) -> st.SearchStrategy:
+    """Values for an EnvConfig field of this type: the right kind, sensible to absurd, and
+    the wrong kinds (text for a number, a number for text, None)."""
     args = typing.get_args(kind) if isinstance(kind, types.UnionType) else (kind,)
     options = [st.none(), st.text(max_size=12), NUMBERS, st.booleans()]
     for arg in args:
@@ -62,7 +61,8 @@ def _any_value_of(annotation: str) -> st.SearchStrategy:
 
 # Every option of EnvConfig, each drawn or left out, over a level.
 ALL_OPTIONS = st.fixed_dictionaries({}, optional={
-    f.name: _any_value_of(str(f.type)) for f in dataclasses.fields(EnvConfig)})
+    f.name: _any_value_of(typing.get_type_hints(EnvConfig)[f.name])
+    for f in dataclasses.fields(EnvConfig)})
 _KNOWN = ("x", "y", "vx", "vy", "omega", "R", "a", "spin_normal", "contact", "start",
           "init_offset", "init_speed", "omega0_range", "a_range", "omega_max", "rim_radius",
           "init_start", "ball_radii", "normal force")
