@@ -160,3 +160,11 @@ def test_reset_options_fuzz_long(env_id, options):
 @given(env_id=st.sampled_from(LEVEL_IDS), kwargs=LEVEL_OPTIONS, seed=st.integers(0, 2 ** 31))
 def test_level_options_fuzz_long(env_id, kwargs, seed):
     _level_case(env_id, kwargs, seed)
+
+
+@pytest.mark.parametrize("value", [0.0, "", (0.1,), [0.2, 0.1]])
+def test_a_bad_mu_range_is_a_value_error_naming_it(value):
+    # Found by test_every_env_option_fuzz_long: the nominal scene indexed mu_range before it
+    # was checked, so a number gave a TypeError.
+    with pytest.raises(ValueError, match="mu_range"):
+        EnvConfig(contact="coulomb", mu_range=value)
