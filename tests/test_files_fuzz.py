@@ -36,7 +36,7 @@ from saddle_env.calibrate.tracks import (
 # A deadline far above any honest read (milliseconds) that still catches a hang.
 _FAST = settings(max_examples=60, deadline=timedelta(seconds=20), derandomize=True,
                  suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
-_LONG = settings(max_examples=2000, deadline=timedelta(seconds=20),
+_LONG = settings(max_examples=1000, deadline=timedelta(seconds=20),
                  suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 
 
@@ -283,7 +283,7 @@ def test_a_damaged_graph_reads_or_is_a_named_error(honest_folder, tmp_path, data
 
 
 @pytest.mark.slow
-@settings(_LONG, max_examples=1000)
+@settings(_LONG, max_examples=400)
 @given(data=st.data())
 def test_a_drawn_policy_json_reads_or_is_a_named_error_long(honest_folder, tmp_path, data):
     template = json.loads((honest_folder / "policy.json").read_text())
@@ -291,7 +291,7 @@ def test_a_drawn_policy_json_reads_or_is_a_named_error_long(honest_folder, tmp_p
 
 
 @pytest.mark.slow
-@settings(_LONG, max_examples=1000)
+@settings(_LONG, max_examples=400)
 @given(data=st.data())
 def test_a_damaged_graph_reads_or_is_a_named_error_long(honest_folder, tmp_path, data):
     _damaged_graph_case(honest_folder, tmp_path, data)
