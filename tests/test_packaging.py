@@ -171,3 +171,12 @@ def test_saddle_eval_runs_as_saddle_agents(tmp_path, argv):
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "--policy" in proc.stdout
+
+
+def test_the_install_hint_fits_the_install(monkeypatch, tmp_path):
+    from agents import cli_args, paths
+
+    assert cli_args.install_hint("deploy") == 'pip install -e ".[deploy]"'   # this checkout
+    monkeypatch.setattr(paths, "REPO_ROOT", tmp_path)   # as in site-packages: no pyproject.toml
+    hint = cli_args.install_hint("deploy")
+    assert hint.startswith('pip install --find-links DIST "saddle-env[deploy]"')
