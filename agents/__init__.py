@@ -19,7 +19,10 @@ with a message naming its new place.
 
 from saddle_env import _moved
 
-_moved.announce({
+# The old names under the name this package was imported by: `agents` in a source checkout,
+# `saddle_agents` when installed (pyproject.toml says why).
+_moved.announce({old.replace("agents", __name__, 1): new.replace("agents", __name__)
+                 for old, new in {
     "agents.baselines": "agents.control (controllers, best_constant, mpc) and agents.evaluation.policies",
     "agents.controllers": "agents.control.controllers",
     "agents.rollout": "agents.control.rollout",
@@ -48,4 +51,4 @@ _moved.announce({
     "agents.profile_training": "agents.benchmark.profile_training",
     "agents.rllib_benchmark": "agents.benchmark.rllib_throughput",
     "agents.ship": "agents.benchmark.ship",
-})
+}.items()})

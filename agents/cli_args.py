@@ -25,6 +25,8 @@ from typing import Any
 
 from saddle_env.envs import ENV_ID, EnvConfig, Level, get_level
 
+from . import paths
+
 # The extras of pyproject.toml that each optional module comes with.
 EXTRA_OF = {"stable_baselines3": "train", "torch": "train", "yaml": "train", "rich": "train",
             "tensorboard": "train", "tqdm": "plot", "matplotlib": "plot"}
@@ -35,7 +37,12 @@ class MissingExtra(ImportError):
 
 
 def install_hint(extra: str) -> str:
-    return f'pip install -e ".[{extra}]"'
+    """The command that adds ``extra``: editable in a source checkout; beside a wheel
+    otherwise (saddle-env is not on PyPI: docs/install.md)."""
+    if (paths.REPO_ROOT / "pyproject.toml").is_file():
+        return f'pip install -e ".[{extra}]"'
+    return (f'pip install --find-links DIST "saddle-env[{extra}]" (DIST: the folder of the '
+            f'saddle-env wheel; docs/install.md)')
 
 
 def require(module: str, extra: str | None = None, purpose: str = "this") -> ModuleType:

@@ -24,6 +24,9 @@ The engineering notes (``notes/``) are ranked below the user pages in the site's
 (``NOTES_SEARCH_BOOST``, the theme's per-page ``search: boost``): a reader looking up the
 observation space should meet the reference first, not a dated measurement.
 
+* ``<!-- generated: version -->``: the version these pages describe, ``saddle_env.__version__``
+  (pyproject.toml reads the same).
+
 The same functions serve the tests (tests/test_docs.py), which check that every documented
 command line has a page section and that the generated text matches the parsers.
 """
@@ -412,7 +415,16 @@ def include_markdown(name: str, page_dir: str = "") -> str:
 
 # -- the hook --------------------------------------------------------------------------------
 
+def version_markdown() -> str:
+    from saddle_env import __version__
+
+    return (f"These pages describe saddle-env {__version__} (`saddle_env.__version__`; "
+            "[changes](https://github.com/saddle-env/saddle-env/blob/main/CHANGELOG.md)).")
+
+
 def generate(what: str, arg: str | None, page_dir: str = "") -> str:
+    if what == "version":
+        return version_markdown()
     if what == "env-options":
         return env_options_markdown()
     if what == "cli":

@@ -188,6 +188,8 @@ def _tool(argv: list[str]) -> tuple[str, list[str]]:
         return "ray", argv[1:]          # Ray's own CLI (docs/scaling.md): not run by the tests
     if argv[:2] == ["pip", "install"]:
         return "pip", argv[2:]
+    if argv[0] in ("python", "python3") and argv[1:3] in (["-m", "build"], ["-m", "twine"]):
+        return "packaging", argv[1:]    # the build front end and twine (docs/install.md)
     return "", argv
 
 
@@ -277,6 +279,10 @@ def test_documented_command_is_accepted(page, block, argv):
     tool, args = _tool(argv)
     assert tool, f"{page}: unknown command {' '.join(argv)!r}: teach tests/test_docs.py about it"
     if tool == "ray":
+        return
+    if tool == "packaging":  # not run here: .ci/check-wheel builds and checks the wheel
+        assert argv[1:] in (["-m", "build"], ["-m", "twine", "check", "dist/*"]), \
+            f"{page}: {' '.join(argv)}: only .ci/check-wheel's packaging commands are documented"
         return
     if tool == "pip":
         extras = _extras()
@@ -619,7 +625,7 @@ def test_every_documented_tool_has_a_reference():
              "compile-profile": "python -m saddle_env.compilation.profile"}
     for page, _, argv in COMMANDS:
         tool, _ = _tool(argv)
-        if tool in ("pip", "pytest", "ray", ""):
+        if tool in ("pip", "pytest", "ray", "packaging", ""):
             continue
         assert known.get(tool, tool) in HOOKS.CLIS, f"{page}: {tool} has no reference page"
 
@@ -811,7 +817,8 @@ def _keep_caches_out_of_the_repository(tmp: Path, monkeypatch) -> None:
 
 BLOCKS = [(_rel(page), k, block) for page in PAGES
           for k, (block, skip) in enumerate(_blocks(page, "bash"))
-          if not skip and any(_tool(argv)[0] not in ("pip", "pytest") for argv in _commands(block))]
+          if not skip and any(_tool(argv)[0] not in ("pip", "pytest", "packaging")
+                              for argv in _commands(block))]
 
 
 @pytest.mark.slow
@@ -828,7 +835,7 @@ def test_documented_commands_run(page, k, block, tmp_path, monkeypatch, capsys):
     _keep_caches_out_of_the_repository(tmp_path, monkeypatch)
     for argv in commands:
         tool, args = _tool(argv)
-        if tool in ("pip", "pytest"):
+        if tool in ("pip", "pytest", "packaging"):
             continue
         if (tool.startswith("python -m ") and "--help" not in args
                 and tool not in RUN_IN_BLOCKS):

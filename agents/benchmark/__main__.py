@@ -1,5 +1,5 @@
 """``python -m agents.benchmark``: the benchmark's command (`agents.benchmark.run`)."""
 
-from agents.benchmark.run import main
+from .run import main
 
 raise SystemExit(main())

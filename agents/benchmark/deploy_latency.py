@@ -47,10 +47,11 @@ def measure(model: str | Path, calls: int = 5000, warmup: int = 200, seed: int =
     """The figures `main` prints, for ``model`` (an SB3 model file with its sidecar)."""
     import torch
 
-    from agents.evaluation.evaluate import trained_env
-    from agents.evaluation.export import export_policy, observations
-    from agents.evaluation.policies import load_policy, model_sidecar
     from saddle_env.deploy import Controller
+
+    from ..evaluation.evaluate import trained_env
+    from ..evaluation.export import export_policy, observations
+    from ..evaluation.policies import load_policy, model_sidecar
 
     torch.set_num_threads(1)   # the peer on one thread, as the controller's onnxruntime
     env_id, config = trained_env(model_sidecar(model) or {})

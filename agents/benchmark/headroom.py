@@ -14,11 +14,12 @@ from typing import Any
 
 import numpy as np
 
-from agents.control.clairvoyant import clairvoyant
-from agents.control.rollout import run_episodes
-from agents.evaluation.evaluate import bootstrap_interval, wilson_interval
-from agents.evaluation.policies import load_policy
 from saddle_env.envs import EnvConfig
+
+from ..control.clairvoyant import clairvoyant
+from ..control.rollout import run_episodes
+from ..evaluation.evaluate import bootstrap_interval, wilson_interval
+from ..evaluation.policies import load_policy
 
 
 def evaluate_clairvoyant(env_id: str | EnvConfig, episodes: int, seed: int = 2_000_000,

@@ -26,16 +26,17 @@ from typing import Any
 
 import numpy as np
 
-from agents.benchmark.report import clairvoyant_reference
-from agents.control.best_constant import PAIRED_EPISODES, SEARCH_EPISODES
-from agents.evaluation.model_files import TRUST_FLAG
-from agents.evaluation.policies import is_exported_folder, load_policy
-from agents.evaluation.user_code import parse_policy_kwargs, source_digest
-from agents.paths import DOCS_DIR, MODELS_DIR, REPO_ROOT
-from agents.seeds import RESELECT_SEED, SEARCH_SEED, TEST_SEED, VALIDATION_SEED
 from saddle_env.envs import LEVELS, EnvConfig, get_level
 from saddle_env.jobs.files import write_text_atomically
 from saddle_env.jobs.signals import sigterm_interrupts
+
+from ..control.best_constant import PAIRED_EPISODES, SEARCH_EPISODES
+from ..evaluation.model_files import TRUST_FLAG
+from ..evaluation.policies import is_exported_folder, load_policy
+from ..evaluation.user_code import parse_policy_kwargs, source_digest
+from ..paths import DOCS_DIR, MODELS_DIR, REPO_ROOT
+from ..seeds import RESELECT_SEED, SEARCH_SEED, TEST_SEED, VALIDATION_SEED
+from .report import clairvoyant_reference
 
 TEST_EPISODES = 1000           # 200-episode sets move the kept fraction by about 7 points
 BASELINE_POLICIES = ("zero", "random", "const-1.0", "const-1.2", "const-1.5", "best-const",
@@ -112,7 +113,7 @@ def evaluate_policy(env_id: str, spec: str, episodes: int, seed: int, progress: 
     """(table row, per-episode results) of one policy on level ``env_id``'s test episodes
     (model files read as data unless ``trust``, controller classes built with
     ``policy_kwargs``: see `agents.evaluation.policies.load_policy`)."""
-    from agents.evaluation.evaluate import evaluate
+    from ..evaluation.evaluate import evaluate
 
     level = get_level(env_id)
     table, details = evaluate([spec], level.config(), episodes, seed,

@@ -120,9 +120,10 @@ def _sb3_loop_timers() -> Timers:
     from stable_baselines3.common import base_class
     from stable_baselines3.common.buffers import RolloutBuffer
 
-    from agents.training import selection, warm_start
-    from agents.training.backends import sb3 as sb3_backend
     from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
+
+    from ..training import selection, warm_start
+    from ..training.backends import sb3 as sb3_backend
 
     t = Timers()
     t.wrap(SaddleTrapSB3VecEnv, "step_wait", "env stepping")
@@ -139,8 +140,8 @@ def _sb3_timers(algo: str) -> Timers:
     from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
     from stable_baselines3.common.policies import ActorCriticPolicy
 
-    from agents.training.backends import sb3 as sb3_backend
-    from agents.training.backends.sb3 import algo_class
+    from ..training.backends import sb3 as sb3_backend
+    from ..training.backends.sb3 import algo_class
 
     t = _sb3_loop_timers()
     t.wrap(ActorCriticPolicy, "forward", "policy forward")            # PPO, A2C rollouts
@@ -158,7 +159,7 @@ def _sbx_timers() -> Timers:
     from sbx import PPO
     from sbx.ppo.policies import PPOPolicy
 
-    from agents.training.backends import sbx as sbx_backend
+    from ..training.backends import sbx as sbx_backend
 
     t = _sb3_loop_timers()
     t.wrap(PPOPolicy, "predict_all", "policy forward")
@@ -180,7 +181,7 @@ def _rllib_timers() -> Timers:
     from ray.rllib.core.rl_module.torch.torch_rl_module import TorchRLModule
     from ray.rllib.env.env_runner import EnvRunner
 
-    from agents.training.backends import rllib as rllib_backend
+    from ..training.backends import rllib as rllib_backend
 
     t = Timers()
     t.wrap(EnvRunner, "_try_env_step", "env stepping")
@@ -196,8 +197,8 @@ def _rllib_timers() -> Timers:
 def _timed_train(settings: Any, timers: Timers) -> tuple[float, int]:
     """Wall seconds of `agents.training.trainer.train` (no closing comparison) under ``timers``,
     and the env steps it trained (whole rollouts or iterations: at least the budget)."""
-    from agents.training.run_report import read_curve
-    from agents.training.trainer import train
+    from ..training.run_report import read_curve
+    from ..training.trainer import train
 
     start = time.perf_counter()
     try:
@@ -218,7 +219,7 @@ def profile_training(env_id: str, total_timesteps: int, eval_freq: int | None,
     RLlib runs with its env runner in the driver process (``num_env_runners=0``), where
     the timers can see it; its PPO has no separate evaluation (the curve is the training
     episodes'), so "evaluation + selection" is its checkpoint saves."""
-    from agents.training.trainer import TrainSettings
+    from ..training.trainer import TrainSettings
 
     with tempfile.TemporaryDirectory() as tmp:
         settings = TrainSettings(env_id=env_id, seed=seed, total_timesteps=total_timesteps,
@@ -244,12 +245,13 @@ def profile_imitation(env_id: str, rounds: int, episodes: int, epochs: int = 10,
     import torch
     from stable_baselines3 import PPO
 
-    from agents.cli_args import resolve_env
-    from agents.control.mpc import ModelPredictiveController
-    from agents.training import imitation
-    from agents.training.backends.sb3 import make_vec_env
-    from agents.training.recipes import load_hyperparams, parse_policy_kwargs
     from saddle_env.envs.vector import SaddleTrapVectorEnv
+
+    from ..cli_args import resolve_env
+    from ..control.mpc import ModelPredictiveController
+    from ..training import imitation
+    from ..training.backends.sb3 import make_vec_env
+    from ..training.recipes import load_hyperparams, parse_policy_kwargs
 
     torch.set_num_threads(1)
     level, config = resolve_env(env_id, {})

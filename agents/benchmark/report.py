@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.paths import BENCHMARK_DIR, DOCS_DIR, REPO_ROOT
+from ..paths import BENCHMARK_DIR, DOCS_DIR, REPO_ROOT
 
 DOCS = DOCS_DIR
 REFERENCES = BENCHMARK_DIR / "references.json"

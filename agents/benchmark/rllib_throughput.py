@@ -75,8 +75,8 @@ def sb3_rates(n_envs: int, seconds: float) -> dict:
     import torch
     from stable_baselines3 import PPO
 
-    from agents.training.backends.sb3 import make_vec_env
-    from agents.training.recipes import load_hyperparams, parse_policy_kwargs
+    from ..training.backends.sb3 import make_vec_env
+    from ..training.recipes import load_hyperparams, parse_policy_kwargs
 
     torch.set_num_threads(1)
     hyper = load_hyperparams("ppo", ENV_ID)
@@ -126,12 +126,13 @@ def sb3_rates(n_envs: int, seconds: float) -> dict:
 def rllib_rates(runners: int, n_envs: int, seconds: float, mode: str = "vector_entry_point",
                 learner: bool = True) -> dict:
     """Sampling (and learner, training) throughput of RLlib with ``runners`` env runners."""
+    from ray.rllib.env.single_agent_episode import SingleAgentEpisode
     from ray.rllib.execution.rollout_ops import synchronous_parallel_sample
     from ray.rllib.utils.metrics import NUM_ENV_STEPS_SAMPLED_LIFETIME
 
-    from agents.training.backends import rllib as rb
-    from agents.training.recipes import load_hyperparams
-    from agents.training.runs import TrainSettings
+    from ..training.backends import rllib as rb
+    from ..training.recipes import load_hyperparams
+    from ..training.runs import TrainSettings
 
     hyper = load_hyperparams("ppo", ENV_ID)
     settings = TrainSettings(backend="rllib", env_id=ENV_ID, num_env_runners=runners,
@@ -142,11 +143,20 @@ def rllib_rates(runners: int, n_envs: int, seconds: float, mode: str = "vector_e
     algo = config.build_algo()
     batch = config.total_train_batch_size
     try:
+        def episodes_of_one_batch() -> list[SingleAgentEpisode]:
+            # With the new env runners RLlib's sampler returns single-agent episodes; its
+            # return type names every kind it ever returned.
+            got = synchronous_parallel_sample(worker_set=algo.env_runner_group,
+                                              max_env_steps=batch, _uses_new_env_runners=True)
+            episodes = [e for e in got if isinstance(e, SingleAgentEpisode)] \
+                if isinstance(got, list) else []
+            if not isinstance(got, list) or len(episodes) != len(got):
+                raise TypeError(f"RLlib sampled {type(got).__name__}, not single-agent episodes")
+            return episodes
+
         def sample():
             t = time.perf_counter()
-            episodes = synchronous_parallel_sample(worker_set=algo.env_runner_group,
-                                                   max_env_steps=batch,
-                                                   _uses_new_env_runners=True)
+            episodes = episodes_of_one_batch()
             return sum(len(e) for e in episodes), time.perf_counter() - t
 
         row = {"path": f"rllib ({'native vector env' if mode == 'vector_entry_point' else mode})",
@@ -154,9 +164,7 @@ def rllib_rates(runners: int, n_envs: int, seconds: float, mode: str = "vector_e
                "sampling_steps_per_s": _rate(sample, seconds)}
         if learner:
             def learn():
-                episodes = synchronous_parallel_sample(worker_set=algo.env_runner_group,
-                                                       max_env_steps=batch,
-                                                       _uses_new_env_runners=True)
+                episodes = episodes_of_one_batch()
                 n = sum(len(e) for e in episodes)
                 t = time.perf_counter()
                 algo.learner_group.update(episodes=episodes,
@@ -240,7 +248,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if not args.seconds > 0 or args.n_envs < 1:
         ap.error("--seconds must be > 0 and --n-envs >= 1")
-    from agents.training.backends import rllib as rb
+    from ..training.backends import rllib as rb
 
     try:
         rb.check_dependencies()

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import platform
 import sys
@@ -32,12 +33,13 @@ from typing import Any
 
 import numpy as np
 
-from agents.paths import BENCHMARK_DIR
-from agents.seeds import TEST_SEED
-from agents.training.recipes import HYPERPARAMS_DIR
 from saddle_env.envs import LEVELS, get_level
 from saddle_env.jobs.files import write_text_atomically
 from saddle_env.jobs.signals import SignalRecord, sigterm_interrupts
+
+from ..paths import BENCHMARK_DIR
+from ..seeds import TEST_SEED
+from ..training.recipes import HYPERPARAMS_DIR
 
 RESULTS = BENCHMARK_DIR / "results"
 TEST_EPISODES = 1000          # the leaderboard's frozen test set
@@ -179,8 +181,8 @@ def run_cell(level_id: str, algo_name: str, seed: int, *, budget: int | None = N
 
     import torch
 
-    from agents.evaluation.evaluate import evaluate
-    from agents.training.backends.sb3 import make_vec_env
+    from ..evaluation.evaluate import evaluate
+    from ..training.backends.sb3 import make_vec_env
 
     torch.set_num_threads(torch_threads)
     level = get_level(level_id)
@@ -234,9 +236,9 @@ def _train_recipe(level: Any, algo: Algo, seed: int, steps: int, work: Path,
     ``work/runs/<algo>_seed<s>`` (the layout `agents.benchmark.time_to_target` reads); the selected
     network as a policy, the steps done and the recipe. A run stopped by Ctrl-C or SIGTERM
     raises KeyboardInterrupt (no result)."""
-    from agents.evaluation.model_files import read_archive
-    from agents.evaluation.policies import load_policy
-    from agents.training.trainer import TrainSettings, train
+    from ..evaluation.model_files import read_archive
+    from ..evaluation.policies import load_policy
+    from ..training.trainer import TrainSettings, train
 
     settings = TrainSettings(algo="ppo", env_id=level.id, seed=seed, total_timesteps=steps,
                              hyperparams=str(HYPERPARAMS_DIR / "ppo.yml"),
@@ -282,16 +284,16 @@ def _run_ray(todo: list[tuple[str, str, int]], out: Path, cell: dict[str, Any],
     written by the driver as they arrive."""
     import ray
 
-    from agents.training.backends.rllib import check_reachable
+    from ..training.backends.rllib import check_reachable
 
     if address != "local":
         check_reachable(address)
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     if address == "local":    # tests: a local Ray of two CPUs
-        ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR",
+        ray.init(num_cpus=2, include_dashboard=False, logging_level=logging.ERROR,
                  log_to_driver=False)
     else:
-        ray.init(address=address, logging_level="ERROR", log_to_driver=False)
+        ray.init(address=address, logging_level=logging.ERROR, log_to_driver=False)
     try:
         task = ray.remote(num_cpus=1)(run_cell)
         pending = {task.remote(lv, a, s, **cell): (lv, a, s)
@@ -348,7 +350,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     out = Path(args.out)
     if args.report:
-        from agents.benchmark.report import main_report
+        from .report import main_report
 
         return main_report(out, ALGOS, SEEDS, TEST_EPISODES,
                            docs=Path(args.docs) if args.docs else None, as_json=args.json,

@@ -36,7 +36,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from agents.seeds import COMPARE_SEED
+from ..seeds import COMPARE_SEED
 
 RULES = ("max", "top-k re-evaluated", "top-k, report score")
 FIELDS = ["env_id", "run", "rule", "selected_at_steps", "recorded_trapping_time",
@@ -56,9 +56,9 @@ def run_rows(run_dir: Path, episodes: int) -> list[dict[str, Any]]:
     is scored on the sets the trainer now gives its seed, and the choice made again."""
     import numpy as np
 
-    from agents.control.rollout import episode_set
-    from agents.training import selection
-    from agents.training.runs import settings_for_resume
+    from ..control.rollout import episode_set
+    from ..training import selection
+    from ..training.runs import settings_for_resume
 
     record = json.loads((run_dir / selection.SELECTION_JSON).read_text())
     path = {int(c["steps"]): run_dir / "candidates" / f"snapshot_{c['steps']}_steps.zip"

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from agents.paths import MODELS_DIR
+from ..paths import MODELS_DIR
 
 
 def run_summary(run: Path) -> dict[str, Any]:
@@ -61,7 +61,7 @@ def remake_command(env_id: str, seed: int, config: dict[str, Any]) -> str:
     algorithm when not the defaults, the recipe when it was not the level's own entry of the
     default file, and every setting in which the run departed from its recipe (a budget or
     an evaluation period given on the command line, as `agents.benchmark.time_to_target` does)."""
-    from agents.training.runs import TrainSettings
+    from ..training.runs import TrainSettings
 
     default = TrainSettings()
     words = ["python", "train.py", "--env", env_id, "--seed", str(seed)]

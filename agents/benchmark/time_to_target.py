@@ -47,9 +47,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from agents.control.rollout import same_episodes
-from agents.seeds import COMPARE_SEED, VALIDATION_SEED
-from agents.training.runs import BACKEND_ALGOS
+from ..control.rollout import same_episodes
+from ..seeds import COMPARE_SEED, VALIDATION_SEED
+from ..training.runs import BACKEND_ALGOS
 
 
 def _trapping(table: dict[str, Any], name: str) -> dict[str, float]:
@@ -63,8 +63,8 @@ def references(env_id: str, episodes: int, seed: int, max_episode_steps: int | N
                env_kwargs: dict[str, Any] | None = None) -> dict[str, Any]:
     """best-const and mpc's trapping time (mean, low, high) on ``episodes`` episodes from
     ``seed``."""
-    from agents.cli_args import resolve_env
-    from agents.evaluation.evaluate import evaluate
+    from ..cli_args import resolve_env
+    from ..evaluation.evaluate import evaluate
 
     level, config = resolve_env(env_id, env_kwargs or {})
     steps = int(max_episode_steps or level.max_episode_steps)
@@ -102,8 +102,8 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
     (``<out>/runs/<label>_seed<s>``) holds a finished run is read, not trained again (its
     wall time is that of its last evaluation). ``budgets``: also what each shorter budget
     would have shipped (`shorter_budgets`)."""
-    from agents.training.run_report import WALL_CSV, curve_episodes, read_wall_rows
-    from agents.training.trainer import TrainSettings, recipe, train
+    from ..training.run_report import WALL_CSV, curve_episodes, read_wall_rows
+    from ..training.trainer import TrainSettings, recipe, train
 
     out.mkdir(parents=True, exist_ok=True)
     if eval_episodes is None:   # the recipe's, as training will take it
@@ -187,9 +187,9 @@ def shorter_budgets(run_dirs: list[Path], budgets: Sequence[float], label: str,
     size is a prefix of this one, so these are its networks, but for the one evaluation it
     would add at its very end. The network is the run's checkpoint at that evaluation: the
     checkpoint period must divide the evaluation period (ValueError otherwise)."""
-    from agents.training.run_report import read_wall_rows
-    from agents.training.runs import settings_for_resume
-    from agents.training.selection import TOP, fresh_set, score
+    from ..training.run_report import read_wall_rows
+    from ..training.runs import settings_for_resume
+    from ..training.selection import TOP, fresh_set, score
 
     picks = {}
     for seed, run_dir in zip(seeds, run_dirs):
@@ -228,9 +228,9 @@ def final_table(env_id: str, models: list[tuple[str, Path]], episodes: int,
                 max_episode_steps: int | None = None) -> dict[str, Any]:
     """The (name, model file) ``models`` beside best-const and mpc on ``episodes`` fresh
     episodes (seeds from `COMPARE_SEED`): trapping time mean [low, high] per policy."""
-    from agents.cli_args import resolve_env
-    from agents.evaluation.evaluate import evaluate
-    from agents.evaluation.policies import load_policy
+    from ..cli_args import resolve_env
+    from ..evaluation.evaluate import evaluate
+    from ..evaluation.policies import load_policy
 
     level, config = resolve_env(env_id, {})
     steps = int(max_episode_steps or level.max_episode_steps)

@@ -24,12 +24,13 @@ from typing import Any
 
 import numpy as np
 
-from agents.control.controllers import ConstantSpeed, critical_speed
-from agents.control.rollout import run_episodes
-from agents.seeds import SEARCH_SEED
 from saddle_env.envs import DEFAULT_EPISODE_STEPS, EnvConfig
 from saddle_env.jobs.files import write_text_atomically
 from saddle_env.linear import critical_omega
+
+from ..seeds import SEARCH_SEED
+from .controllers import ConstantSpeed, critical_speed
+from .rollout import run_episodes
 
 CACHE_FILE = Path(__file__).with_name("best_const.json")
 USER_CACHE_FILE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / \

@@ -61,13 +61,14 @@ from typing import Any
 
 import numpy as np
 
-from agents.control.controllers import Controller
-from agents.paths import MODELS_DIR
 from saddle_env.envs import EnvConfig
 from saddle_env.envs import _step as S
 from saddle_env.envs.engine import TrapEngine
 from saddle_env.linear import critical_omega
 from saddle_env.simulate import SimulationError
+
+from ..paths import MODELS_DIR
+from .controllers import Controller
 
 BACKOFFS = (2, 5, 10, 20, 35, 50, 75, 100, 150, 200, 300, 400, 500)  # steps before the loss
 WINDOWS = (2, 6, 15, 40)   # steps a candidate's deviation lasts before its tail
@@ -246,7 +247,7 @@ class ClairvoyantPlanner:
         """`mpc` as ``saddle-eval --policy mpc`` builds it (the reference speed searched or
         read from the best-constant cache on first use)."""
         if self._mpc is None:
-            from agents.control.mpc import ModelPredictiveController
+            from .mpc import ModelPredictiveController
             self._mpc = ModelPredictiveController(self.config)
         return self._mpc
 
@@ -267,7 +268,7 @@ class ClairvoyantPlanner:
         `agents.control.rollout.run_episodes` does: (actions (n, steps) float32, outcome). A policy
         that is not row-independent (a model file) sees batches of ``CHUNK`` balls, padded
         with copies, as in `run_episodes`."""
-        from agents.control.rollout import CHUNK, PolicyActor
+        from .rollout import CHUNK, PolicyActor
 
         if getattr(policy, "row_independent", False) or engine.n == CHUNK:
             return self._closed_loop(PolicyActor(policy), *copy_engine(engine, rngs), steps)

@@ -14,8 +14,6 @@ from typing import Any
 import numba as nb
 import numpy as np
 
-from agents.control.best_constant import best_constant
-from agents.control.controllers import Controller
 from saddle_env import _kernels as Kn
 from saddle_env.envs import EnvConfig
 from saddle_env.envs.observation import VELOCITY_SCALE, states_from_observations
@@ -23,6 +21,9 @@ from saddle_env.integrators import state_scale
 from saddle_env.linear import abcd, critical_omega, is_stable
 from saddle_env.prediction import predict_batch
 from saddle_env.scene import P_A, P_B, P_G, P_R, ROLLING
+
+from .best_constant import best_constant
+from .controllers import Controller
 
 RAMP, BACK, HOLD = range(3)  # the segments of a candidate's prediction
 METHOD = "dop853"            # the integrator of every prediction

@@ -51,7 +51,10 @@ from typing import Any
 
 import numpy as np
 
-from agents.cli_args import (
+from saddle_env.envs import DEFAULT_EPISODE_STEPS, ENV_ID, LEVEL_IDS, EnvConfig, get_level
+from saddle_env.envs.observation import layout
+
+from ..cli_args import (
     MissingExtra,
     install_hint,
     level_overrides,
@@ -59,7 +62,7 @@ from agents.cli_args import (
     parse_env_kwargs,
     resolve_env,
 )
-from agents.control.rollout import (  # noqa: F401
+from ..control.rollout import (  # noqa: F401
     CHUNK,
     Actor,
     PolicyActor,
@@ -67,17 +70,15 @@ from agents.control.rollout import (  # noqa: F401
     policy_actor,
     run_episodes,
 )
-from agents.evaluation.model_files import TRUST_FLAG
-from agents.evaluation.policies import (  # noqa: F401
+from ..seeds import TEST_SEED
+from .model_files import TRUST_FLAG
+from .policies import (  # noqa: F401
     is_exported_folder,
     load_policy,
     model_sidecar,
     policy_sidecar,
 )
-from agents.evaluation.user_code import is_controller_spec, parse_policy_kwargs
-from agents.seeds import TEST_SEED
-from saddle_env.envs import DEFAULT_EPISODE_STEPS, ENV_ID, LEVEL_IDS, EnvConfig, get_level
-from saddle_env.envs.observation import layout
+from .user_code import is_controller_spec, parse_policy_kwargs
 
 N_EXAMPLES = 3       # episodes whose Ω(t), r(t) are recorded for the plots
 METRICS = ("trapping_time", "kept", "detach", "escape", "mean_distance_mm", "effort", "return")
@@ -312,7 +313,7 @@ def plot(table: dict[str, Any], details: dict[str, Any], config: EnvConfig, out:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from agents.control.controllers import critical_speed
+    from ..control.controllers import critical_speed
 
     T = table["episode_length_s"]
     files = []

@@ -34,12 +34,13 @@ from typing import Any
 
 import numpy as np
 
-from agents.cli_args import MissingExtra, require
-from agents.evaluation.evaluate import trained_env
-from agents.evaluation.model_files import TRUST_FLAG
-from agents.evaluation.policies import WrappedModel, load_policy, model_sidecar
 from saddle_env.deploy import folder as F
 from saddle_env.envs.observation import layout, observation_space
+
+from ..cli_args import MissingExtra, require
+from .evaluate import trained_env
+from .model_files import TRUST_FLAG
+from .policies import WrappedModel, load_policy, model_sidecar
 
 TOLERANCE = 1e-5     # max |Δaction| between the folder and the model on the check's draws
 CHECK_DRAWS = 512    # observations the export checks itself on

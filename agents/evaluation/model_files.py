@@ -181,7 +181,7 @@ def _class_from_note(note: Any, source: str) -> Any:
     """The class an SB3 note names (``"<class 'torch.nn.modules.activation.Tanh'>"``, how
     SB3 writes a class beside its pickle), if it is an allowed activation; never imported by
     the note's own path."""
-    from agents.evaluation.literal_kwargs import ALLOWED_NAMES, parse_kwargs_string
+    from .literal_kwargs import ALLOWED_NAMES, parse_kwargs_string
 
     m = re.fullmatch(r"<class 'torch\.nn\.modules\.activation\.([A-Za-z]+)'>", str(note))
     if m is None or f"nn.{m.group(1)}" not in ALLOWED_NAMES:
@@ -195,7 +195,7 @@ def policy_kwargs_of(archive: Sb3Archive, sidecar: dict[str, Any] | None) -> dic
     them (an activation or optimiser class), the plain notes it wrote beside the pickle,
     classes matched against an allowlist; failing those, the sidecar's hyperparameters,
     read as data."""
-    from agents.evaluation.literal_kwargs import parse_kwargs_string
+    from .literal_kwargs import parse_kwargs_string
 
     source = f"{archive.path}: policy_kwargs"
     if "policy_kwargs" in archive.data:

@@ -25,9 +25,12 @@ from typing import Any
 
 import numpy as np
 
-from agents.control.best_constant import best_const
-from agents.control.clairvoyant import clairvoyant as _clairvoyant
-from agents.control.controllers import (
+from saddle_env.envs import EnvConfig
+from saddle_env.envs.observation import observation_space, stack_frames
+
+from ..control.best_constant import best_const
+from ..control.clairvoyant import clairvoyant as _clairvoyant
+from ..control.controllers import (
     CONST_MULTIPLES,
     Controller,
     UniformRandom,
@@ -36,8 +39,8 @@ from agents.control.controllers import (
     mass_point,
     parse_constant,
 )
-from agents.control.mpc import ModelPredictiveController
-from agents.evaluation.model_files import (
+from ..control.mpc import ModelPredictiveController
+from .model_files import (
     ObservationNormalizer,
     UntrustedFileError,
     build_policy,
@@ -45,9 +48,7 @@ from agents.evaluation.model_files import (
     read_normalizer,
     untrusted,
 )
-from agents.evaluation.user_code import is_controller_spec, load_controller
-from saddle_env.envs import EnvConfig
-from saddle_env.envs.observation import observation_space, stack_frames
+from .user_code import is_controller_spec, load_controller
 
 BASELINES: dict[str, Callable[..., Controller]] = {
     **{f"const-{k:.1f}": constant_multiple(k) for k in CONST_MULTIPLES},
@@ -91,7 +92,7 @@ def policy_sidecar(spec: str | os.PathLike) -> dict[str, Any] | None:
             return None      # load_policy reports what is wrong with it
         return {"env_id": exported.env_id, "env_kwargs": exported.env_kwargs}
     if Path(spec).is_dir():
-        from agents.evaluation.rllib_policy import checkpoint_sidecar, latest_checkpoint
+        from .rllib_policy import checkpoint_sidecar, latest_checkpoint
 
         ckpt = latest_checkpoint(spec)
         return checkpoint_sidecar(ckpt) if ckpt is not None else None
@@ -150,7 +151,7 @@ def load_model(path: str | os.PathLike, config: EnvConfig | None = None, frame_s
     of ``config`` (``frame_stack`` frames of them); nothing is unpickled and a file that
     would need it raises `UntrustedFileError`. ``trust=True`` loads with SB3's own loader,
     which unpickles what the file carries (the full model object, optimiser included)."""
-    from agents.cli_args import require
+    from ..cli_args import require
 
     sb3 = require("stable_baselines3", "train", "loading model files")
     if trust:
@@ -171,7 +172,7 @@ def load_model(path: str | os.PathLike, config: EnvConfig | None = None, frame_s
     obs = observation_space(EnvConfig() if config is None else config)
     if frame_stack > 1:
         obs = gym.spaces.Box(np.tile(obs.low, frame_stack), np.tile(obs.high, frame_stack),
-                             dtype=obs.dtype)
+                             dtype=obs.low.dtype.type)
     policy = build_policy(archive, algo, obs, action_space(), side)
     policy.algo_name = algo
     return policy
@@ -242,15 +243,15 @@ def load_policy(name_or_path: str | os.PathLike, config: EnvConfig | None = None
     if is_controller_spec(name) and not Path(name).exists():
         return load_controller(name, config, policy_kwargs)
     if is_exported_folder(name):  # saddle-export's folder: run without torch, read as data
-        from agents.cli_args import require
+        from ..cli_args import require
 
         require("onnxruntime", "deploy", "an exported policy folder")
         from saddle_env.deploy import Controller
 
         return Controller.from_dir(name)
     if Path(name).is_dir():      # an RLlib checkpoint directory (or an RLlib run folder)
-        from agents.evaluation.rllib_policy import latest_checkpoint
-        from agents.evaluation.rllib_policy import load_policy as load_rllib_policy
+        from .rllib_policy import latest_checkpoint
+        from .rllib_policy import load_policy as load_rllib_policy
 
         if latest_checkpoint(name) is not None:
             return load_rllib_policy(name, trust=trust)

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.cli_args import MissingExtra, install_hint, missing
+from ..cli_args import MissingExtra, install_hint, missing
 
 SIDECAR = "saddle_env.json"          # in every checkpoint directory train.py writes
 CHECKPOINT_MARKER = "rllib_checkpoint.json"  # RLlib writes it in every checkpoint directory
@@ -111,7 +111,7 @@ def _module_from_rllib(path: Path) -> Any:
 
 def _module_config(side: dict[str, Any], path: Path) -> dict[str, Any]:
     """The sidecar's ``module`` config, checked: layer widths and an activation by name."""
-    from agents.evaluation.model_files import MAX_LAYER_WIDTH, MAX_LAYERS
+    from .model_files import MAX_LAYER_WIDTH, MAX_LAYERS
 
     cfg = side.get("module")
     if not isinstance(cfg, dict) or set(cfg) - {"fcnet_hiddens", "fcnet_activation",
@@ -138,26 +138,34 @@ def _module_as_data(path: Path, side: dict[str, Any]) -> Any:
     from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
     from ray.rllib.core.rl_module.rl_module import RLModuleSpec
 
-    from agents.cli_args import resolve_env
-    from agents.evaluation.model_files import load_tensors, untrusted
     from saddle_env.envs.observation import observation_space
     from saddle_env.envs.saddle_trap import action_space
+
+    from ..cli_args import resolve_env
+    from .model_files import load_tensors, untrusted
 
     weights = path / WEIGHTS_FILE
     if not weights.is_file() or "module" not in side:
         raise untrusted(path, f"this RLlib checkpoint has no {WEIGHTS_FILE} and sidecar "
                               f"'module' config, and RLlib's own files are pickles")
+    from ray.rllib.algorithms.algorithm_config import AlgorithmConfig
+    from ray.rllib.core.rl_module.torch import TorchRLModule
+
+    config_class: type[AlgorithmConfig]
+    module_class: type[TorchRLModule]
     algo = str(side.get("algo", "")).lower()
     if algo == "ppo":
-        from ray.rllib.algorithms.ppo import PPOConfig as config_class
+        from ray.rllib.algorithms.ppo import PPOConfig
         from ray.rllib.algorithms.ppo.torch.default_ppo_torch_rl_module import (
-            DefaultPPOTorchRLModule as module_class,
+            DefaultPPOTorchRLModule,
         )
+        config_class, module_class = PPOConfig, DefaultPPOTorchRLModule
     elif algo == "sac":
-        from ray.rllib.algorithms.sac import SACConfig as config_class
+        from ray.rllib.algorithms.sac import SACConfig
         from ray.rllib.algorithms.sac.torch.default_sac_torch_rl_module import (
-            DefaultSACTorchRLModule as module_class,
+            DefaultSACTorchRLModule,
         )
+        config_class, module_class = SACConfig, DefaultSACTorchRLModule
     else:
         raise ValueError(f"{path}: sidecar algo must be 'ppo' or 'sac', got {algo!r}")
     env_kwargs = side.get("env_kwargs") or {}
@@ -172,6 +180,9 @@ def _module_as_data(path: Path, side: dict[str, Any]) -> Any:
                         action_space=action_space(), inference_only=False,
                         model_config=model_config)
     module = spec.build()
+    if not isinstance(module, TorchRLModule):  # RLModuleSpec.build is typed as any RLModule
+        raise TypeError(f"RLlib built a {type(module).__name__}, not the torch module "
+                        f"{module_class.__name__}")
     state = load_tensors(weights, str(weights))
     if isinstance(state, dict):
         # The learner's module also holds target networks (SAC's target_*), which a policy

@@ -39,20 +39,20 @@ EPISODES_WAIT_S = 120.0   # the longest it waits for the run to write its curve'
 def start(settings: Any, run_dir: Path | None = None) -> subprocess.Popen | None:
     """The compile-ahead process for ``settings``' comparison, or None where it does not
     apply (no comparison, RLlib, options over the level, best-const not cached, turned off)."""
-    from agents.control.best_constant import cached_best_constant
+    from ..control.best_constant import cached_best_constant
 
     if (settings.compare_episodes <= 0 or settings.backend == "rllib" or settings.env_kwargs
             or os.environ.get(OFF_ENV, "1") == "0"):
         return None
     _, config = settings.environment()
-    from agents.control.best_constant import PAIRED_EPISODES
+    from ..control.best_constant import PAIRED_EPISODES
 
     steps = settings.max_episode_steps       # mpc's reference speed and the best-const row
     if cached_best_constant(config, max_episode_steps=steps) is None or \
             cached_best_constant(config, max_episode_steps=steps, paired=PAIRED_EPISODES) is None:
         return None
     return subprocess.Popen(
-        [sys.executable, "-m", "agents.training.compile_ahead", settings.env_id,
+        [sys.executable, "-m", f"{__package__}.compile_ahead", settings.env_id,
          str(settings.compare_episodes), str(settings.max_episode_steps),
          *([str(run_dir)] if run_dir is not None else [])],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -75,10 +75,11 @@ def finish(proc: subprocess.Popen | None, wait_s: float = WAIT_S) -> None:
 
 def compile_comparison(env_id: str, episodes: int, max_episode_steps: int) -> None:
     """Step best-const and `mpc` as the comparison does, for `STEPS` steps."""
-    from agents.control.rollout import policy_actor, run_episodes
-    from agents.evaluation.policies import load_policy
-    from agents.seeds import COMPARE_SEED
     from saddle_env.envs import get_level
+
+    from ..control.rollout import policy_actor, run_episodes
+    from ..evaluation.policies import load_policy
+    from ..seeds import COMPARE_SEED
 
     config = get_level(env_id).config()
     seeds = [COMPARE_SEED + i for i in range(episodes)]
@@ -93,8 +94,9 @@ def draw_curve_references(env_id: str, run_dir: Path, wait_s: float = EPISODES_W
     (the selection does so as training starts); nothing if it does not within ``wait_s``."""
     import time
 
-    from agents.training.run_report import CURVE_EPISODES, reference_lines
     from saddle_env.envs import get_level
+
+    from .run_report import CURVE_EPISODES, reference_lines
 
     path = run_dir / CURVE_EPISODES
     end = time.monotonic() + wait_s

@@ -34,8 +34,9 @@ from typing import Any
 
 import numpy as np
 
-from agents.seeds import IMITATION_SEED
 from saddle_env.envs import EnvConfig
+
+from ..seeds import IMITATION_SEED
 
 
 @dataclass(frozen=True)
@@ -218,7 +219,7 @@ def imitate(model: Any, config: EnvConfig, max_episode_steps: int, seed: int,
     (run ``seed`` picks a disjoint block of imitation seeds). Returns one summary per
     round: the driver's mean trapping time and kept fraction, the labels so far, the
     losses."""
-    from agents.control.mpc import ModelPredictiveController
+    from ..control.mpc import ModelPredictiveController
 
     policy = getattr(model, "policy", None)
     if policy is None or not hasattr(policy, "action_net") or not hasattr(policy, "value_net"):

@@ -18,9 +18,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from agents.evaluation.literal_kwargs import parse_kwargs_string
-from agents.paths import HYPERPARAMS_DIR
 from saddle_env.envs import ENV_ID
+
+from ..evaluation.literal_kwargs import parse_kwargs_string
+from ..paths import HYPERPARAMS_DIR
 
 # Keys of the zoo format that are not constructor arguments of the algorithm.
 ZOO_ONLY_KEYS = {"n_envs", "n_timesteps", "policy", "noise_type", "noise_std", "normalize",

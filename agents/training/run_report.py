@@ -26,12 +26,13 @@ from typing import Any
 
 import numpy as np
 
-from agents.cli_args import resolve_env
-from agents.control.rollout import same_episodes
-from agents.seeds import COMPARE_SEED
-from agents.training.runs import TrainSettings
 from saddle_env.envs import EnvConfig
 from saddle_env.jobs.files import write_text_atomically
+
+from ..cli_args import resolve_env
+from ..control.rollout import same_episodes
+from ..seeds import COMPARE_SEED
+from .runs import TrainSettings
 
 WALL_CSV = "evaluations_wall.csv"
 CURVE_EPISODES = "curve_episodes.json"    # written by agents.training.selection
@@ -55,8 +56,8 @@ def compare(run_dir: Path, settings: TrainSettings, model: Path | None = None) -
     """The trained agent (``model``: by default the run's ``selected_model.zip``, else its
     ``final_model.zip``) beside best-const and mpc on fresh episodes (`COMPARE_SEED`): print
     the table, save ``comparison.md`` and ``comparison.json``; return the Markdown."""
-    from agents.evaluation.evaluate import evaluate, markdown
-    from agents.evaluation.policies import load_policy
+    from ..evaluation.evaluate import evaluate, markdown
+    from ..evaluation.policies import load_policy
 
     _, config = settings.environment()
     if model is None:
@@ -115,7 +116,7 @@ def reference_lines(run_dir: Path, config: EnvConfig, env_id: str | None,
     """Evaluate ``names`` on the run's curve episodes with ``config`` and save them as
     ``curve_references.json``. If ``config`` does not make the curve's episodes (the check
     `same_episodes` makes): ValueError, or with ``strict=False`` None and nothing saved."""
-    from agents.evaluation.evaluate import evaluate
+    from ..evaluation.evaluate import evaluate
 
     episodes = curve_episodes(run_dir)
     if episodes is None:

@@ -20,10 +20,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from agents.cli_args import parse_address, resolve_env, saved_settings
-from agents.seeds import MAX_EVAL_EPISODES
 from saddle_env.envs import LEVEL_IDS, EnvConfig, Level
 from saddle_env.jobs.signals import SignalRecord
+
+from ..cli_args import parse_address, resolve_env, saved_settings
+from ..seeds import MAX_EVAL_EPISODES
 
 # The main job (`python train.py`): a level where learning shows within minutes and a
 # learned agent can beat mpc. Gusty, not Capture: on Capture mpc is within 0.02 s of the
@@ -185,7 +186,7 @@ def settings_for_resume(checkpoint: str | Path, total_timesteps: int | None = No
                         progress_bar: bool = True, **overrides: Any) -> TrainSettings:
     """The settings of the run a checkpoint belongs to (its ``config.json``), with a new
     budget, and RLlib's runner count or address, if given."""
-    from agents.evaluation.rllib_policy import is_checkpoint
+    from ..evaluation.rllib_policy import is_checkpoint
 
     ckpt = Path(checkpoint)
     if not (ckpt.is_file() or is_checkpoint(ckpt)):

@@ -43,10 +43,10 @@ from typing import Any
 
 import numpy as np
 
-from agents.control.rollout import episode_set
-from agents.seeds import RESELECT_SEED, TEST_SEED, VALIDATION_SEED
-from agents.training.run_report import CURVE_EPISODES
-from agents.training.runs import TrainSettings
+from ..control.rollout import episode_set
+from ..seeds import RESELECT_SEED, TEST_SEED, VALIDATION_SEED
+from .run_report import CURVE_EPISODES
+from .runs import TrainSettings
 
 TOP = 3                                   # snapshots re-evaluated on fresh episodes
 FRESH_FACTOR = 4                          # fresh episodes per validation episode
@@ -106,8 +106,8 @@ def score(model_path: Path, settings: TrainSettings, episodes: dict[str, Any]
     """The saved model's mean return and trapping time on the `episode_set` ``episodes``,
     as the evaluation tool measures them (the model file read as data, with its sidecar's
     normalisation and frame stacking)."""
-    from agents.evaluation.evaluate import evaluate
-    from agents.evaluation.policies import load_policy
+    from ..evaluation.evaluate import evaluate
+    from ..evaluation.policies import load_policy
 
     _, config = settings.environment()
     table, details = evaluate([(str(model_path), load_policy(model_path, config))], config,
@@ -123,7 +123,7 @@ def score(model_path: Path, settings: TrainSettings, episodes: dict[str, Any]
 
 def model_files(path: Path) -> list[Path]:
     """A saved model and the files beside it (sidecar, normalisation statistics)."""
-    from agents.evaluation.policies import vecnormalize_path
+    from ..evaluation.policies import vecnormalize_path
 
     return [path, path.with_suffix(".json"), vecnormalize_path(path)]
 

@@ -36,16 +36,16 @@ import time
 from pathlib import Path
 from types import ModuleType
 
-from agents.cli_args import parse_env_kwargs
-from agents.evaluation.model_files import untrusted
-from agents.seeds import COMPARE_SEED, VALIDATION_SEED
-from agents.training import compile_ahead
-from agents.training.backends import rllib as rllib_backend
-from agents.training.backends import sb3 as sb3_backend
-from agents.training.backends import sbx as sbx_backend
-from agents.training.recipes import load_hyperparams, parse_policy_kwargs, wrapper_settings
-from agents.training.run_report import compare, plot_learning_curve
-from agents.training.runs import (
+from ..cli_args import parse_env_kwargs
+from ..evaluation.model_files import untrusted
+from ..seeds import COMPARE_SEED, VALIDATION_SEED
+from . import compile_ahead
+from .backends import rllib as rllib_backend
+from .backends import sb3 as sb3_backend
+from .backends import sbx as sbx_backend
+from .recipes import load_hyperparams, parse_policy_kwargs, wrapper_settings
+from .run_report import compare, plot_learning_curve
+from .runs import (
     ALGO_NAMES,
     BACKEND_ALGOS,
     MAIN_JOB_ENV_ID,

@@ -36,7 +36,7 @@ def warm_start(model: Any, config: EnvConfig, how: str, max_episode_steps: int, 
     """Apply the warm start ``how`` to the new SB3 ``model``; returns what was done (the
     best-const action, or the imitation rounds) for the run folder."""
     if check_warm_start(how) == "mpc":
-        from agents.training.imitation import ImitationSettings, imitate
+        from .imitation import ImitationSettings, imitate
 
         settings = ImitationSettings.from_hyper(imitation)
         return {"warm_start": how, "imitation": vars(settings),
@@ -54,7 +54,7 @@ def warm_start_action(config: EnvConfig, how: str, max_episode_steps: int) -> fl
         raise ValueError("warm_start 'best-const' needs action_mode='target' or 'voltage' (in "
                          "acceleration mode a constant action is a constant acceleration, not a "
                          "speed)")
-    from agents.control.best_constant import best_constant
+    from ..control.best_constant import best_constant
 
     omega = float(best_constant(config, max_episode_steps=max_episode_steps)["omega"])
     # A constant voltage V holds the steady speed K·V (the search's speeds are such steady

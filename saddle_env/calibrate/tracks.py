@@ -177,7 +177,15 @@ def read_track(path: str | Path) -> Track:
 
 def parse_track(text: str, source: str = "<text>") -> Track:
     """`read_track` on the text of a file."""
-    rows = csv.reader(io.StringIO(text))
+    # newline=None: \r\n and a lone \r end a line too, as when read_track reads a file
+    rows = csv.reader(io.StringIO(text, newline=None))
+    try:
+        return _parse_rows(rows, source)
+    except csv.Error as exc:
+        raise TrackError(f"{source}, line {rows.line_num}: not a CSV row ({exc})") from None
+
+
+def _parse_rows(rows: Iterable[list[str]], source: str) -> Track:
     header: list[str] | None = None
     values: list[list[float]] = []
     lines: list[int] = []

@@ -192,6 +192,8 @@ class EnvConfig:
             if self.drag_quadratic != 0.0:
                 raise ValueError("give drag_quadratic or ball_density (which sets each ball's "
                                  "quadratic drag from its size), not both")
+        if self.mu_range is not None:  # before the nominal scene, which takes its low end
+            set_("mu_range", _range("mu_range", self.mu_range, lo=0.0))
         # Scene parameters are validated by building the nominal scene.
         self.scene()
         # The friction coefficients reach only coulomb balls' scenes: check them here too.
@@ -278,7 +280,6 @@ class EnvConfig:
             if "coulomb" not in (self.contact_models or (self.contact,)):
                 raise ValueError("mu_range randomises a coulomb ball's friction: it needs "
                                  "contact='coulomb' or 'coulomb' in contact_models")
-            set_("mu_range", _range("mu_range", self.mu_range, lo=0.0))
         # Every randomised scene must be valid: check the extremes now, not mid-training.
         for scene in self.extreme_scenes():
             scene.with_()  # re-validates

@@ -44,6 +44,7 @@ one (same index, same seeds) and training goes on with the learner's state intac
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import signal
@@ -55,8 +56,10 @@ from typing import Any
 
 import numpy as np
 
-from agents.cli_args import MissingExtra, install_hint, level_overrides, missing, parse_address
-from agents.evaluation.rllib_policy import (
+from saddle_env.envs.vector import SaddleTrapVectorEnv
+
+from ...cli_args import MissingExtra, install_hint, level_overrides, missing, parse_address
+from ...evaluation.rllib_policy import (
     CHECKPOINT_MARKER,
     SIDECAR,
     WEIGHTS_FILE,
@@ -66,10 +69,9 @@ from agents.evaluation.rllib_policy import (
     latest_checkpoint,
     load_policy,
 )
-from agents.training.recipes import parse_policy_kwargs
-from agents.training.run_report import append_curve_point
-from agents.training.runs import BACKEND_ALGOS, Stop, TrainSettings, sigterm_stops
-from saddle_env.envs.vector import SaddleTrapVectorEnv
+from ..recipes import parse_policy_kwargs
+from ..run_report import append_curve_point
+from ..runs import BACKEND_ALGOS, Stop, TrainSettings, sigterm_stops
 
 RLLIB_ALGOS = BACKEND_ALGOS["rllib"]
 RLLIB_MODULES = ("ray", "torch", "yaml")
@@ -181,13 +183,13 @@ def init_ray(address: str | None = None, num_cpus: int | None = None) -> bool:
         return False
     if address is not None:
         try:
-            ray.init(address=address, logging_level="ERROR", log_to_driver=False)
+            ray.init(address=address, logging_level=logging.ERROR, log_to_driver=False)
         except (ConnectionError, RuntimeError) as exc:
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise ValueError(f"--address {address}: {first}") from None
         return True
     ray.init(num_cpus=num_cpus or os.cpu_count() or 1, include_dashboard=False,
-             object_store_memory=LOCAL_OBJECT_STORE, logging_level="ERROR",
+             object_store_memory=LOCAL_OBJECT_STORE, logging_level=logging.ERROR,
              log_to_driver=False)
     return True
 
@@ -212,6 +214,7 @@ def build_config(settings: TrainSettings, hyper: dict[str, Any]):
     """The RLlib AlgorithmConfig of a run (Ray must be initialised: the CPUs per env
     runner are shared out among the cluster's CPUs if there are more runners than CPUs)."""
     import ray
+    from ray.rllib.algorithms.algorithm_config import AlgorithmConfig
     from ray.rllib.core.rl_module.default_model_config import DefaultModelConfig
     from ray.tune.registry import register_env
 
@@ -223,6 +226,7 @@ def build_config(settings: TrainSettings, hyper: dict[str, Any]):
     cpus = float(ray.cluster_resources().get("CPU", 1.0))
     cpus_per_runner = min(1.0, cpus / max(runners, 1))
     model = DefaultModelConfig(**module_config(settings.algo, hyper))
+    config: AlgorithmConfig
     if settings.algo == "ppo":
         from ray.rllib.algorithms.ppo import PPOConfig
 
@@ -250,7 +254,10 @@ def build_config(settings: TrainSettings, hyper: dict[str, Any]):
               .environment(env=ENV_NAME, env_config=env_config(settings))
               .env_runners(num_env_runners=runners, num_envs_per_env_runner=n_envs,
                            gym_env_vectorize_mode="vector_entry_point",
-                           num_cpus_per_env_runner=cpus_per_runner,
+                           # Ray's hint says int, but its CPU requests take fractions (a
+                           # share of a CPU when there are more runners than CPUs); without
+                           # Ray installed mypy sees no hint, hence unused-ignore.
+                           num_cpus_per_env_runner=cpus_per_runner,  # type: ignore[arg-type, unused-ignore]
                            rollout_fragment_length="auto" if settings.algo == "ppo" else 1)
               .learners(num_learners=0)
               .rl_module(model_config=model)

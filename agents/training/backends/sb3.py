@@ -43,17 +43,18 @@ from typing import Any
 
 import numpy as np
 
-from agents.cli_args import MissingExtra, install_hint, level_overrides, missing, resolve_env
-from agents.training.recipes import (
+from saddle_env.envs import ENV_ID
+
+from ...cli_args import MissingExtra, install_hint, level_overrides, missing, resolve_env
+from ..recipes import (
     ZOO_ONLY_KEYS,
     parse_policy_kwargs,
     train_episode_steps,
     wrapper_settings,
 )
-from agents.training.run_report import append_curve_point
-from agents.training.runs import Stop, StopRequest, TrainSettings, sigterm_stops, stops_held
-from agents.training.schedules import with_schedules
-from saddle_env.envs import ENV_ID
+from ..run_report import append_curve_point
+from ..runs import Stop, StopRequest, TrainSettings, sigterm_stops, stops_held
+from ..schedules import with_schedules
 
 # What training imports beyond the core install (all in the "train" extra).
 TRAIN_MODULES = ("stable_baselines3", "torch", "yaml", "matplotlib")
@@ -141,7 +142,7 @@ class Sb3Learner:
 
     def warm_start(self, model, config, hyper: dict[str, Any], steps: int, seed: int
                    ) -> dict[str, Any]:
-        from agents.training.warm_start import warm_start
+        from ..warm_start import warm_start
 
         return warm_start(model, config, hyper["warm_start"], steps, seed, hyper.get("imitation"))
 
@@ -164,8 +165,8 @@ def save_model(model, path: Path, settings: TrainSettings, extra: dict[str, Any]
     statistics next to it as JSON (what evaluation needs to act as in training)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    from agents.evaluation.model_files import save_normalizer
-    from agents.evaluation.policies import vecnormalize_path
+    from ...evaluation.model_files import save_normalizer
+    from ...evaluation.policies import vecnormalize_path
 
     with stops_held():    # a stop during the save comes after it, with the files whole
         model.save(path)
@@ -181,7 +182,7 @@ def checkpoint_statistics(checkpoint: str | Path) -> tuple[Path | None, Path | N
     ours (``<stem>.vecnormalize.json``), or the pickles older runs and SB3's
     CheckpointCallback wrote (``<stem>.vecnormalize.pkl``,
     ``checkpoint_vecnormalize_<steps>_steps.pkl``)."""
-    from agents.evaluation.policies import vecnormalize_path
+    from ...evaluation.policies import vecnormalize_path
 
     ckpt = Path(checkpoint)
     ours = vecnormalize_path(ckpt)
@@ -196,7 +197,7 @@ REPLAY_SUFFIX = ".replay.npz"
 
 
 def _save_checkpoint(model, folder: Path, tag: str, settings: TrainSettings) -> Path:
-    from agents.evaluation.model_files import save_replay_buffer
+    from ...evaluation.model_files import save_replay_buffer
 
     with stops_held():
         path = save_model(model, folder / f"{tag}_{model.num_timesteps}_steps.zip", settings)
@@ -242,7 +243,7 @@ def _resume(cls, checkpoint: Path, env, hyper: dict[str, Any], norm_kw: dict[str
     checkpoint's tensors (weights and optimiser state, ``weights_only``), its step counters
     (plain JSON), normaliser statistics (JSON) and replay buffer (npz) are put into it.
     ``trust``: SB3's own loader and the pickles older runs wrote."""
-    from agents.evaluation.model_files import load_replay_buffer, read_archive, untrusted
+    from ...evaluation.model_files import load_replay_buffer, read_archive, untrusted
 
     env = resume_env(checkpoint, env, norm_kw, frame_stack, trust)
     buffer_npz = checkpoint.with_suffix(REPLAY_SUFFIX)
@@ -282,7 +283,7 @@ def resume_env(checkpoint: Path, env, norm_kw: dict[str, Any] | None, frame_stac
                trust: bool):
     """``env`` wrapped as the run wraps it, its normaliser holding the statistics saved with
     ``checkpoint`` (JSON; an older run's pickle only with ``trust``)."""
-    from agents.evaluation.model_files import read_normalizer, restore_normalizer, untrusted
+    from ...evaluation.model_files import read_normalizer, restore_normalizer, untrusted
 
     stats_json, stats_pickle = checkpoint_statistics(checkpoint)
     if norm_kw is not None and stats_json is None and stats_pickle is not None:
@@ -321,7 +322,7 @@ def _selection_callback(settings: TrainSettings, run_dir: Path, n_envs: int,
     candidates); `finish` re-evaluates the candidates on fresh episodes and ships one."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from agents.training.selection import Selection
+    from ..selection import Selection
 
     start_s = time.time() if began is None else began
     assert settings.eval_freq is not None  # TrainSettings.take_recipe filled it
@@ -433,7 +434,7 @@ def train_with(learner: Sb3Learner, settings: TrainSettings, hyper: dict[str, An
     env = make_vec_env(n_envs, settings.seed, settings.env_kwargs,
                        train_episode_steps(hyper, steps), settings.env_id)
     if hyper.get("reward_shaping") is not None:      # training rewards only (agents.training.shaping)
-        from agents.training.shaping import shape
+        from ..shaping import shape
 
         env = shape(env, hyper["reward_shaping"], config)
     if resume is not None:

@@ -33,8 +33,11 @@ from typing import Any
 
 import numpy as np
 
-from agents.cli_args import MissingExtra, install_hint, missing
-from agents.training.backends.sb3 import (
+from ...cli_args import MissingExtra, install_hint, missing
+from ..recipes import HYPERPARAMS_DIR, ZOO_ONLY_KEYS, parse_policy_kwargs
+from ..runs import TrainSettings
+from ..schedules import with_schedules
+from .sb3 import (
     PROGRESS_MODULES,
     TRAIN_MODULES,
     Sb3Learner,
@@ -43,9 +46,6 @@ from agents.training.backends.sb3 import (
     save_model,
     train_with,
 )
-from agents.training.recipes import HYPERPARAMS_DIR, ZOO_ONLY_KEYS, parse_policy_kwargs
-from agents.training.runs import TrainSettings
-from agents.training.schedules import with_schedules
 
 SBX_MODULES = ("sbx", "jax", "flax", "optax")
 # The recipes when --hyperparams names none: the fast recipe on every level (the file says
