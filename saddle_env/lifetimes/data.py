@@ -37,19 +37,23 @@ class Series:
 
     @property
     def name(self) -> str:
+        """The series' label: date, saddle and object."""
         what = f"steel {self.diameter_mm:g} mm" if self.obj == "steel" else "LN2 droplets"
         return f"{self.date} {self.saddle} {what}"
 
     @property
     def mean(self) -> np.ndarray:
+        """Mean lifetime per speed [s]."""
         return np.array([t.mean() for t in self.lifetimes])
 
     @property
     def std(self) -> np.ndarray:
+        """Sample standard deviation of the lifetimes per speed [s]."""
         return np.array([t.std(ddof=1) if t.size > 1 else 0.0 for t in self.lifetimes])
 
     @property
     def counts(self) -> np.ndarray:
+        """Releases per speed."""
         return np.array([t.size for t in self.lifetimes])
 
     def resampled(self, rng: np.random.Generator) -> Series:

@@ -102,6 +102,7 @@ class LabModel:
         return replace(self, **changes)
 
     def as_dict(self) -> dict[str, float]:
+        """Every parameter by name (SI units)."""
         return asdict(self)
 
     def scene(self, c_plus: float, c_minus: float, obj: str,
@@ -132,6 +133,7 @@ class LifetimePrediction:
     model: dict[str, object]
 
     def as_json(self) -> dict[str, object]:
+        """What ``saddle-lifetimes --json`` prints: rps, mean_s, std_s and the model."""
         return {"rps": [float(f) for f in self.rps],
                 "mean_s": [float(m) for m in self.mean_s],
                 "std_s": [float(s) for s in self.std_s], "model": self.model}
