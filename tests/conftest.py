@@ -1,13 +1,20 @@
+import os
 import sys
 from pathlib import Path
 
 # Tests import their helpers and the independent reference model as plain modules.
 sys.path.insert(0, str(Path(__file__).parent))
 
+# The tests run the clone's own `agents` (installed, it is `saddle_agents`: pyproject.toml),
+# however pytest is started and from whatever folder, and so do the programs they start.
+_ROOT = str(Path(__file__).resolve().parents[1])
+sys.path.insert(1, _ROOT)
+os.environ["PYTHONPATH"] = os.pathsep.join(
+    [_ROOT, *(p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p)])
+
 # Searches the tests trigger go to a temporary cache, never into the shipped
 # agents/control/best_const.json (subprocesses inherit the variable).
 import atexit  # noqa: E402
-import os  # noqa: E402
 import shutil  # noqa: E402
 import tempfile  # noqa: E402
 
