@@ -1,20 +1,23 @@
 """Build the ahead-of-time compiled kernels: the compiled code of a first `env.step` (the
-single env's and the vector env's below 2 x LANES balls, training's 64), its `reset`, a
-first `simulate`, `simulate_batch` and `predict_batch` (a model-predictive controller's
-look-ahead), as a C extension module per set of contact models, so that a fresh process
-starts without numba's 10-20 s of compiling (docs/coldstart.md).
+single env's, the vector env's below 2 x LANES balls on one thread, training's 64, and from
+2 x LANES on numba's threads), its `reset`, a first `simulate`, `simulate_batch` and
+`predict_batch` (a model-predictive controller's look-ahead), as a C extension module per
+set of contact models, so that a fresh process starts without numba's 10-20 s of compiling
+(docs/coldstart.md).
 
 What is built is numba's own compile of the kernels, not a second implementation: for each
 set of contact models a registered level, a one-model environment or `simulate`, or the ion
-trap's `simulate_ion` uses (`planned_builds`), this process runs
+trap's `simulate_ion` uses (`planned_builds`), a worker process runs
 those first calls once with the JIT (`_kernels.specialise`'s copies), then links the
-compiled code below each entry point into an extension module with `numba.pycc`, for this
-machine's CPU as the JIT would, whose entry points take exactly the argument types the JIT
-was called with and release the GIL (the batch kernels run on several threads:
-`_kernels.in_threads`). `saddle_env.compilation.aot` loads the modules when they were built from the
-sources in place (a digest of them is in the manifest), on the same platform and CPU, and
-otherwise leaves every call to the JIT. The vector env's threaded step (from 2 x LANES
-balls) is not built: it uses numba's `prange`, which pycc cannot build.
+compiled code below each entry point into an extension module with `numba.pycc`, whose
+entry points take exactly the argument types the JIT was called with and release the GIL
+(the batch kernels run on several threads: `_kernels.in_threads`). The workers' JIT and pycc
+compile for `aot.build_target`'s CPU (on x86-64 the x86-64-v3 level, so that a wheel serves
+other CPU models), told to numba through its CPU variables. The threaded step's module
+carries `aot_threads`'s forwarders to numba's threading layer. `saddle_env.compilation.aot`
+loads the modules when they were built from the sources in place (a digest of them is in
+the manifest), on the same platform and a CPU that can run them, and otherwise leaves every
+call to the JIT.
 
 Run by the package's install (setup.py; an install never fails for it) and by
 ``python -m saddle_env.compilation.precompile --aot``.
