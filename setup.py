@@ -77,7 +77,7 @@ def _run_build(root: Path, env: dict) -> bool:
     """``python -m saddle_env.compilation.precompile --aot`` in ``root``, in a session of its own so that a
     time-out or Ctrl-C stops its worker processes too."""
     cmd = [sys.executable, "-m", "saddle_env.compilation.precompile", "--aot"]
-    print(f"saddle-env: {' '.join(cmd[1:])} (about 80 s on 2 cores)", flush=True)
+    print(f"saddle-env: {' '.join(cmd[1:])} (a few minutes on 2 cores)", flush=True)
     try:
         proc = subprocess.Popen(cmd, cwd=root, env=env, start_new_session=True)
     except OSError as exc:

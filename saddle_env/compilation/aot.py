@@ -168,7 +168,7 @@ def _load() -> dict[str, dict[str, dict[str, Callable]]]:
         _why_not = f"{why}; rebuild with python -m saddle_env.compilation.precompile --aot"
         if manifest.get("cpu") in LEVEL_FEATURES:
             from .notice import announce_no_build
-            announce_no_build(_why_not)   # the one notice of the whole slow first run
+            announce_no_build(_why_not)   # a portable build that cannot serve here: said once
         return {}
     if manifest.get("digest") != source_digest():
         _why_not = ("built from other sources (the package changed since; rebuild with "
