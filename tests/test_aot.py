@@ -197,6 +197,35 @@ def test_an_entry_point_is_used_for_its_own_argument_types_only(fake_build, monk
     assert checked(space, "rhs", ()) is space.rhs
 
 
+def test_a_threaded_entry_point_is_wired_before_use_or_left_to_the_jit(
+        fake_build, monkeypatch):
+    """`aot.prepare` through `specialise.checked`: an entry point the manifest lists as
+    threaded has its module wired to numba's threading layer when first handed out; if the
+    wiring fails, the JIT copy is handed out instead."""
+    from saddle_env.compilation import aot_threads
+
+    monkeypatch.delenv(FULL_KERNELS_ENV, raising=False)
+    fake_build(modules=[{"name": "fake", "file": "fake.py", "flags": ["ROLLING_ON"],
+                         "exports": {"saddle_env.integrators": ["integrate_h"]},
+                         "argtypes": {"saddle_env.integrators.integrate_h":
+                                      ["int64", "array(float64, 1d, C)"]},
+                         "threaded": ["saddle_env.integrators.integrate_h"]}])
+    wired = []
+    monkeypatch.setattr(aot_threads, "wire", wired.append)
+    monkeypatch.setattr(S, "_variants", {})
+    space = specialise((ROLLING,), False, I)
+    assert wired == []                                   # not before it is handed out
+    assert checked(space, "integrate_h", (0, np.zeros(3)))() == "ahead"
+    assert [Path(p).name for p in wired] == ["fake.py"]
+
+    def fail(module_file):
+        raise RuntimeError("numba's threading layer has no numba_parallel_for")
+
+    monkeypatch.setattr(aot_threads, "wire", fail)
+    jit = checked(space, "integrate_h", (0, np.zeros(3)))
+    assert jit is not space.integrate_h and jit.py_func.__name__ == "integrate_h"
+
+
 def test_aot_takes_no_targets(capsys):
     with pytest.raises(SystemExit):
         pc.main(["--aot", "simulate"])

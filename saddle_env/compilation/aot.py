@@ -222,15 +222,22 @@ def matches(fn: Callable, args: tuple) -> bool:
     return tuple(str(numba.typeof(a)) for a in args) == _argtypes[id(fn)]
 
 
-def prepare(fn: Callable) -> Callable:
-    """``fn``, an ahead-of-time entry point, ready to be called: one that runs on numba's
-    threads has its module wired to numba's threading layer first (`aot_threads.wire`;
-    only then, so a process that never steps on threads starts none). Returns ``fn``."""
+def prepare(fn: Callable) -> bool:
+    """Make ``fn``, an ahead-of-time entry point, ready to be called: one that runs on
+    numba's threads has its module wired to numba's threading layer first
+    (`aot_threads.wire`; only then, so a process that never steps on threads starts none).
+    False if that failed (the caller then takes the JIT's copy)."""
     module_file = _threaded.get(id(fn))
-    if module_file is not None:
-        from .aot_threads import wire
+    if module_file is None:
+        return True
+    from .aot_threads import wire
+    try:
         wire(module_file)
-    return fn
+    except (OSError, ValueError, RuntimeError, AttributeError) as exc:
+        logger.info("saddle_env: the ahead-of-time threaded step of %s not used (%s: %s); "
+                    "the JIT compiles it", module_file, type(exc).__name__, exc)
+        return False
+    return True
 
 
 def status() -> str:

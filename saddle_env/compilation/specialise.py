@@ -153,7 +153,7 @@ def checked(space: types.SimpleNamespace, name: str, args: tuple):
     fn = getattr(space, name)
     if id(fn) not in _jit_of:
         return fn
-    return _aot.prepare(fn) if _aot.matches(fn, args) else _jit_of[id(fn)]
+    return fn if _aot.matches(fn, args) and _aot.prepare(fn) else _jit_of[id(fn)]
 
 
 _entries: dict[tuple[int, str], object] = {}  # (id of a `specialise` namespace, name) → checked
