@@ -287,7 +287,7 @@ for lid, options in [(lid, {}) for lid in %r] + [("SaddleTrap-v0", {"contact": "
     out["vector " + name] = rows
     vec = gym.make_vec(lid, num_envs=128, **options)  # from 2 x LANES balls: numba's threads
     obs, _ = vec.reset(seed=7)
-    rows = [obs.ravel().tolist()]
+    rows = [obs.ravel().tolist() + [0.0] * 128]
     for k in range(20):
         obs, r, term, trunc, info = vec.step(np.full((128, 1), 0.3 * np.cos(0.1 * k)))
         rows.append(obs.ravel().tolist() + r.tolist())
