@@ -6,6 +6,9 @@ fresh install starts in about a second instead of compiling with numba for 10-20
 The build runs in a separate process with a time limit and never fails the install: without
 a C compiler, or if anything in it goes wrong, the package installs without it and numba's
 JIT compiles on first use, as it always did. ``SADDLE_ENV_AOT=0`` at install time skips it.
+A wheel's build is compiled for the x86-64-v3 level, so that it serves other CPU models; an
+editable install's for the installing machine's CPU (``SADDLE_ENV_AOT_CPU`` chooses:
+`saddle_env.compilation.aot`).
 """
 import os
 import shutil
@@ -45,7 +48,11 @@ class build_aot(Command):
             return
         with tempfile.TemporaryDirectory(prefix="saddle-env-build-") as cache:
             env = dict(os.environ)
-            if not self.editable_mode:  # nothing but the modules goes into the wheel
+            if self.editable_mode:
+                # an editable install's build runs only where it is made: this CPU model's
+                # own code (AVX-512 where it has it), not the wheel's x86-64-v3 level
+                env.setdefault("SADDLE_ENV_AOT_CPU", "host")
+            else:  # nothing but the modules goes into the wheel
                 env.update(NUMBA_CACHE_DIR=cache, PYTHONDONTWRITEBYTECODE="1")
             done = _run_build(root, env)
         if not self.editable_mode:
@@ -70,7 +77,7 @@ def _run_build(root: Path, env: dict) -> bool:
     """``python -m saddle_env.compilation.precompile --aot`` in ``root``, in a session of its own so that a
     time-out or Ctrl-C stops its worker processes too."""
     cmd = [sys.executable, "-m", "saddle_env.compilation.precompile", "--aot"]
-    print(f"saddle-env: {' '.join(cmd[1:])} (about 80 s on 2 cores)", flush=True)
+    print(f"saddle-env: {' '.join(cmd[1:])} (a few minutes on 2 cores)", flush=True)
     try:
         proc = subprocess.Popen(cmd, cwd=root, env=env, start_new_session=True)
     except OSError as exc:

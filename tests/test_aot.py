@@ -78,6 +78,80 @@ def test_a_build_is_used_only_from_its_sources_and_on_its_platform_and_cpu(
     assert "turned off" in _aot.status()
 
 
+def test_a_build_for_the_level_runs_on_every_cpu_model_that_has_the_level():
+    """`aot.unusable`, the decision itself: a build for x86-64-v3 on any model reporting
+    the level's features, named; a build for a CPU model on that model and features only;
+    either under the numba and llvmlite that built it only."""
+    here = _aot.machine()
+    level = {**here, "cpu": _aot.BASELINE, "features": _aot.LEVEL_FEATURES[_aot.BASELINE]}
+    assert _aot.unusable(level, {**here, "cpu": "haswell", "features": HASWELL}) is None
+    assert _aot.unusable(level, {**here, "cpu": "znver4", "features": ZNVER4}) is None
+    assert _aot.unusable(level, {**here, "cpu": "sandybridge", "features": SANDYBRIDGE}) == (
+        "this CPU (sandybridge) lacks avx2, bmi, bmi2, f16c, fma, lzcnt, movbe of the "
+        "instruction-set level x86-64-v3 they were built for")
+    hidden = HASWELL.replace("+fma", "-fma")           # a virtual machine that hides FMA
+    assert "lacks fma of" in _aot.unusable(level, {**here, "cpu": "haswell", "features": hidden})
+    assert "numba '0.1.0'" in _aot.unusable({**level, "numba": "0.1.0"}, here)
+    model = {**here, "cpu": "haswell", "features": HASWELL}   # SADDLE_ENV_AOT_CPU=host
+    assert _aot.unusable(model, {**here, "cpu": "haswell", "features": HASWELL}) is None
+    assert "cpu 'haswell'" in _aot.unusable(model, {**here, "cpu": "znver4", "features": ZNVER4})
+    assert "CPU features" in _aot.unusable(model, {**here, "cpu": "haswell", "features": hidden})
+
+
+def test_the_build_is_for_the_level_where_the_machine_has_it_else_for_the_machine(
+        monkeypatch):
+    monkeypatch.delenv(_aot.AOT_CPU_ENV, raising=False)
+    here = _aot.machine()
+    has_level = _aot.unusable({**here, "cpu": _aot.BASELINE,
+                               "features": _aot.LEVEL_FEATURES[_aot.BASELINE]}, here) is None
+    own = {"cpu": here["cpu"], "features": here["features"]}
+    level = {"cpu": _aot.BASELINE, "features": _aot.LEVEL_FEATURES[_aot.BASELINE]}
+    assert _aot.build_target() == (level if has_level and os.uname().machine == "x86_64"
+                                   else own)
+    monkeypatch.setenv(_aot.AOT_CPU_ENV, "host")
+    assert _aot.build_target() == own
+    monkeypatch.setenv(_aot.AOT_CPU_ENV, "native")
+    with pytest.raises(ValueError, match="SADDLE_ENV_AOT_CPU must be 'baseline' or 'host', "
+                                         "got 'native'"):
+        _aot.build_target()
+
+
+def test_a_cpu_below_the_level_falls_back_to_the_jit_saying_so_once(fake_build, caplog,
+                                                                     monkeypatch):
+    from saddle_env.compilation import notice
+
+    monkeypatch.setattr(notice, "_announced_no_build", False)
+    # a level whose features include one this machine lacks
+    fake_build(cpu=_aot.BASELINE, features=_aot.LEVEL_FEATURES[_aot.BASELINE] + ",+nosuchisa")
+    with caplog.at_level("WARNING", logger="saddle_env"):
+        assert _aot.compiled(("ROLLING_ON",), "saddle_env.integrators") == {}
+        assert "lacks nosuchisa of the instruction-set level x86-64-v3" in _aot.status()
+        _aot._loaded = None                         # asked again: no second notice
+        assert _aot.compiled(("ROLLING_ON",), "saddle_env.integrators") == {}
+    said = [r.getMessage() for r in caplog.records if "are not used" in r.getMessage()]
+    assert len(said) == 1 and "nosuchisa" in said[0] and "numba compiles" in said[0], said
+    fake_build(cpu=_aot.BASELINE, features=_aot.LEVEL_FEATURES[_aot.BASELINE])
+    found = _aot.compiled(("ROLLING_ON",), "saddle_env.integrators")  # at the level: used
+    assert found["integrate_h"]() == "ahead"
+
+
+def test_the_forwarders_cover_what_numbas_threading_layer_provides():
+    """`aot_threads`: every name numba's parallel code calls has a hidden forwarder in the
+    C shim, and numba's threading layer provides an address for each."""
+    import re
+
+    from llvmlite import binding as ll
+    from numba.np.ufunc import parallel
+
+    from saddle_env.compilation import aot_threads
+
+    defined = re.findall(r"^HIDDEN [\w *]+?\b(\w+)\(", aot_threads.SHIM, re.M)
+    assert defined == list(aot_threads.SYMBOLS)
+    assert f"void *{aot_threads.TABLE}[{len(aot_threads.SYMBOLS)}];" in aot_threads.SHIM
+    parallel._launch_threads()
+    assert all(ll.address_of_symbol(name) for name in aot_threads.SYMBOLS)
+
+
 def test_a_damaged_manifest_falls_back_to_the_jit(fake_build, tmp_path):
     fake_build()
     manifest = json.loads((tmp_path / _aot.MANIFEST).read_text())
@@ -121,6 +195,35 @@ def test_an_entry_point_is_used_for_its_own_argument_types_only(fake_build, monk
         assert jit is not space.integrate_h and jit.py_func.__name__ == "integrate_h"
     # what is not compiled ahead is the JIT copy, unchecked
     assert checked(space, "rhs", ()) is space.rhs
+
+
+def test_a_threaded_entry_point_is_wired_before_use_or_left_to_the_jit(
+        fake_build, monkeypatch):
+    """`aot.prepare` through `specialise.checked`: an entry point the manifest lists as
+    threaded has its module wired to numba's threading layer when first handed out; if the
+    wiring fails, the JIT copy is handed out instead."""
+    from saddle_env.compilation import aot_threads
+
+    monkeypatch.delenv(FULL_KERNELS_ENV, raising=False)
+    fake_build(modules=[{"name": "fake", "file": "fake.py", "flags": ["ROLLING_ON"],
+                         "exports": {"saddle_env.integrators": ["integrate_h"]},
+                         "argtypes": {"saddle_env.integrators.integrate_h":
+                                      ["int64", "array(float64, 1d, C)"]},
+                         "threaded": ["saddle_env.integrators.integrate_h"]}])
+    wired = []
+    monkeypatch.setattr(aot_threads, "wire", wired.append)
+    monkeypatch.setattr(S, "_variants", {})
+    space = specialise((ROLLING,), False, I)
+    assert wired == []                                   # not before it is handed out
+    assert checked(space, "integrate_h", (0, np.zeros(3)))() == "ahead"
+    assert [Path(p).name for p in wired] == ["fake.py"]
+
+    def fail(module_file):
+        raise RuntimeError("numba's threading layer has no numba_parallel_for")
+
+    monkeypatch.setattr(aot_threads, "wire", fail)
+    jit = checked(space, "integrate_h", (0, np.zeros(3)))
+    assert jit is not space.integrate_h and jit.py_func.__name__ == "integrate_h"
 
 
 def test_aot_takes_no_targets(capsys):
@@ -182,6 +285,13 @@ for lid, options in [(lid, {}) for lid in %r] + [("SaddleTrap-v0", {"contact": "
         obs, r, term, trunc, info = vec.step(np.full((8, 1), 0.3 * np.sin(0.1 * k)))
         rows.append(obs.ravel().tolist() + r.tolist())
     out["vector " + name] = rows
+    vec = gym.make_vec(lid, num_envs=128, **options)  # from 2 x LANES balls: numba's threads
+    obs, _ = vec.reset(seed=7)
+    rows = [obs.ravel().tolist() + [0.0] * 128]
+    for k in range(20):
+        obs, r, term, trunc, info = vec.step(np.full((128, 1), 0.3 * np.cos(0.1 * k)))
+        rows.append(obs.ravel().tolist() + r.tolist())
+    out["threaded vector " + name] = rows
 for contact in ("rolling", "slipping", "coulomb"):
     scene = se.Scene(contact=contact, mu=0.3) if contact == "coulomb" else se.Scene(contact=contact)
     state = se.initial_state(scene, x=0.001, y=0.001, start="lab-rest", omega=30.0)
@@ -215,24 +325,34 @@ print(json.dumps({"status": _aot.status(), "runs": out}))
 """
 
 
-@pytest.mark.slow
-def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(tmp_path):
-    """Build into a copy of the package; a fresh process on the build's cache then takes
-    every level's first steps (and a slipping-only environment's, which no level draws), a
-    first simulate, simulate_batch and predict_batch of each contact model, a batch
-    mixing rolling and slipping balls and a first ion in each trap from the build,
-    compiling only a few small helpers called from Python, with the JIT's results
-    to the last bit; an edited source retires the build."""
-    from saddle_env.envs import LEVEL_IDS
-
+@pytest.fixture(scope="module")
+def built_copy(tmp_path_factory):
+    """A copy of the package with a build made in it (`precompile --aot`), as this machine's
+    numba sees its CPU; the folder and the environment that imports the copy."""
+    tmp_path = tmp_path_factory.mktemp("aot")
     shutil.copytree(Path(saddle_env.__file__).parent, tmp_path / "saddle_env",
                     ignore=shutil.ignore_patterns("__pycache__", "_aot"))
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(tmp_path)}
-    env.pop("SADDLE_ENV_FULL_KERNELS", None)            # the per-scene copies, as users run
-    env.pop(_aot.AOT_ENV, None)
+    for name in ("SADDLE_ENV_FULL_KERNELS", _aot.AOT_ENV, _aot.AOT_CPU_ENV,  # as users run
+                 *_aot.CPU_VARIABLES):
+        env.pop(name, None)
     done = subprocess.run([sys.executable, "-m", "saddle_env.compilation.precompile", "--aot"],
-                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=1200)
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=2400)
     assert done.returncode == 0, done.stderr
+    return tmp_path, env
+
+
+@pytest.mark.slow
+def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(built_copy):
+    """A fresh process on an empty cache takes, from the build, every level's first steps
+    (single, vector on one thread and vector on numba's threads; and a slipping-only
+    environment's, which no level draws), a first simulate, simulate_batch and
+    predict_batch of each contact model, a batch mixing rolling and slipping balls and a
+    first ion in each trap, compiling only a few small helpers called from Python, with
+    the JIT's results to the last bit; an edited source retires the build."""
+    from saddle_env.envs import LEVEL_IDS
+
+    tmp_path, env = built_copy
     manifest = json.loads((tmp_path / "saddle_env" / "_aot" / _aot.MANIFEST).read_text())
     assert {tuple(m["flags"]) for m in manifest["modules"]} == {
         ("ROLLING_ON",), ("SLIPPING_ON",), ("COULOMB_ON",), ("ROLLING_ON", "SLIPPING_ON"),
@@ -242,8 +362,9 @@ def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(t
     # the empty cache of a fresh install: only the build's modules
     fresh = {**env, "NUMBA_CACHE_DIR": str(tmp_path / "empty")}
     compiled = compiled_in_fresh_process(code, fresh, cwd=str(tmp_path))
-    entry_points = {"place", "step_scalar", "step_serial", "integrate_h", "_step_range_scalar",
-                    "_step_range", "integrate_batch", "integrate_segments"}
+    entry_points = {"place", "step_scalar", "step_serial", "step_parallel", "integrate_h",
+                    "_step_range_scalar", "_step_range", "integrate_batch",
+                    "integrate_segments"}
     # a per-scene copy is named after its original: step_scalar__rolling
     assert compiled[-1] == "<lambda>", compiled
     assert not {name.split("__")[0] for name in compiled} & entry_points, compiled
@@ -264,11 +385,67 @@ def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(t
         assert np.array_equal(np.array(ahead["runs"][key]), np.array(jit["runs"][key])), key
 
     engine = tmp_path / "saddle_env" / "envs" / "engine.py"
-    engine.write_text(engine.read_text() + "\n# an edit after the build\n")
-    stale = run("1")
+    source = engine.read_text()
+    engine.write_text(source + "\n# an edit after the build\n")
+    try:
+        stale = run("1")
+    finally:
+        engine.write_text(source)                  # the build serves the next test again
     assert "built from other sources" in stale["status"]
     for key in jit["runs"]:
         assert np.array_equal(np.array(stale["runs"][key]), np.array(jit["runs"][key])), key
+
+
+# What LLVM reports for two CPU models (numba's host features; abridged to the x86 ISA
+# extensions): Haswell, the first at x86-64-v3, and Sandy Bridge, with AVX but below it.
+ZNVER4 = _aot.LEVEL_FEATURES[_aot.BASELINE] + ",+avx512f,+avx512vl,+avx512bw,+adx,+sha"
+HASWELL = ("+64bit,+avx,+avx2,+bmi,+bmi2,+cmov,+crc32,+cx16,+cx8,+f16c,+fma,+fsgsbase,+fxsr,"
+           "+invpcid,+lzcnt,+mmx,+movbe,+pclmul,+popcnt,+rdrnd,+sahf,+sse,+sse2,+sse3,+sse4.1,"
+           "+sse4.2,+ssse3,+xsave,+xsaveopt,-avx512f,-avx512vl,-adx,-rdseed,-sha")
+SANDYBRIDGE = ("+64bit,+avx,-avx2,-bmi,-bmi2,+cmov,+crc32,+cx16,+cx8,-f16c,-fma,+fxsr,-lzcnt,"
+               "+mmx,-movbe,+pclmul,+popcnt,+sahf,+sse,+sse2,+sse3,+sse4.1,+sse4.2,+ssse3,"
+               "+xsave,+xsaveopt,-avx512f")
+
+
+@pytest.mark.slow
+def test_a_build_for_the_level_runs_under_another_cpu_model_and_only_at_the_level(
+        built_copy):
+    """The build is made for x86-64-v3 (not this machine's model), a fresh process whose
+    numba is told it runs on a Haswell takes a single and a 256-ball vector env's first
+    steps from it compiling no entry point, and one told it runs on a Sandy Bridge (AVX,
+    no AVX2) does not use it and says why once."""
+    tmp_path, env = built_copy
+    manifest = json.loads((tmp_path / "saddle_env" / "_aot" / _aot.MANIFEST).read_text())
+    assert (manifest["cpu"], manifest["features"]) == (
+        _aot.BASELINE, _aot.LEVEL_FEATURES[_aot.BASELINE])
+    assert manifest["cpu"] != _aot.machine()["cpu"]
+    code = ("import numpy as np, gymnasium as gym, saddle_env\n"
+            "from saddle_env.compilation import aot\n"
+            "env = gym.make('SaddleTrap-Gusty-v0'); env.reset(seed=0); env.step(np.zeros(1))\n"
+            "vec = gym.make_vec('SaddleTrap-Gusty-v0', num_envs=256); vec.reset(seed=0)\n"
+            "vec.step(np.zeros((256, 1)))\n"
+            "assert aot.status().startswith('ahead-of-time kernels in use'), aot.status()\n")
+    haswell = {**env, "NUMBA_CACHE_DIR": str(tmp_path / "empty-haswell"),
+               "NUMBA_CPU_NAME": "haswell", "NUMBA_CPU_FEATURES": HASWELL}
+    compiled = compiled_in_fresh_process(code, haswell, cwd=str(tmp_path))
+    assert compiled[-1] == "<lambda>", compiled
+    firsts = {"place", "step_scalar", "step_serial", "step_parallel", "_step_range"}
+    assert not {name.split("__")[0] for name in compiled} & firsts, compiled
+
+    below = {**env, "NUMBA_CPU_NAME": "sandybridge", "NUMBA_CPU_FEATURES": SANDYBRIDGE}
+    out = subprocess.run(
+        [sys.executable, "-c", "import saddle_env, saddle_env.envs\n"
+         "from saddle_env.compilation import aot, specialise as S\n"
+         "from saddle_env.scene import ROLLING, SLIPPING\n"
+         "S.specialise((ROLLING,), False, saddle_env.envs._step)\n"
+         "S.specialise((SLIPPING,), False, saddle_env.envs._step)\n"
+         "print(aot.status())"],
+        cwd=tmp_path, env=below, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith("no ahead-of-time kernels: this CPU (sandybridge) lacks "
+                                 "avx2, bmi, bmi2, f16c, fma, lzcnt, movbe of the "
+                                 "instruction-set level x86-64-v3"), out.stdout
+    assert out.stderr.count("ahead-of-time kernels are not used") == 1, out.stderr
 
 
 def _setup_commands():
@@ -297,6 +474,7 @@ def test_the_install_ships_a_new_build_or_none(tmp_path, monkeypatch, outcome):
 
     def build(root, env):
         assert env["NUMBA_CACHE_DIR"] != os.environ.get("NUMBA_CACHE_DIR")
+        assert env.get(_aot.AOT_CPU_ENV) is None           # a wheel's: the level's
         (root / "saddle_env" / "_aot").mkdir()
         (root / "saddle_env" / "_aot" / "k_rolling.so").write_text("built")
         (root / "saddle_env" / "envs" / "__pycache__").mkdir(parents=True)
@@ -311,6 +489,30 @@ def test_the_install_ships_a_new_build_or_none(tmp_path, monkeypatch, outcome):
     assert shipped == (["k_rolling.so"] if outcome == "built" else [])
     assert [Path(p).name for p in cmd.get_outputs()] == shipped
     assert outcome == "skipped" or not list((tmp_path / "saddle_env").rglob("__pycache__"))
+
+
+def test_an_editable_install_builds_for_its_own_cpu_and_a_wheel_for_the_level(tmp_path,
+                                                                              monkeypatch):
+    """An editable install's build is used only where it is made: it is compiled for the
+    machine's CPU (`SADDLE_ENV_AOT_CPU=host`) unless the user says otherwise; a wheel's
+    build is left to the default, the level (`aot.build_target`)."""
+    from setuptools.dist import Distribution
+
+    setup = _setup_commands()
+    seen = []
+    monkeypatch.setattr(setup, "_run_build",
+                        lambda root, env: seen.append(env.get(_aot.AOT_CPU_ENV)) or False)
+    monkeypatch.setenv("SADDLE_ENV_AOT", "1")
+    monkeypatch.delenv(_aot.AOT_CPU_ENV, raising=False)
+    for editable in (True, False):
+        cmd = setup.build_aot(Distribution())
+        cmd.build_lib, cmd.editable_mode = str(tmp_path), editable
+        monkeypatch.setattr(setup, "__file__", str(tmp_path / "setup.py"))
+        cmd.run()
+    monkeypatch.setenv(_aot.AOT_CPU_ENV, "baseline")   # the user's choice wins
+    cmd.editable_mode = True
+    cmd.run()
+    assert seen == ["host", None, "baseline"]
 
 
 def test_a_build_that_overruns_is_stopped_with_its_workers(tmp_path, monkeypatch):

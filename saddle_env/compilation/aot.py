@@ -6,10 +6,13 @@ the same numba compile the JIT would make, built once. Here they are found and c
 the manifest they were built with names the digest of the package's sources, and a module
 is used only while the sources still have that digest (an edited or pulled source falls
 back to the JIT and its on-disk cache, as without them). ``SADDLE_ENV_AOT=0`` turns them
-off. The modules are compiled for the building machine's CPU and its features, as numba's
-JIT compiles for the running one, and are used only on the same CPU and features and under
-the numba and llvmlite that built them. Only the standard library at import here:
-`specialise` imports this module, and asks it on its first specialisation.
+off. The modules are used only under the numba and llvmlite that built them, and only on a
+CPU that has every instruction they may use (`unusable`): on x86-64 they are compiled for
+the x86-64-v3 instruction-set level (`BASELINE`), so a wheel built on one machine serves
+every CPU at that level; built with ``SADDLE_ENV_AOT_CPU=host``, or on a machine below the
+level, they are compiled for the building machine's CPU model and features alone, as numba's
+JIT compiles for the running one. Only the standard library at import here: `specialise`
+imports this module, and asks it on its first specialisation.
 """
 from __future__ import annotations
 
@@ -18,9 +21,10 @@ import importlib.util
 import json
 import logging
 import os
+import platform
 import sys
 import sysconfig
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 AOT_ENV = "SADDLE_ENV_AOT"  # 0 turns the build off (at install: not built; at run time: not used)
@@ -32,6 +36,25 @@ MANIFEST = "manifest.json"
 # to one of them, even one no kernel reads, retires the build: safe rather than clever.
 SOURCE_SUBDIRS = ("", "envs", "compilation")
 
+# The CPU a build is compiled for. x86-64-v3 is the x86-64 psABI's third instruction-set
+# level (AVX2, FMA, BMI1/2, F16C, LZCNT, MOVBE: Intel from Haswell, 2013, AMD from Zen,
+# 2017, and the x86-64 machines of the common CI services). v4 adds AVX-512, which AMD
+# shipped only from Zen 4 (2022) and Intel's client CPUs mostly not at all. LLVM takes the
+# level's name as a CPU name; the features are the level's own, spelled as LLVM reports a
+# host's (numba's ``_get_host_cpu_features``), so that a host's report can be compared.
+BASELINE = "x86-64-v3"
+LEVEL_FEATURES = {
+    BASELINE: ",".join("+" + f for f in (
+        "64bit", "cmov", "cx8", "fxsr", "mmx", "sse", "sse2",               # x86-64
+        "cx16", "sahf", "popcnt", "crc32", "sse3", "ssse3", "sse4.1", "sse4.2",  # v2
+        "avx", "avx2", "bmi", "bmi2", "f16c", "fma", "lzcnt", "movbe", "xsave")),  # v3
+}
+# At build time: "host" compiles for the building machine's CPU model and features alone
+# (its own fastest code, used on that model only); "baseline" (the default) for `BASELINE`.
+AOT_CPU_ENV = "SADDLE_ENV_AOT_CPU"
+# numba's settings of the CPU its JIT compiles for (read once, when numba is imported)
+CPU_VARIABLES = ("NUMBA_CPU_NAME", "NUMBA_CPU_FEATURES")
+
 logger = logging.getLogger("saddle_env")
 _loaded: dict[str, dict[str, dict[str, Callable]]] | None = None  # flags tag → module → name → fn
 _why_not: str | None = None
@@ -39,6 +62,8 @@ _why_not: str | None = None
 # point unboxes its arguments as those types without checking them: called with others it
 # reads memory wrongly, hence `matches`.
 _argtypes: dict[int, tuple[str, ...]] = {}
+# id of an entry point that runs on numba's threads → its module's file (`prepare`)
+_threaded: dict[int, str] = {}
 
 
 def source_digest(package_dir: Path = PACKAGE_DIR) -> str:
@@ -70,6 +95,47 @@ def machine() -> dict[str, str]:
             "numba": numba.__version__, "llvmlite": llvmlite.__version__}
 
 
+def _enabled(features: str) -> set[str]:
+    return {f[1:] for f in features.split(",") if f.startswith("+")}
+
+
+def build_target() -> dict[str, str]:
+    """The CPU name and features a build here compiles for (`AOT_CPU_ENV`): `BASELINE`
+    on an x86-64 machine that has it, else this machine's own (`machine`)."""
+    choice = os.environ.get(AOT_CPU_ENV, "") or "baseline"
+    if choice not in ("baseline", "host"):
+        raise ValueError(f"{AOT_CPU_ENV} must be 'baseline' or 'host', got {choice!r}")
+    here = machine()
+    if (choice == "baseline" and platform.machine().lower() in ("x86_64", "amd64")
+            and _enabled(LEVEL_FEATURES[BASELINE]) <= _enabled(here["features"])):
+        return {"cpu": BASELINE, "features": LEVEL_FEATURES[BASELINE]}
+    return {"cpu": here["cpu"], "features": here["features"]}
+
+
+def unusable(built: Mapping[str, object], here: Mapping[str, str]) -> str | None:
+    """Why modules built for ``built`` (a manifest's ``cpu``, ``features``, ``numba`` and
+    ``llvmlite``) cannot run on ``here`` (`machine`); None if they can. A build for an
+    instruction-set level (`LEVEL_FEATURES`) runs on any CPU model that reports every
+    feature of the level; a build for a CPU model, only on that model with the same
+    features (a virtual machine may hide some of its model's); either only under the
+    numba and llvmlite that built it, whose code would otherwise no longer be bit for bit
+    what the JIT compiles beside it."""
+    cpu, features = built.get("cpu"), built.get("features")
+    if cpu in LEVEL_FEATURES and isinstance(features, str):
+        missing = sorted(_enabled(features) - _enabled(here["features"]))
+        if missing:
+            return (f"this CPU ({here['cpu']}) lacks {', '.join(missing)} of the "
+                    f"instruction-set level {cpu} they were built for")
+        differ = [k for k in ("numba", "llvmlite") if built.get(k) != here[k]]
+    else:
+        differ = [k for k in here if built.get(k) != here[k]]
+    if not differ:
+        return None
+    named = ", ".join(f"{k} {built.get(k)!r} (here {here[k]!r})" for k in differ
+                      if k != "features")
+    return f"built for another machine or compiler ({named or 'CPU features'})"
+
+
 def flags_key(flags: tuple[str, ...]) -> str:
     return ",".join(flags)
 
@@ -97,15 +163,12 @@ def _load() -> dict[str, dict[str, dict[str, Callable]]]:
     if manifest.get("platform") != platform_tag():
         _why_not = f"built for {manifest.get('platform')}, not {platform_tag()}"
         return {}
-    here = machine()
-    built = {k: manifest.get(k) for k in here}
-    if built != here:
-        # another CPU's instructions could be illegal here; another numba's code would no
-        # longer be bit for bit what the JIT compiles beside it
-        differ = ", ".join(f"{k} {built[k]!r} (here {here[k]!r})" for k in here
-                           if built[k] != here[k] and k != "features")
-        _why_not = f"built for another machine or compiler ({differ or 'CPU features'}); " \
-                   "rebuild with python -m saddle_env.compilation.precompile --aot"
+    why = unusable(manifest, machine())
+    if why is not None:
+        _why_not = f"{why}; rebuild with python -m saddle_env.compilation.precompile --aot"
+        if manifest.get("cpu") in LEVEL_FEATURES:
+            from .notice import announce_no_build
+            announce_no_build(_why_not)   # a portable build that cannot serve here: said once
         return {}
     if manifest.get("digest") != source_digest():
         _why_not = ("built from other sources (the package changed since; rebuild with "
@@ -122,16 +185,20 @@ def _load() -> dict[str, dict[str, dict[str, Callable]]]:
             spec.loader.exec_module(module)  # type: ignore[union-attr]
             entries: dict[str, dict[str, Callable]] = {}
             types: dict[int, tuple[str, ...]] = {}
+            threaded: dict[int, str] = {}
             for mod, names in entry["exports"].items():
                 entries[mod] = {name: getattr(module, name) for name in names}
                 for name in names:
                     types[id(entries[mod][name])] = tuple(entry["argtypes"][f"{mod}.{name}"])
+                    if f"{mod}.{name}" in entry.get("threaded", ()):
+                        threaded[id(entries[mod][name])] = str(path)
             key = flags_key(tuple(entry["flags"]))
         except (ImportError, OSError, KeyError, TypeError, AttributeError) as exc:
             logger.info("saddle_env: an ahead-of-time module of %s not loaded (%s: %s); "
                         "the JIT compiles its kernels", AOT_DIR, type(exc).__name__, exc)
             continue
         _argtypes.update(types)
+        _threaded.update(threaded)
         found[key] = entries
     _why_not = None if found else "no module of the build could be loaded"
     return found
@@ -153,6 +220,24 @@ def matches(fn: Callable, args: tuple) -> bool:
     import numba
 
     return tuple(str(numba.typeof(a)) for a in args) == _argtypes[id(fn)]
+
+
+def prepare(fn: Callable) -> bool:
+    """Make ``fn``, an ahead-of-time entry point, ready to be called: one that runs on
+    numba's threads has its module wired to numba's threading layer first
+    (`aot_threads.wire`; only then, so a process that never steps on threads starts none).
+    False if that failed (the caller then takes the JIT's copy)."""
+    module_file = _threaded.get(id(fn))
+    if module_file is None:
+        return True
+    from .aot_threads import wire
+    try:
+        wire(module_file)
+    except (OSError, ValueError, RuntimeError, AttributeError) as exc:
+        logger.info("saddle_env: the ahead-of-time threaded step of %s not used (%s: %s); "
+                    "the JIT compiles it", module_file, type(exc).__name__, exc)
+        return False
+    return True
 
 
 def status() -> str:

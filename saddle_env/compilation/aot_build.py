@@ -1,20 +1,23 @@
 """Build the ahead-of-time compiled kernels: the compiled code of a first `env.step` (the
-single env's and the vector env's below 2 x LANES balls, training's 64), its `reset`, a
-first `simulate`, `simulate_batch` and `predict_batch` (a model-predictive controller's
-look-ahead), as a C extension module per set of contact models, so that a fresh process
-starts without numba's 10-20 s of compiling (docs/coldstart.md).
+single env's, the vector env's below 2 x LANES balls on one thread, training's 64, and from
+2 x LANES on numba's threads), its `reset`, a first `simulate`, `simulate_batch` and
+`predict_batch` (a model-predictive controller's look-ahead), as a C extension module per
+set of contact models, so that a fresh process starts without numba's 10-20 s of compiling
+(docs/coldstart.md).
 
 What is built is numba's own compile of the kernels, not a second implementation: for each
 set of contact models a registered level, a one-model environment or `simulate`, or the ion
-trap's `simulate_ion` uses (`planned_builds`), this process runs
+trap's `simulate_ion` uses (`planned_builds`), a worker process runs
 those first calls once with the JIT (`_kernels.specialise`'s copies), then links the
-compiled code below each entry point into an extension module with `numba.pycc`, for this
-machine's CPU as the JIT would, whose entry points take exactly the argument types the JIT
-was called with and release the GIL (the batch kernels run on several threads:
-`_kernels.in_threads`). `saddle_env.compilation.aot` loads the modules when they were built from the
-sources in place (a digest of them is in the manifest), on the same platform and CPU, and
-otherwise leaves every call to the JIT. The vector env's threaded step (from 2 x LANES
-balls) is not built: it uses numba's `prange`, which pycc cannot build.
+compiled code below each entry point into an extension module with `numba.pycc`, whose
+entry points take exactly the argument types the JIT was called with and release the GIL
+(the batch kernels run on several threads: `_kernels.in_threads`). The workers' JIT and pycc
+compile for `aot.build_target`'s CPU (on x86-64 the x86-64-v3 level, so that a wheel serves
+other CPU models), told to numba through its CPU variables. The threaded step's module
+carries `aot_threads`'s forwarders to numba's threading layer. `saddle_env.compilation.aot`
+loads the modules when they were built from the sources in place (a digest of them is in
+the manifest), on the same platform and a CPU that can run them, and otherwise leaves every
+call to the JIT.
 
 Run by the package's install (setup.py; an install never fails for it) and by
 ``python -m saddle_env.compilation.precompile --aot``.
@@ -47,6 +50,7 @@ if TYPE_CHECKING:
     place: Callable[..., None]
     step_scalar: Callable[..., Any]
     step_serial: Callable[..., Any]
+    step_parallel: Callable[..., Any]
     integrate_h: Callable[..., Any]
     integrate_batch: Callable[..., None]
     integrate_segments: Callable[..., None]
@@ -73,6 +77,12 @@ def _step_serial(models, P, scales, Y, balls, cfg, actions, active, tab_fields, 
                        tab_fields, ctl_fields, noise, obs, out, buf, ibuf)
 
 
+def _step_parallel(models, P, scales, Y, balls, cfg, actions, active, tab_fields, ctl_fields,
+                   noise, obs, out, bufs, ibufs):
+    return step_parallel(models, P, scales, Y, balls, cfg, actions, active,  # noqa: F821
+                         tab_fields, ctl_fields, noise, obs, out, bufs, ibufs)
+
+
 def _integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_start, work):
     return integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale,  # noqa: F821
                        Y_out, stats, h_start, work)
@@ -93,7 +103,7 @@ def _integrate_segments(lo, hi, models, P, scales, Y, drives, durations, sample,
 # module whose JIT copy an export calls → {export name: its thin caller}
 _EXPORTS: dict[str, dict[str, Callable[..., Any]]] = {
     "saddle_env.envs._step": {"place": _place, "step_scalar": _step_scalar,
-                              "step_serial": _step_serial},
+                              "step_serial": _step_serial, "step_parallel": _step_parallel},
     "saddle_env.integrators": {"integrate_h": _integrate_h, "integrate_batch": _integrate_batch},
     "saddle_env.prediction": {"integrate_segments": _integrate_segments},
 }
@@ -185,22 +195,32 @@ def _build_one(flags: tuple[str, ...], spec: BuildSpec, out_dir: str) -> dict:
 
     from .. import integrators, prediction
     from ..envs import _step
+    from ..lockstep import LANES
     from ..scene import CONTACT_MODELS
+    from . import aot_threads
 
     t0 = time.perf_counter()
     exports: dict[str, list[str]] = {}
+    threaded: list[str] = []  # the exports that run on numba's threads (`aot_threads.wire`)
     argtypes: dict[str, list[str]] = {}
-    cc = CC(_module_name(flags))
+    shims: list[str] = []   # C sources linked into the module beside numba's own
+
+    class _CC(CC):
+        def _get_mixin_sources(self):
+            return [*super()._get_mixin_sources(), *shims]
+
+    cc = _CC(_module_name(flags))
     cc.output_dir = out_dir
     cc.verbose = False
-    # pycc compiles for a CPU model's nominal instruction set, the JIT for the features this
-    # host reports (a virtual machine may hide some of its model's): build with the JIT's
-    # choice of both, so the modules run wherever the JIT's code runs (`_aot.machine`)
+    # The JIT copies below are compiled, and their code optimised, for the CPU numba is told
+    # in this worker (`build` sets NUMBA_CPU_NAME and NUMBA_CPU_FEATURES to the build's
+    # target); pycc then makes the machine code for that same CPU name and features (by
+    # default it would use the name's nominal features alone).
     from numba.core.codegen import AOTCPUCodegen
-    host = _aot.machine()
+    target = _aot.machine()
     codegen: Any = AOTCPUCodegen  # Any: a method of numba's is replaced in this worker
-    codegen._customize_tm_features = lambda self: host["features"]
-    cc.target_cpu = host["cpu"]
+    codegen._customize_tm_features = lambda self: target["features"]
+    cc.target_cpu = target["cpu"]
     _release_gil_in_exports()
     modules = {"saddle_env.envs._step": _step, "saddle_env.integrators": integrators,
                "saddle_env.prediction": prediction}
@@ -212,7 +232,12 @@ def _build_one(flags: tuple[str, ...], spec: BuildSpec, out_dir: str) -> dict:
         first_step(gym.make(env_id, **options))
         # the vector env below 2 x LANES balls (training's 64): SIMD blocks in one thread
         first_step(gym.make_vec(env_id, num_envs=_step.MIN_BLOCK, **options))
-        exports["saddle_env.envs._step"] = ["place", "step_scalar", "step_serial"]
+        # and from 2 x LANES on: numba's threads, reached through `aot_threads`'s forwarders
+        first_step(gym.make_vec(env_id, num_envs=2 * LANES, **options))
+        exports["saddle_env.envs._step"] = ["place", "step_scalar", "step_serial",
+                                            "step_parallel"]
+        threaded.append("saddle_env.envs._step.step_parallel")
+        shims.append(aot_threads.write_shim(out_dir, cc.name))
     if spec["contact"] is not None or spec["mix"]:
         import numpy as np
 
@@ -267,7 +292,8 @@ def _build_one(flags: tuple[str, ...], spec: BuildSpec, out_dir: str) -> dict:
         warnings.simplefilter("ignore")  # numba.pycc's deprecation notice
         cc.compile()
     return {"name": cc.name, "file": cc.output_file, "flags": list(flags), "exports": exports,
-            "argtypes": argtypes,
+            "argtypes": argtypes, "threaded": threaded,
+            "cpu": target["cpu"], "features": target["features"],
             "seconds": round(time.perf_counter() - t0, 1)}
 
 
@@ -280,21 +306,38 @@ def build(jobs: int, log=print) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     plan = planned_builds()
     jobs = max(1, min(jobs, len(plan)))
+    target = _aot.build_target()
+    log(f"  for CPU {target['cpu']} ({target['features'] or 'its own features'})")
     t0 = time.perf_counter()
     (out_dir / _aot.MANIFEST).unlink(missing_ok=True)  # retired until the new one is whole
-    with tempfile.TemporaryDirectory(dir=out_dir) as tmp, \
-            ProcessPoolExecutor(jobs, mp_context=get_context("spawn")) as pool:
-        futures = {flags: pool.submit(_build_one, flags, spec, tmp)
-                   for flags, spec in plan.items()}
-        modules = []
-        for fut in futures.values():
-            entry = fut.result()
-            os.replace(Path(tmp) / entry["file"], out_dir / entry["file"])
-            log(f"  {entry['name']}: {', '.join(n for names in entry['exports'].values() for n in names)}"
-                f" ({entry['seconds']:.1f} s)")
-            modules.append(entry)
+    # numba reads its CPU settings from the environment when it is first imported: the
+    # spawned workers inherit these (this process's own JIT keeps its settings)
+    saved = {k: os.environ.get(k) for k in _aot.CPU_VARIABLES}
+    os.environ.update(zip(_aot.CPU_VARIABLES, (target["cpu"], target["features"])))
+    try:
+        with tempfile.TemporaryDirectory(dir=out_dir) as tmp, \
+                ProcessPoolExecutor(jobs, mp_context=get_context("spawn")) as pool:
+            futures = {flags: pool.submit(_build_one, flags, spec, tmp)
+                       for flags, spec in plan.items()}
+            modules = []
+            for fut in futures.values():
+                entry = fut.result()
+                built_for = {k: entry.pop(k) for k in ("cpu", "features")}
+                if built_for != target:
+                    raise RuntimeError(f"{entry['name']} was built for {built_for}, "
+                                       f"not {target}")
+                os.replace(Path(tmp) / entry["file"], out_dir / entry["file"])
+                names = ", ".join(n for names in entry["exports"].values() for n in names)
+                log(f"  {entry['name']}: {names} ({entry['seconds']:.1f} s)")
+                modules.append(entry)
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
     manifest = {"digest": _aot.source_digest(), "platform": _aot.platform_tag(),
-                **_aot.machine(),
+                **_aot.machine(), **target,
                 "built": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                 "seconds": round(time.perf_counter() - t0, 1), "modules": modules}
     (out_dir / _aot.MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n")

@@ -7,7 +7,9 @@ times each outermost compile of saddle_env's or agents' code, and one that is st
 after `NOTICE_AFTER` seconds is announced once, on the ``saddle_env`` logger at WARNING
 level (Python prints that on stderr when logging is not configured): what is compiled, and
 that the result is cached so it happens once. Its end is logged at INFO with the time taken.
-Cache loads are not compiles and say nothing.
+Cache loads are not compiles and say nothing. When the install's ahead-of-time build exists
+but cannot run on this CPU, that is said once too, before the first compile
+(`announce_no_build`).
 """
 
 from __future__ import annotations
@@ -30,6 +32,20 @@ def _announce(name: str, fired: threading.Event) -> None:
                    "on disk, so later runs (and this run's next calls) start at once "
                    "(python -m saddle_env.compilation.precompile compiles every level ahead)",
                    name)
+
+
+def announce_no_build(why: str) -> None:
+    """Say once per process, at WARNING, that the install's ahead-of-time kernels are not
+    used (``why``), so first calls compile."""
+    global _announced_no_build
+    if _announced_no_build:
+        return
+    _announced_no_build = True
+    logger.warning("saddle_env: the install's ahead-of-time kernels are not used: %s. numba "
+                   "compiles each first call instead (10-20 s, then cached on disk)", why)
+
+
+_announced_no_build = False
 
 
 def _start(ev) -> None:

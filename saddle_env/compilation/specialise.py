@@ -151,9 +151,9 @@ def checked(space: types.SimpleNamespace, name: str, args: tuple):
     ahead-of-time one if it was compiled for exactly these argument types, else its JIT copy
     (which compiles for them). A caller whose argument types are fixed keeps the answer."""
     fn = getattr(space, name)
-    if id(fn) in _jit_of and not _aot.matches(fn, args):
-        return _jit_of[id(fn)]
-    return fn
+    if id(fn) not in _jit_of:
+        return fn
+    return fn if _aot.matches(fn, args) and _aot.prepare(fn) else _jit_of[id(fn)]
 
 
 _entries: dict[tuple[int, str], object] = {}  # (id of a `specialise` namespace, name) → checked

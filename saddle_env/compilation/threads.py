@@ -60,7 +60,8 @@ def threads_usable() -> bool:
 # ahead-of-time build can hold it (`aot_build`) and a first call compiles nothing; and
 # Python threads survive a fork (the pool is made again in the child). Waking a thread
 # costs tens of microseconds, nothing next to these calls' milliseconds; the vector
-# environment's step, a fraction of a millisecond, keeps numba's OpenMP threads.
+# environment's step, a fraction of a millisecond, keeps numba's OpenMP threads (which the
+# ahead-of-time build reaches through `aot_threads`).
 _pool: tuple[int, int, ThreadPoolExecutor] | None = None   # (its process id, its threads, the executor)
 
 

@@ -496,7 +496,8 @@ class TrapEngine:
             chunks = self._chunks()
             if self._chunk_scratch[0].shape[0] != chunks:  # the thread count was changed
                 self._chunk_scratch = self._new_scratch(chunks)
-            failed = self._S.step_parallel(*args, *self._chunk_scratch)
+            parallel_args = (*args, *self._chunk_scratch)
+            failed = self._entry("step_parallel", parallel_args)(*parallel_args)
         else:
             # Where no SIMD block can form, the entry compiled without them (less to
             # compile on a first step; the same results).
