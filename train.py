@@ -63,7 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--max-episode-steps", type=int, default=d.max_episode_steps,
                     help="control steps per episode (None: the level's)")
     ap.add_argument("--torch-threads", type=int, default=d.torch_threads,
-                    help="torch CPU threads (1 is fastest for these small networks on 2 cores)")
+                    help="torch CPU threads (1, the default, makes a run repeat bit for bit; 2 is "
+                         "a little faster on 2 cores: docs/how-to/train.md#train)")
     ap.add_argument("--compare-episodes", type=int, default=d.compare_episodes,
                     help="fresh episodes on which the trained agent is compared with best-const "
                          "and mpc at the end (0: skip)")

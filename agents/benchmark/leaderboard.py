@@ -253,7 +253,9 @@ def levels_markdown() -> str:
         # (docs/hooks.py)
         lines += ["", f"## {level.id}", "", f"<!-- generated: level-summary {level.id} -->", "",
                   f"**What it models.** {level.models}", "",
-                  f"**Why it is hard.** {level.why_hard}", "", f"**Options.** {opts}."]
+                  f"**Why it is hard.** {level.why_hard}", "", f"**Options.** {opts}.", "",
+                  f"**How policies do on it.** [Leaderboard: {level.id}]"
+                  f"(leaderboard.md#{level.id.lower()})."]
     return "\n".join(lines) + "\n"
 
 

@@ -91,7 +91,8 @@ ALGOS: dict[str, Algo] = {a.name: a for a in (
     Algo("ppo-fast", "stable_baselines3", "PPO", budget=3_000_000, n_envs=64,
          recipe_of="SaddleTrap-Capture-v0",
          note="the project's fast recipe (time to target, docs/training_profile.md): the "
-              "Capture entry of agents/hyperparams/ppo.yml on every level (64 balls, 128x128, "
+              "fast entry of agents/hyperparams/ppo.yml (Gusty's, which Capture and Lab share) on "
+              "every level (64 balls, 128x128, "
               "150-step training episodes, orbit-size reward shaping, normalised "
               "observations, warm start at the level's best constant speed), the model "
               "selected on validation episodes; no imitation"),

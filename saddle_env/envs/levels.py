@@ -87,8 +87,8 @@ LEVELS: tuple[Level, ...] = (
         "Speed is a trade-off: the pseudo-potential that holds the ball softens as the speed "
         "rises, so a push carries a fast saddle's ball out to where the support force vanishes "
         "(detachment), while just above the threshold the trap is too weak to hold it "
-        "(escape). The best constant speed keeps about a third of the balls for 10 s; a "
-        "controller must read the push from the ball's motion and answer it.",
+        "(escape). No constant speed keeps every ball (docs/leaderboard.md); a controller "
+        "must read the push from the ball's motion and answer it.",
         **_GUSTS, ball_radii=_PAPER_BALLS, **_CONTROLLER,
         reward_threshold=447.4),
     _level(
@@ -151,8 +151,8 @@ LEVELS: tuple[Level, ...] = (
         "read by a laser tachometer (0.2 rad/s noise) and the angle by an encoder. A high-speed"
         " camera tracks the ball 30 ms late (the middle of the 10-40 ms of exposure, transfer "
         "and tracking; fixed, not drawn each episode: a rig's latency is a property of its "
-        "camera and tracker, measured once and known to its controller, and mpc keeps about as "
-        "many balls at 20, 30 and 40 ms, docs/mpc.md), positions only, rounded to 0.25 mm "
+        "camera and tracker, measured once and known to its controller; mpc at other "
+        "latencies: docs/mpc.md), positions only, rounded to 0.25 mm "
         "pixels (a 1280-pixel frame across the 0.32 m saddle) with 0.5 mm tracking noise (two "
         "pixels); the camera's numbers are estimates, the paper gives none. One of the paper's "
         "three polyfoam balls (2.23, 2.65, 3.30 cm; 25 kg/m^3, so 1.2, 2.0 and 3.8 g, with the "
@@ -164,30 +164,16 @@ LEVELS: tuple[Level, ...] = (
         "episode's 10 s that matters only near Ω_crt. The lab's calibration is for steel balls "
         "and droplets on PETG, not for the paper's polyfoam balls, so the level does not take "
         "it over.",
-        "Everything the controller sees is 30 ms old (the saddle turns 0.44 rad meanwhile at "
-        "the 14.75 rad/s of the best constant voltage), and it must estimate velocities from "
+        "Everything the controller sees is 30 ms old, and it must estimate velocities from "
         "pixel-rounded positions; what it commands is a voltage, which the saddle's inertia "
         "turns into speed over 0.25 s, longer than the ball's orbit. The draught is what makes "
-        "it a control problem: without it the drag damps the orbit and the top constant voltage"
-        " kept all 64 balls of the best-constant search's episodes. With it, on 200 design "
-        "episodes (seeds 500,000-500,199; python -m agents.evaluation.evaluate --policy best-"
-        "const --env SaddleTrap-Lab-v0 --episodes 200 --seed 500000, 2026-11-27), the best "
-        "constant voltage (steady speed 14.75 rad/s) keeps 36 % [29, 42] of the balls for 10 s "
-        "(mean 7.35 s [6.97, 7.73]); half the voltage (action 0) 8 %; mpc, which estimates the "
-        "velocities from the positions and carries its estimate through the latency, 85 % [79, "
-        "89] (9.50 s [9.29, 9.70]), and the same mpc planning as if the 30 ms-old picture were "
-        "now (mpc-blind) 83 % [77, 88] (9.35 s [9.10, 9.58]); paired on 600 further episodes "
-        "(seeds 500,200-500,799), ignoring the latency costs 0.13 s [0.00, 0.25] of trapping "
-        "time (docs/mpc.md). On the leaderboard's 1,000 test episodes (python -m "
-        "agents.benchmark.leaderboard --resume --levels SaddleTrap-Lab-v0, 2026-11-27): best-"
-        "const (14.25 rad/s) 7.67 s [7.50, 7.84] (45 % [41, 48] kept); mpc 9.46 s [9.36, 9.56] (85 % [82.5, "
-        "87.0] kept); mpc-blind 9.32 s [9.21, 9.43] (81 % [79, 84] kept); paired over the same "
-        "1,000 episodes, ignoring the latency costs 0.14 s [0.05, 0.23] of trapping time "
-        "(paired bootstrap over episodes; 93 balls kept by mpc alone, 57 by mpc-blind alone). The"
-        " shipped agent (ppo_lab: SBX's PPO warm-started by imitating mpc) keeps 9.81 s [9.75, "
-        "9.87] there (93 % [91, 95] kept), above mpc; trained from the best constant voltage "
-        "instead, the same recipe kept 8.91 s [8.75, 9.05] on 600 design episodes where mpc kept "
-        "9.52 s [9.40, 9.63] (docs/notes/training_recipes.md).",
+        "it a control problem: without it the drag damps the orbit and a constant voltage "
+        "keeps the balls. With it a controller must read the push from late, rounded "
+        "positions: mpc estimates the velocities from the positions and carries its estimate "
+        "through the latency, and mpc-blind, the same planning as if the late picture were "
+        "now, shows what ignoring the latency costs (docs/mpc.md). The shipped agent (ppo_lab) "
+        "is SBX's PPO warm-started by imitating mpc (docs/shipped-agents.md). How each does "
+        "on the level's test episodes: docs/leaderboard.md.",
         **_GUSTS, **_LAB,
         reward_threshold=471.5),
 )

@@ -1,0 +1,226 @@
+"""The figure store: every measured number that the README or a user page states, in one file
+(``docs/figures/figures.yml``), and the renderer that writes it into the text.
+
+A figure has a name, a value, its unit, the date and machine of the measurement and the
+command that remakes it. Its value is either typed into the store (``value:``), read from a
+results file a tool wrote (``source:`` a JSON file of the repository, ``key:`` a dotted path
+into it, ``combine: sum`` to add up a mapping's values, ``scale:`` a factor such as
+1/3600), or one of the leaderboard's results, which are figures without a store entry:
+``lb.LEVEL.POLICY`` is the mean trapping time [95 % interval] of a policy on a level
+(``LEVEL`` is the id without ``SaddleTrap-`` and ``-v0``, ``default`` for ``SaddleTrap-v0``;
+``POLICY`` a key of ``docs/leaderboard.json``, ``shipped`` for the level's shipped agent),
+``lb.LEVEL.POLICY.kept`` the percentage of balls kept 10 s, ``lb.LEVEL.best-const.omega``
+the best constant speed in rad/s, ``lb.date`` the leaderboard's date.
+
+A text names a figure with a marker pair around its rendered copy, which reads right on
+GitHub as well as on the site::
+
+    about <!-- fig main-job-seconds -->364<!-- /fig --> s
+
+``<!-- fig NAME SPEC -->`` renders with a format spec of Python's ``format`` (``.0f``,
+``,.0f``), which may round the stored value; ``mean`` before the spec keeps an interval's
+mean alone. The docs build (docs/hooks.py) replaces each pair by the current value, and
+
+    python -m agents.benchmark.figures --write     # rewrite README.md and docs/ in place
+    python -m agents.benchmark.figures --check     # exit 1 naming each stale file
+
+keep the files' own copies current; tests/test_figures.py fails on a stale copy or an
+unknown name.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import re
+import sys
+from collections.abc import Sequence
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from agents.paths import REPO_ROOT
+
+STORE = REPO_ROOT / "docs" / "figures" / "figures.yml"
+LEADERBOARD = REPO_ROOT / "docs" / "leaderboard.json"
+LEADERBOARD_COMMAND = "python -m agents.benchmark.leaderboard --resume --no-progress"
+REQUIRED = ("unit", "date", "machine", "command")
+
+# <!-- fig NAME [mean] [SPEC] -->old copy<!-- /fig -->
+MARKER = re.compile(r"<!-- fig (?P<name>[\w.@-]+)(?P<opts>(?: [^ >]+)*) -->(?P<copy>.*?)<!-- /fig -->",
+                    re.DOTALL)
+
+
+class FigureError(ValueError):
+    """A figure that the store does not have, or a store entry that lacks a field."""
+
+
+def _short_level(env_id: str) -> str:
+    if env_id == "SaddleTrap-v0":
+        return "default"
+    return env_id.removeprefix("SaddleTrap-").removesuffix("-v0")
+
+
+def _leaderboard_figures(board: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    figures: dict[str, dict[str, Any]] = {}
+    common = {"date": str(board["date"]), "machine": board["machine"],
+              "command": LEADERBOARD_COMMAND}
+    figures["lb.date"] = {"value": str(board["date"]), "unit": "", **common}
+    for env_id, level in board["levels"].items():
+        short = _short_level(env_id)
+        for policy in level["policies"]:
+            key = "shipped" if policy["kind"] not in ("baseline",) else policy["key"]
+            name = f"lb.{short}.{key}"
+            time = policy["trapping_time"]
+            figures[name] = {"value": {k: time[k] for k in ("mean", "low", "high")},
+                             "unit": "s", "format": ".2f", **common}
+            kept = policy["kept"]
+            figures[name + ".kept"] = {"value": {k: 100 * kept[k] for k in ("mean", "low", "high")},
+                                       "unit": "%", "format": ".0f", **common}
+            if "omega" in policy:
+                figures[name + ".omega"] = {"value": policy["omega"], "unit": "rad/s",
+                                            "format": "g", **common}
+    return figures
+
+
+def _lookup(path: Path, key: str) -> Any:
+    value: Any = json.loads(path.read_text())
+    for part in key.split("."):
+        if not isinstance(value, dict) or part not in value:
+            raise FigureError(f"{path.relative_to(REPO_ROOT)} has no key {key!r}")
+        value = value[part]
+    return value
+
+
+def load_store(store: Path = STORE, leaderboard: Path = LEADERBOARD) -> dict[str, dict[str, Any]]:
+    """Every figure by name, each with ``value``, ``unit``, ``date``, ``machine`` and
+    ``command``. Raises FigureError on an entry that lacks one of them."""
+    entries = yaml.safe_load(store.read_text()) or {}
+    figures = _leaderboard_figures(json.loads(leaderboard.read_text()))
+    for name, entry in entries.items():
+        if not isinstance(entry, dict):
+            raise FigureError(f"{store.name}: {name!r} is not a mapping")
+        missing = [k for k in REQUIRED if k not in entry]
+        if "value" not in entry and "source" not in entry:
+            missing.insert(0, "value (or source and key)")
+        if missing:
+            raise FigureError(f"{store.name}: figure {name!r} lacks {', '.join(missing)}")
+        entry = dict(entry)
+        if isinstance(entry["date"], datetime.date):
+            entry["date"] = entry["date"].isoformat()
+        if "source" in entry:
+            entry["value"] = _lookup(REPO_ROOT / entry["source"], entry["key"])
+            if entry.get("combine") == "sum":
+                entry["value"] = sum(entry["value"].values())
+            entry["value"] *= entry.get("scale", 1)
+        if name in figures:
+            raise FigureError(f"{store.name}: {name!r} is a leaderboard figure already")
+        figures[name] = entry
+    return figures
+
+
+@lru_cache(maxsize=1)
+def _cached(mtimes: tuple[float, float]) -> dict[str, dict[str, Any]]:
+    return load_store()
+
+
+def figures() -> dict[str, dict[str, Any]]:
+    """The store, read again when its file or the leaderboard's changes."""
+    return _cached((STORE.stat().st_mtime, LEADERBOARD.stat().st_mtime))
+
+
+def format_figure(figure: dict[str, Any], opts: Sequence[str] = ()) -> str:
+    """A figure as text: a number with the spec (the marker's or the figure's ``format``), an
+    interval as ``mean [low, high]``, a pair as ``low–high``, anything else as it is."""
+    opts = list(opts)
+    mean_only = "mean" in opts
+    opts = [o for o in opts if o != "mean"]
+    if len(opts) > 1:
+        raise FigureError(f"figure options {opts!r}: at most one format spec (and 'mean')")
+    spec = opts[0] if opts else figure.get("format", "")
+    value = figure["value"]
+
+    def number(x: Any) -> str:
+        return format(x, spec) if isinstance(x, (int, float)) else str(x)
+
+    if isinstance(value, dict):
+        if mean_only:
+            return number(value["mean"])
+        return f"{number(value['mean'])} [{number(value['low'])}, {number(value['high'])}]"
+    if isinstance(value, list) and len(value) == 2:
+        return f"{number(value[0])}–{number(value[1])}"
+    return number(value)
+
+
+def render_figure(name: str, opts: str = "") -> str:
+    store = figures()
+    if name not in store:
+        raise FigureError(f"unknown figure {name!r}: add it to {STORE.relative_to(REPO_ROOT)}")
+    return format_figure(store[name], opts.split())
+
+
+def render(text: str, keep_markers: bool = True) -> str:
+    """``text`` with every marker pair's copy replaced by its figure's current value; the
+    markers stay (a file's own copy) or go (the site's page)."""
+
+    def one(m: re.Match) -> str:
+        value = render_figure(m.group("name"), m.group("opts"))
+        if not keep_markers:
+            return value
+        return f"<!-- fig {m.group('name')}{m.group('opts')} -->{value}<!-- /fig -->"
+
+    return MARKER.sub(one, text)
+
+
+def rendered_files() -> list[Path]:
+    """The files that may hold figures: the README and every page of docs/."""
+    return [REPO_ROOT / "README.md", *sorted((REPO_ROOT / "docs").rglob("*.md"))]
+
+
+def stale_files() -> list[Path]:
+    return [p for p in rendered_files() if render(p.read_text()) != p.read_text()]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m agents.benchmark.figures",
+        description="Render the figure store (docs/figures/figures.yml and the leaderboard's "
+                    "results) into the README and the docs' pages, or check their copies.")
+    what = p.add_mutually_exclusive_group(required=True)
+    what.add_argument("--write", action="store_true",
+                      help="rewrite each stale copy in README.md and docs/ in place")
+    what.add_argument("--check", action="store_true",
+                      help="exit 1 naming each file whose copy of a figure is stale")
+    what.add_argument("--show", metavar="NAME",
+                      help="print one figure with its unit, date, machine and command")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        if args.show:
+            figure = figures().get(args.show)
+            if figure is None:
+                raise FigureError(f"--show: unknown figure {args.show!r}")
+            print(f"{args.show} = {format_figure(figure)} {figure['unit']}".rstrip())
+            for key in ("date", "machine", "command", "what"):
+                if key in figure:
+                    print(f"  {key}: {figure[key]}")
+            return 0
+        stale = stale_files()
+        for path in stale:
+            if args.write:
+                path.write_text(render(path.read_text()))
+            print(f"{'rewrote' if args.write else 'stale'}: {path.relative_to(REPO_ROOT)}")
+    except FigureError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    return 1 if stale and args.check else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,73 @@
+"""The figure store (agents/benchmark/figures.py, docs/figures/figures.yml): every figure the
+README or a page states is rendered from it, a stale copy or an unknown name fails."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from agents.benchmark import figures
+
+
+def test_every_figure_carries_unit_date_machine_and_command():
+    for name, figure in figures.figures().items():
+        for key in ("value", *figures.REQUIRED):
+            assert key in figure, f"{name} lacks {key}"
+        assert figure["date"] and figure["machine"] and figure["command"], name
+
+
+def test_store_entry_without_a_date_is_refused(tmp_path):
+    store = tmp_path / "figures.yml"
+    store.write_text("x:\n  value: 1\n  unit: s\n  machine: m\n  command: c\n")
+    with pytest.raises(figures.FigureError, match="'x' lacks date"):
+        figures.load_store(store)
+
+
+@pytest.mark.parametrize("path", figures.rendered_files(), ids=lambda p: p.name)
+def test_rendered_copy_is_current(path):
+    text = path.read_text()
+    assert figures.render(text) == text, (
+        f"{path.name}: a figure's copy is stale; run python -m agents.benchmark.figures --write")
+
+
+def test_readme_states_its_figures_from_the_store():
+    readme = (figures.REPO_ROOT / "README.md").read_text()
+    names = {m.group("name") for m in figures.MARKER.finditer(readme)}
+    assert {"main-job-seconds", "vector-env-1024", "lb.Storm.shipped", "lb.Lab.best-const"} <= names
+
+
+def test_stale_and_unknown_copies_are_caught():
+    stale = "took <!-- fig main-job-seconds -->1<!-- /fig --> s"
+    assert figures.render(stale) != stale
+    assert figures.render(stale, keep_markers=False) == \
+        f"took {figures.render_figure('main-job-seconds')} s"
+    with pytest.raises(figures.FigureError, match="unknown figure 'no-such'"):
+        figures.render("<!-- fig no-such -->1<!-- /fig -->")
+
+
+def test_rounding_only_formats_the_stored_value():
+    figure = {"value": {"mean": 9.348514, "low": 9.240666, "high": 9.451963}}
+    assert figures.format_figure(figure, [".2f"]) == "9.35 [9.24, 9.45]"
+    assert figures.format_figure(figure, ["mean", ".1f"]) == "9.3"
+    assert figures.format_figure({"value": [6744, 6799]}, [",d"]) == "6,744–6,799"
+
+
+def test_leaderboard_figures_match_the_leaderboard_page():
+    """The generated leaderboard page and the store read the same file: Lab's best constant
+    speed, the figure the rig's how-to quotes, is the one the page's table heads."""
+    page = (figures.REPO_ROOT / "docs" / "leaderboard.md").read_text()
+    lab = page[page.index("## SaddleTrap-Lab-v0"):]
+    omega = figures.render_figure("lb.Lab.best-const.omega")
+    assert re.search(rf"best-const, Ω = {re.escape(omega)} ", lab)
+
+
+def test_check_exits_1_on_a_stale_file(monkeypatch, tmp_path, capsys):
+    page = tmp_path / "page.md"
+    page.write_text("<!-- fig lb.date -->1999-01-01<!-- /fig -->\n")
+    monkeypatch.setattr(figures, "rendered_files", lambda: [page])
+    monkeypatch.setattr(figures, "REPO_ROOT", tmp_path)
+    assert figures.main(["--check"]) == 1
+    assert "stale: page.md" in capsys.readouterr().out
+    assert figures.main(["--write"]) == 0
+    assert figures.main(["--check"]) == 0
