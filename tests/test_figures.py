@@ -71,3 +71,27 @@ def test_check_exits_1_on_a_stale_file(monkeypatch, tmp_path, capsys):
     assert "stale: page.md" in capsys.readouterr().out
     assert figures.main(["--write"]) == 0
     assert figures.main(["--check"]) == 0
+
+
+# A run's result as the texts wrote them: an interval "9.35 [9.24, 9.45]", a share "36 %",
+# a rate "6,744 steps/s", a duration "13.9 min".
+RESULT = re.compile(r"\[\s*[-+]?\d[\d.,]*\s*,\s*[-+]?\d|\d\s?%|steps/s|\d\s?min\b")
+
+
+def test_level_texts_keep_no_results_of_runs():
+    from saddle_env.envs import LEVELS
+
+    for level in LEVELS:
+        for text in (level.summary, level.models, level.why_hard):
+            found = RESULT.search(text)
+            assert not found, (f"{level.id}: {text[max(0, found.start() - 40):found.end() + 20]!r} "
+                               "looks like a result of a run: it belongs on the leaderboard or in "
+                               "docs/notes/, linked from the text")
+
+
+def test_recipe_comments_keep_no_results_of_runs():
+    for path in sorted((figures.REPO_ROOT / "agents" / "hyperparams").glob("*.yml")):
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            comment = line.partition("#")[2] if "#" in line else ""
+            found = RESULT.search(comment)
+            assert not found, f"{path.name}:{number}: {line!r} looks like a result of a run"

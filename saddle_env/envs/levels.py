@@ -100,7 +100,8 @@ LEVELS: tuple[Level, ...] = (
         "Below Ω_crt the centre repels the ball, exponentially; the motor needs 0.1-0.2 s to "
         "reach the threshold, and by then the ball is on a wide orbit that a high speed throws "
         "off the saddle and a low one lets escape. Spinning straight up to the best constant "
-        "loses one ball in five; how fast and how far to go depends on where the ball is.",
+        "loses balls (docs/leaderboard.md); how fast and how far to go depends on where the "
+        "ball is.",
         omega0_range=[10.0, 13.0], init_offset=0.02, ball_radii=_PAPER_BALLS, **_CONTROLLER,
         reward_threshold=461.6),
     _level(
@@ -129,16 +130,12 @@ LEVELS: tuple[Level, ...] = (
         "three balls, released as in the calm level: at rest in the laboratory within 1 cm of "
         "the centre, the saddle at 15-25 rad/s.",
         "Slip rubs the ball against the turning saddle, and friction relative to the saddle "
-        "drains the motion that holds it. Measured on 200 exploration episodes (seeds "
-        "500,000-500,199): the best constant speed keeps 77.5 % [71, 83] of the balls for 10 s "
-        "(39 % of those with mu below 0.04, all above 0.07), holding the start speed 68 %, "
-        "Ω_crt 67 %, where the same starts with balls that roll without slipping are all "
-        "kept by holding the start speed. No constant speed from 11 to 45 rad/s keeps 17 % of the balls, yet "
-        "only 1 % were lost by every policy tried: the rest need feedback. mpc keeps 97 % "
-        "[94, 99], but not by knowing the ball: it predicts the nominal one (mu = 0.01, the "
-        "range's low end) from rolling without slip (a camera cannot see the spin), and the "
-        "same controller predicting a rolling ball kept all 200. A controller has to tell from "
-        "the ball's motion how much it slips.",
+        "drains the motion that holds it, the more so the lower the friction; no single "
+        "constant speed suits every mu, so a controller needs feedback. mpc predicts the "
+        "nominal ball (mu = 0.01, the range's low end) from rolling without slip (a camera "
+        "cannot see the spin). A controller has to tell from the ball's motion how much it "
+        "slips. The measurements the level was designed on: docs/notes/level-design.md; how "
+        "each policy does: docs/leaderboard.md.",
         contact="coulomb", mu_range=[0.01, 0.1], drag_quadratic=0.2, ball_radii=_PAPER_BALLS,
         **_CONTROLLER,
         reward_threshold=494.9),
@@ -172,8 +169,9 @@ LEVELS: tuple[Level, ...] = (
         "positions: mpc estimates the velocities from the positions and carries its estimate "
         "through the latency, and mpc-blind, the same planning as if the late picture were "
         "now, shows what ignoring the latency costs (docs/mpc.md). The shipped agent (ppo_lab) "
-        "is SBX's PPO warm-started by imitating mpc (docs/shipped-agents.md). How each does "
-        "on the level's test episodes: docs/leaderboard.md.",
+        "is SBX's PPO warm-started by imitating mpc (docs/shipped-agents.md). The "
+        "measurements the level was designed on: docs/notes/level-design.md; how each policy "
+        "does on the level's test episodes: docs/leaderboard.md.",
         **_GUSTS, **_LAB,
         reward_threshold=471.5),
 )
