@@ -95,3 +95,18 @@ def test_recipe_comments_keep_no_results_of_runs():
             comment = line.partition("#")[2] if "#" in line else ""
             found = RESULT.search(comment)
             assert not found, f"{path.name}:{number}: {line!r} looks like a result of a run"
+
+
+def test_the_site_shows_the_value_without_its_markers():
+    import importlib.util
+    from types import SimpleNamespace
+
+    spec = importlib.util.spec_from_file_location("figures_test_hooks",
+                                                  figures.REPO_ROOT / "docs" / "hooks.py")
+    hooks = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(hooks)
+    page = SimpleNamespace(file=SimpleNamespace(src_uri="how-to/x.md"), meta={})
+    out = hooks.on_page_markdown("took <!-- fig main-job-seconds -->1<!-- /fig --> s", page, {}, None)
+    assert out == f"took {figures.render_figure('main-job-seconds')} s"
+    with pytest.raises(figures.FigureError):
+        hooks.on_page_markdown("<!-- fig no-such -->1<!-- /fig -->", page, {}, None)
