@@ -22,7 +22,7 @@ A page asks for a generated section with an HTML comment on a line of its own:
 
 A measured figure in a page's prose is a marker pair, ``<!-- fig NAME -->copy<!-- /fig -->``,
 which the hook replaces by the figure's current value from the figure store
-(``agents.benchmark.figures``, ``docs/figures/figures.yml``); an unknown name fails the build.
+(``agents.figures``, ``docs/figures/figures.yml``); an unknown name fails the build.
 
 The engineering notes (``notes/``) are ranked below the user pages in the site's search
 (``NOTES_SEARCH_BOOST``, the theme's per-page ``search: boost``): a reader looking up the
@@ -103,7 +103,7 @@ CLIS: dict[str, Callable[[], argparse.ArgumentParser]] = {
     "saddle-reproduce": _build_parser("saddle_env.reproduce.cli"),
     "python -m agents.benchmark": _build_parser("agents.benchmark.run"),
     "python -m agents.benchmark.leaderboard": _build_parser("agents.benchmark.leaderboard"),
-    "python -m agents.benchmark.figures": _build_parser("agents.benchmark.figures"),
+    "python -m agents.figures": _build_parser("agents.figures"),
     "python -m agents.benchmark.time_to_target": _from_main("agents.benchmark.time_to_target"),
     "python -m agents.benchmark.profile_training": _from_main("agents.benchmark.profile_training"),
     "python -m agents.benchmark.rllib_throughput": _build_parser("agents.benchmark.rllib_throughput"),
@@ -471,7 +471,7 @@ NOTES_SEARCH_BOOST = 0.1
 
 
 def on_page_markdown(markdown, page, config, files):
-    from agents.benchmark import figures
+    from agents import figures
 
     if page.file.src_uri.startswith("notes/"):
         page.meta.setdefault("search", {"boost": NOTES_SEARCH_BOOST})

@@ -483,7 +483,7 @@ def test_explanations_within_their_budgets():
 
 
 def test_readme_is_a_front_door():
-    from agents.benchmark import figures
+    from agents import figures
 
     text = (ROOT / "README.md").read_text()
     assert len(text.splitlines()) <= 130

@@ -1,4 +1,4 @@
-"""The figure store (agents/benchmark/figures.py, docs/figures/figures.yml): every figure the
+"""The figure store (agents/figures.py, docs/figures/figures.yml): every figure the
 README or a page states is rendered from it, a stale copy or an unknown name fails."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from agents.benchmark import figures
+from agents import figures
 
 
 def test_every_figure_carries_unit_date_machine_and_command():
@@ -28,7 +28,7 @@ def test_store_entry_without_a_date_is_refused(tmp_path):
 def test_rendered_copy_is_current(path):
     text = path.read_text()
     assert figures.render(text) == text, (
-        f"{path.name}: a figure's copy is stale; run python -m agents.benchmark.figures --write")
+        f"{path.name}: a figure's copy is stale; run python -m agents.figures --write")
 
 
 def test_readme_states_its_figures_from_the_store():

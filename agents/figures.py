@@ -21,8 +21,8 @@ GitHub as well as on the site::
 ``,.0f``), which may round the stored value; ``mean`` before the spec keeps an interval's
 mean alone. The docs build (docs/hooks.py) replaces each pair by the current value, and
 
-    python -m agents.benchmark.figures --write     # rewrite README.md and docs/ in place
-    python -m agents.benchmark.figures --check     # exit 1 naming each stale file
+    python -m agents.figures --write     # rewrite README.md and docs/ in place
+    python -m agents.figures --check     # exit 1 naming each stale file
 
 keep the files' own copies current; tests/test_figures.py fails on a stale copy or an
 unknown name.
@@ -42,7 +42,7 @@ from typing import Any
 
 import yaml
 
-from agents.paths import REPO_ROOT
+from .paths import REPO_ROOT
 
 STORE = REPO_ROOT / "docs" / "figures" / "figures.yml"
 LEADERBOARD = REPO_ROOT / "docs" / "leaderboard.json"
@@ -186,7 +186,7 @@ def stale_files() -> list[Path]:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
-        prog="python -m agents.benchmark.figures",
+        prog="python -m agents.figures",
         description="Render the figure store (docs/figures/figures.yml and the leaderboard's "
                     "results) into the README and the docs' pages, or check their copies.")
     what = p.add_mutually_exclusive_group(required=True)
