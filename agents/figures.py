@@ -5,7 +5,8 @@ A figure has a name, a value, its unit, the date and machine of the measurement 
 command that remakes it. Its value is either typed into the store (``value:``), read from a
 results file a tool wrote (``source:`` a JSON file of the repository, ``key:`` a dotted path
 into it, ``combine: sum`` to add up a mapping's values, ``scale:`` a factor such as
-1/3600), or one of the leaderboard's results, which are figures without a store entry:
+1/3600, or ``derive:`` one of ``DERIVED``'s computations over the file's rows), or one
+of the leaderboard's results, which are figures without a store entry:
 ``lb.LEVEL.POLICY`` is the mean trapping time [95 % interval] of a policy on a level
 (``LEVEL`` is the id without ``SaddleTrap-`` and ``-v0``, ``default`` for ``SaddleTrap-v0``;
 ``POLICY`` a key of ``docs/leaderboard.json``, ``shipped`` for the level's shipped agent),
@@ -33,6 +34,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import math
 import re
 import sys
 from collections.abc import Sequence
@@ -86,6 +88,34 @@ def _leaderboard_figures(board: dict[str, Any]) -> dict[str, dict[str, Any]]:
     return figures
 
 
+def _steel(row: dict[str, Any]) -> bool:
+    return "steel" in row["series"]
+
+
+def _variant(rows: list[dict[str, Any]], variant: str) -> list[dict[str, Any]]:
+    return [r for r in rows if r["variant"] == variant]
+
+
+# Figures computed from a results file's rows (``derive:`` in the store): the real-saddle
+# check's held-out predictions (docs/figures/lifetimes_validation.json, one row per series
+# and model variant).
+DERIVED: dict[str, Any] = {
+    # the calibrated model's worst onset on a steel series, |predicted / lab - 1| in %
+    "lifetimes-onset-error-steel": lambda rows: max(
+        100 * abs(r["onset_rps"] / r["lab_onset_rps"] - 1)
+        for r in _variant(rows, "calibrated") if _steel(r)),
+    # how far the rigid-ball theory's threshold lies below the lab's onset, worst steel series, %
+    "lifetimes-theory-onset-early": lambda rows: max(
+        100 * (1 - r["theory_threshold_rps"] / r["lab_onset_rps"])
+        for r in _variant(rows, "calibrated") if _steel(r)),
+    # the worst series' median lifetime error as a factor, exp(median |ln(pred / lab)|)
+    "lifetimes-median-factor": lambda rows: math.exp(max(
+        r["median_abs_log_ratio"] for r in _variant(rows, "calibrated"))),
+    "lifetimes-rigid-median-factor": lambda rows: math.exp(max(
+        r["median_abs_log_ratio"] for r in _variant(rows, "rigid ball"))),
+}
+
+
 def _lookup(path: Path, key: str) -> Any:
     value: Any = json.loads(path.read_text())
     for part in key.split("."):
@@ -111,7 +141,12 @@ def load_store(store: Path = STORE, leaderboard: Path = LEADERBOARD) -> dict[str
         entry = dict(entry)
         if isinstance(entry["date"], datetime.date):
             entry["date"] = entry["date"].isoformat()
-        if "source" in entry:
+        if "derive" in entry:
+            if entry["derive"] not in DERIVED:
+                raise FigureError(f"{store.name}: {name!r}: no derivation {entry['derive']!r}")
+            rows = json.loads((REPO_ROOT / entry["source"]).read_text())
+            entry["value"] = DERIVED[entry["derive"]](rows)
+        elif "source" in entry:
             entry["value"] = _lookup(REPO_ROOT / entry["source"], entry["key"])
             if entry.get("combine") == "sum":
                 entry["value"] = sum(entry["value"].values())

@@ -110,3 +110,25 @@ def test_the_site_shows_the_value_without_its_markers():
     assert out == f"took {figures.render_figure('main-job-seconds')} s"
     with pytest.raises(figures.FigureError):
         hooks.on_page_markdown("<!-- fig no-such -->1<!-- /fig -->", page, {}, None)
+
+
+def _table(text: str, heading: str) -> list[list[str]]:
+    start = text.index(heading)
+    end = text.find("\n## ", start + 3)
+    rows = [r for r in text[start:end if end > 0 else None].splitlines()
+            if r.startswith("|") and not r.startswith("|---")]
+    return [r.strip().strip("|").split("|") for r in rows[1:]]   # without the header row
+
+
+# A measurement typed by hand: a decimal, or a number with a unit.
+TYPED = re.compile(r"\d\.\d|\d\s?(%|s\b|M\b|×|m\b)")
+
+
+@pytest.mark.parametrize("heading, columns", [("## Task levels", slice(2, None)),
+                                              ("## Headline figures", slice(1, 2))])
+def test_readme_tables_take_every_measured_cell_from_the_store(heading, columns):
+    readme = (figures.REPO_ROOT / "README.md").read_text()
+    for cells in _table(readme, heading):
+        for cell in cells[columns]:
+            typed = TYPED.search(figures.MARKER.sub("", cell))
+            assert not typed, f"README {heading!r}: {cell.strip()!r} types a figure by hand"

@@ -74,8 +74,8 @@ LEVELS: tuple[Level, ...] = (
         "calm: one ball, no disturbances, the saddle already spinning above threshold",
         "The paper's saddle and its 2.65 cm ball released within 1 cm of the centre at rest in "
         "the laboratory, the saddle at 15-25 rad/s.",
-        "It is not: every constant speed from 1.1 Ω_crt to the motor's top speed keeps every "
-        "ball. It is the level for checking an agent learns the basics and for benchmarks.",
+        "It is not: a constant speed a little above Ω_crt keeps the balls (docs/leaderboard.md)."
+        " It is the level for checking an agent learns the basics and for benchmarks.",
         reward_threshold=500.0),
     _level(
         "SaddleTrap-Gusty-v0",
