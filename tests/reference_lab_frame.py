@@ -148,9 +148,14 @@ def _coulomb_functions():
 
 
 def _drag(v, drag):
-    """Drag force per unit mass on a centre moving at lab velocity v; drag = (k1, k2)."""
-    k1, k2 = drag
-    return -(k1 + k2 * np.sqrt(v @ v)) * v
+    """Force per unit mass on a centre moving at lab velocity v besides gravity and the
+    contact: drag = (k1, k2) air drag, or (k1, k2, fx, fy) with a constant horizontal force
+    fixed in the laboratory (a tilted saddle's share of gravity) added."""
+    k1, k2 = drag[0], drag[1]
+    f = -(k1 + k2 * np.sqrt(v @ v)) * v
+    if len(drag) > 2:
+        f = f + np.array([drag[2], drag[3], 0.0])
+    return f
 
 
 @cache
@@ -240,7 +245,7 @@ def _simulate_slipping(a, b, R, g, omega, omega_dot, q0, qdot0, t_eval, theta0,
         x, y, vx, vy, th = (float(v) for v in s)
         m11, m12, m21, m22, r1, r2 = f_Mrhs(x, y, vx, vy, th, omega(t), omega_dot(t),
                                             a, b, R, g)
-        if drag != (0.0, 0.0):
+        if any(drag):
             f, J = drag_force(t, s)
             r1, r2 = r1 + f @ J[:, 0], r2 + f @ J[:, 1]
         return np.linalg.solve([[m11, m12], [m21, m22]], [r1, r2])
@@ -263,7 +268,7 @@ def _simulate_slipping(a, b, R, g, omega, omega_dot, q0, qdot0, t_eval, theta0,
                          qdd[0], qdd[1]))
         n = _vec(f_n(x, y, th, a, b))
         # m c'' = F + m f - m g k; frictionless so F = N n and N = n.(c'' + g k - f).
-        f = drag_force(t, s)[0] if drag != (0.0, 0.0) else np.zeros(3)
+        f = drag_force(t, s)[0] if any(drag) else np.zeros(3)
         N[i] = n @ (acc + g * _K - f)
     return {
         "t": np.asarray(t_eval, dtype=float),
@@ -393,7 +398,7 @@ def _coulomb_eval(t, s, a, b, R, alpha, g, mu, eps, omega, omega_dot, drag):
     v = np.array(G[12:15])
     J = np.array(G[15:21]).reshape(3, 2)
     o = np.array(G[21:24]) - R * n
-    fd = _drag(v, drag) if drag != (0.0, 0.0) else np.zeros(3)
+    fd = _drag(v, drag) if any(drag) else np.zeros(3)
     N = n @ (acc0 + g * _K - fd)
     vs = v - R * _cross(w, n) - Om * np.array([-o[1], o[0], 0.0])
     f = -mu * N * vs / np.sqrt(vs @ vs + eps * eps)
@@ -771,7 +776,7 @@ def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, 
                        drag_linear=0.0, drag_quadratic=0.0, mu=None, eps=1e-6,
                        spin=None, method=None, slip_threshold=None, mu_static=None,
                        delta=1e-9, delta0=1e-10, v_switch=1e-6, onset_method="Radau",
-                       onset="delayed", rolling_resistance=0.0):
+                       onset="delayed", rolling_resistance=0.0, force=(0.0, 0.0)):
     """contact in {"rolling", "slipping", "point", "coulomb"} ("point" means R is treated
     as 0, slipping).
     omega, omega_dot: callables t -> float (Omega(t), dOmega/dt).
@@ -784,6 +789,8 @@ def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, 
     t_eval: 1-D array of output times starting at 0.
     drag_linear [1/s], drag_quadratic [1/m]: air drag per unit mass -(k1 + k2 |v|) v on the
     centre, v its velocity in the laboratory.
+    force: (fx, fy) [m/s^2], a constant horizontal force per unit mass fixed in the
+    laboratory (with g reduced to g cos(tilt), a saddle whose axis is tilted).
     rolling_resistance (rolling only): c_rr, a torque c_rr R N against the rolling part of
     the spin relative to the saddle, for a ball that keeps rolling (no static hold).
     Returns dict of arrays, one entry per t_eval, all expressed back in the ROTATING (body) frame:
@@ -827,6 +834,8 @@ def simulate_lab_frame(contact, a, b, R, alpha, g, omega, omega_dot, q0, qdot0, 
         R = 0.0
     _check_params(contact, a, b, R)
     drag = (float(drag_linear), float(drag_quadratic))
+    if force != (0.0, 0.0):
+        drag = (*drag, float(force[0]), float(force[1]))
     if contact == "coulomb":
         if mu is None or mu < 0 or eps <= 0:
             raise ValueError("coulomb needs mu >= 0 and eps > 0")

@@ -92,7 +92,18 @@ from ..lockstep import (
     rk_step_block,
     take,
 )
-from ..scene import COULOMB, P_A, P_B, P_G, P_R, P_RESIST, P_RIM, ROLLING, SLIPPING
+from ..scene import (
+    COULOMB,
+    P_A,
+    P_B,
+    P_G,
+    P_R,
+    P_RESIST,
+    P_RIM,
+    P_TILT_FORCE,
+    ROLLING,
+    SLIPPING,
+)
 from .observation import OBS_MAX, OMEGA_HIGH, OMEGA_LOW, POS_BOUND, VEL_BOUND
 
 # The slots of the module's table: the only way into the engine's per-ball rows. The rows are
@@ -222,7 +233,7 @@ def _finish(model, p, y, ball, cfg, events, action, drive, rate, status, t_end, 
     ball[B_TIME] += t_end
     out[O_STATUS] = status
     out[O_TIME] = t_end
-    g = p[P_G]
+    g = weight(p)
     if not events & EVENT_DETACH:
         out[O_NORMAL] = np.nan
     elif status == STATUS_DETACH:
@@ -628,8 +639,16 @@ def normal_over_mg(model, p, y, ball, cfg):
     drive[DRIVE_PHASE] = ball[B_PHASE]
     dy = np.empty(STATE_WIDTH)
     n = rhs(model, p, drive, 0.0, y, dy, True)
-    g = p[P_G]
+    g = weight(p)
     return n / g if g > 0 else n
+
+
+@jit
+def weight(p):
+    """Gravity per unit mass [m/s²], the unit of N/mg: the whole of it on a tilted saddle,
+    whose packed row splits it into g·cos(tilt) along the axis and g·sin(tilt) across
+    (`Scene.params`; hypot(g, 0) is g exactly on a level one)."""
+    return math.hypot(p[P_G], p[P_TILT_FORCE])
 
 
 specialisable(__name__)
