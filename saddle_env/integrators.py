@@ -623,7 +623,7 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
     m = t_out.shape[0]
     k = 0
     t = t0
-    # the flags: see `_kernels.specialise`
+    # the flags: see `compilation.specialise`
     coulomb = COULOMB_ON and model == COULOMB
     resisted = RESIST_ON and (model == ROLLING or coulomb) and p[P_RESIST] != 0.0
     just_stopped = False  # a spin was just stopped: take a step before stopping one again
@@ -830,8 +830,8 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
 def integrate_batch(lo, hi, models, P, profiles, Y, t0, t_out, tab, ctl, scales, max_step,
                     active, Y_out, status, t_final, stats):
     """`integrate` for balls ``lo`` to ``hi - 1`` of a batch, each with its own scene row, Ω
-    profile and state, on one thread without the GIL (`runner.simulate_batch` runs ranges on
-    several: `_kernels.in_threads`).
+    profile and state, on one thread without the GIL (`runner.run_batch` runs ranges on
+    several: `compilation.threads.in_threads`).
 
     All balls start at ``t0`` and share the output times and ``ctl``, except that ball i's
     largest step is ``max_step[i]``. Balls with ``active[i] == False`` are not touched.

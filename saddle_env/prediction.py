@@ -69,7 +69,7 @@ def integrate_segments(lo, hi, models, P, scales, Y, drives, durations, sample, 
     (advanced in place to its final state) through the segments of ``drives[r]`` and
     ``durations[r]``, filling row r of ``t_out``, ``Y_out`` and ``N_out`` (NaN-filled by the
     caller) and ``status[r]``. The step size carries over from segment to segment, as in one
-    run. One thread; `predict_batch` runs ranges on several (`_kernels.in_threads`), and
+    run. One thread; `predict_batch` runs ranges on several (`compilation.threads.in_threads`), and
     without the GIL so that they run at once."""
     S = durations.shape[1]
     for r in range(lo, hi):

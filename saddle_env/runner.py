@@ -151,7 +151,7 @@ def drive_row(profile: OmegaProfile, force: tuple[float, float] = (0.0, 0.0),
 
 def integrator_loop(model: int, resist: bool, args: tuple):
     """The integrator's loop compiled for this contact model (or ion trap) alone
-    (`_kernels.entry`), for ``args``: its callers (`run`, `iontrap.simulate_ion`) build
+    (`compilation.specialise.entry`), for ``args``: its callers (`run`, `iontrap.simulate_ion`) build
     every argument themselves, so their types do not change from call to call."""
     return entry((model,), resist, integrators, "integrate_h", args)
 
@@ -477,7 +477,7 @@ def run(scene: Scene, state: np.ndarray, t_end: float, *,
     stats = np.zeros(4, dtype=np.int64)
     coulomb = scene.contact == "coulomb"
     work = workspace(tab, TRANSITION_LOG_ROWS if coulomb else 0)
-    # compiled for this scene's contact model alone (`_kernels.specialise`)
+    # compiled for this scene's contact model alone (`compilation.specialise`)
     args = (scene.model_code, p, drive_row(profile, force), y, 0.0, t_out, tab,
             settings.control(settings.max_step_for(profile, float(t_out[-1]))),
             state_scale(p, scene.model_code), Y_out, stats, 0.0, work)

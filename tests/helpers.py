@@ -14,7 +14,7 @@ from saddle_env.scene import Scene
 
 
 def jit_copy(fn):
-    """The numba JIT copy behind an entry point of `_kernels.specialise`'s namespace: the
+    """The numba JIT copy behind an entry point of `compilation.specialise`'s namespace: the
     function itself, or the JIT copy an installed ahead-of-time build stands in for."""
     return _jit_of.get(id(fn), fn)
 

@@ -452,7 +452,7 @@ def _assert_identical(own: list[tuple], full: list[tuple]) -> None:
 
 @pytest.mark.parametrize("env_id", LEVEL_IDS)
 def test_each_levels_own_compiled_step_matches_the_full_kernels(env_id, monkeypatch):
-    """A level compiles its step for the contact models it draws (`_kernels.specialise`);
+    """A level compiles its step for the contact models it draws (`compilation.specialise`);
     seeded episodes through that copy are the full kernels' to the last bit."""
     from saddle_env.envs import _step
 

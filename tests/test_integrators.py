@@ -132,7 +132,7 @@ def test_a_dip_of_N_inside_one_step_is_not_stepped_over():
 
 
 def test_a_copy_compiled_for_one_contact_model_steps_it_identically(monkeypatch):
-    """`_kernels.specialise`: the rolling-only loop (what `simulate` runs for a rolling ball:
+    """`compilation.specialise`: the rolling-only loop (what `simulate` runs for a rolling ball:
     the install's ahead-of-time entry point where a build matches, else numba's JIT copy)
     gives the full loop's trajectory bit for bit, and a model it was not compiled for fails
     (NaN rates) instead of being stepped as another."""

@@ -183,7 +183,7 @@ def test_bad_shapes_are_refused():
 
 def test_a_batch_compiled_for_its_own_contact_models_predicts_identically(monkeypatch):
     """`predict_batch` compiles its kernel for the batch's contact models alone
-    (`_kernels.specialise`, as the environment does): a rolling batch's prediction is the
+    (`compilation.specialise`, as the environment does): a rolling batch's prediction is the
     full kernels' bit for bit, and mixing in a slipping run takes a copy for both."""
     import sys
 
@@ -211,7 +211,7 @@ def test_a_batch_compiled_for_its_own_contact_models_predicts_identically(monkey
 
 @pytest.mark.parametrize("threads", [2, 3, 7])
 def test_a_batch_over_threads_is_the_batch_on_one_thread_bit_for_bit(monkeypatch, threads):
-    """`predict_batch` splits its runs among threads (`_kernels.in_threads`) when there is
+    """`predict_batch` splits its runs among threads (`compilation.threads.in_threads`) when there is
     enough to simulate: any split gives the one-thread results to the last bit (more
     threads than runs included)."""
     models, P, Y0, drives, durations = _cases_batch()

@@ -104,18 +104,6 @@ def bootstrap_interval(x: np.ndarray, seed: int = 0) -> dict[str, float]:
     return {"mean": mean, "low": min(float(low), mean), "high": max(float(high), mean)}
 
 
-def t_interval(x: np.ndarray) -> dict[str, float]:
-    """Mean and 95 % Student-t interval."""
-    from scipy import stats
-
-    x = np.asarray(x, dtype=float)
-    mean = float(x.mean())
-    if len(x) < 2:
-        return {"mean": mean, "low": mean, "high": mean}
-    half = float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / math.sqrt(len(x)))
-    return {"mean": mean, "low": mean - half, "high": mean + half}
-
-
 def wilson_interval(successes: int, n: int) -> dict[str, float]:
     """A proportion and its 95 % Wilson score interval (sensible at 0 and 1 too)."""
     z = 1.959963984540054

@@ -8,10 +8,10 @@ set of contact models, so that a fresh process starts without numba's 10-20 s of
 What is built is numba's own compile of the kernels, not a second implementation: for each
 set of contact models a registered level, a one-model environment or `simulate`, or the ion
 trap's `simulate_ion` uses (`planned_builds`), a worker process runs
-those first calls once with the JIT (`_kernels.specialise`'s copies), then links the
+those first calls once with the JIT (`compilation.specialise`'s copies), then links the
 compiled code below each entry point into an extension module with `numba.pycc`, whose
 entry points take exactly the argument types the JIT was called with and release the GIL
-(the batch kernels run on several threads: `_kernels.in_threads`). The workers' JIT and pycc
+(the batch kernels run on several threads: `compilation.threads.in_threads`). The workers' JIT and pycc
 compile for `aot.build_target`'s CPU (on x86-64 the x86-64-v3 level, so that a wheel serves
 other CPU models), told to numba through its CPU variables. The threaded step's module
 carries `aot_threads`'s forwarders to numba's threading layer. `saddle_env.compilation.aot`
@@ -112,7 +112,7 @@ _EXPORTS: dict[str, dict[str, Callable[..., Any]]] = {
 def _release_gil_in_exports() -> None:
     """Make pycc's wrappers release the GIL around the compiled code, as the JIT's do for a
     ``nogil`` function: the batch kernels run on several Python threads at once
-    (`_kernels.in_threads`). pycc compiles every export with one set of compiler flags and
+    (`compilation.threads.in_threads`). pycc compiles every export with one set of compiler flags and
     offers no option for it, so its flags class is given the setting (in this build's worker
     process only). Releasing and taking back the GIL costs well under a microsecond a call."""
     from numba.core.compiler import Flags

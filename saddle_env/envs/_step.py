@@ -381,7 +381,7 @@ def _coulomb_balls(lo, hi, models, P, scales, Y, balls, cfg, actions, active, ta
     10.2-11.8 ms against 7.7-8.4; measured)."""
     failed = 0
     for i in range(lo, hi):
-        if not COULOMB_ON or not active[i] or models[i] != COULOMB:  # `_kernels.specialise`
+        if not COULOMB_ON or not active[i] or models[i] != COULOMB:  # `compilation.specialise`
             continue
         _load(i, STATE_WIDTH, P, scales, Y, balls, noise, record)
         failed += _scalar_ball(i, COULOMB, STATE_WIDTH, Y, balls, cfg, actions, tab, ctl, obs,
@@ -552,14 +552,6 @@ def _observe_into(model, p, y, ball, cfg, noise, obs, row):
     observe_one(model, p, y, ball, cfg, noise, row)
     for k in range(obs.shape[0]):
         obs[k] = row[k]
-
-
-@jit
-def observe_all(models, P, Y, balls, cfg, active, noise, obs):
-    row = np.zeros(OBS_MAX)
-    for i in range(Y.shape[0]):
-        if active[i]:
-            _observe_into(models[i], P[i], Y[i], balls[i], cfg, noise[i], obs[i], row)
 
 
 @python_entry

@@ -146,7 +146,7 @@ class TrapEngine:
         self.noise = np.zeros((self.n, self.frame_dim))
         self.scenes: list[Scene] = [config.scene()] * self.n
         # The compiled step for the contact models the configuration draws from, and rolling
-        # resistance if it has any (`_kernels.specialise`: a rolling scene does not compile the
+        # resistance if it has any (`compilation.specialise`: a rolling scene does not compile the
         # coulomb machinery); a reset that brings something else widens it.
         self._uses = contact_uses(config)
         self._S = specialise(*self._uses, S)
@@ -544,7 +544,7 @@ class TrapEngine:
 
 def contact_uses(config: EnvConfig) -> tuple[frozenset[int], bool]:
     """The contact model codes ``config`` draws its balls from, and whether any rolling
-    resistance: what its compiled step is specialised for (`_kernels.specialise`)."""
+    resistance: what its compiled step is specialised for (`compilation.specialise`)."""
     return (frozenset(config.scene(contact=m).model_code
                       for m in (config.contact_models or (config.contact,))),
             config.rolling_resistance != 0.0)
