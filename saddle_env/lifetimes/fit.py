@@ -107,13 +107,11 @@ def lab_terms(lab: Series) -> tuple[np.ndarray, np.ndarray]:
     return np.log(m), (lab.std / (m * np.sqrt(lab.counts))) ** 2
 
 
-def series_cost(s: Series, predicted: np.ndarray, se_sim: np.ndarray,
-                measured: Series | None = None) -> float:
-    """The objective's share of one series (``measured`` replaces the lab's releases,
-    e.g. by a bootstrap draw)."""
-    log_m, var_lab = lab_terms(s if measured is None else measured)
-    r = np.log(predicted) - log_m
-    return float(np.sum(r * r / (var_lab + se_sim ** 2 + MODEL_ERROR ** 2)))
+def objective_share(log_p: np.ndarray, var_sim: np.ndarray, log_m: np.ndarray,
+                    var_lab: np.ndarray) -> float:
+    """One series' share of the objective: Σ (ln p − ln m)² / (σ_lab² + σ_sim² + 0.1²)."""
+    r = log_p - log_m
+    return float(np.sum(r * r / (var_lab + var_sim + MODEL_ERROR ** 2)))
 
 
 class Fitter:
@@ -149,10 +147,7 @@ class Fitter:
         labs = {i: lab_terms(measured.get(i, self.series[i])) for i in use}
 
         def cost_of(i: int, point: G.Point, ev: tuple[float, float]) -> float:
-            log_p, var_sim = self.log_curve(i, point, ev)
-            log_m, var_lab = labs[i]
-            r = log_p - log_m
-            return float(np.sum(r * r / (var_lab + var_sim + MODEL_ERROR ** 2)))
+            return objective_share(*self.log_curve(i, point, ev), *labs[i])
 
         best: Choice | None = None
         for shared in G.shared_points():
