@@ -158,6 +158,7 @@ class ConstantSpeed(Controller):
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
+        """The actions for ``observation`` (one or a batch); ``state`` carries the commanded speed."""
         if self.config.action_mode in ("target", "voltage"):  # a constant action holds it
             return super().predict(observation, state, episode_start, deterministic)
         batch, single = self._batch(observation)

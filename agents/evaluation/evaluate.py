@@ -1,10 +1,10 @@
-"""``saddle-eval``: evaluate policies (baselines, model files, or controller classes of your
+r"""``saddle-eval``: evaluate policies (baselines, model files, or controller classes of your
 own) on the same seeded episodes of a task level and tabulate how long they keep the ball.
 
 ```
-saddle-eval --policy const-1.2 --policy mpc --policy runs/ppo/model.zip \\
-            --policy runs/ppo_rllib_seed0_<date>/final --policy exported/ppo_storm \\
-            --policy my_controllers.py:Bang --policy-kwargs '{"gain": 2}' \\
+saddle-eval --policy const-1.2 --policy mpc --policy runs/ppo/model.zip \
+            --policy runs/ppo_rllib_seed0_<date>/final --policy exported/ppo_storm \
+            --policy my_controllers.py:Bang --policy-kwargs '{"gain": 2}' \
             --episodes 200 --seed 0 [--env ID] [--env-kwargs R=0.033 air_force=0.3]
             [--json] [--out DIR]
 ```
@@ -115,6 +115,7 @@ def wilson_interval(successes: int, n: int) -> dict[str, float]:
 
 
 def summarise(res: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
+    """Intervals of the trapping time and of each end's share, from an evaluation's results."""
     n = len(res["time"])
     causes = res["cause"]
     table = {"trapping_time": bootstrap_interval(res["time"]),
@@ -296,6 +297,7 @@ def markdown(table: dict[str, Any]) -> str:
 # Plots
 # --------------------------------------------------------------------------------------
 def plot(table: dict[str, Any], details: dict[str, Any], config: EnvConfig, out: Path) -> list[Path]:
+    """Draw the evaluation's figures into ``out``; returns the files written."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -350,6 +352,7 @@ def plot(table: dict[str, Any], details: dict[str, Any], config: EnvConfig, out:
 # Command line
 # --------------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``saddle-eval``."""
     p = argparse.ArgumentParser(
         prog="saddle-eval",
         description="Evaluate policies (baseline names or Stable-Baselines3 .zip files) on the "
@@ -402,6 +405,7 @@ def _default_env_id(specs: Sequence[str]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.episodes < 1:

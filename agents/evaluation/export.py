@@ -194,6 +194,7 @@ def max_difference(policy: Any, folder: str | os.PathLike, obs: np.ndarray) -> f
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``saddle-export``."""
     p = argparse.ArgumentParser(
         prog="saddle-export",
         description="Export a trained Stable-Baselines3 model file to a folder (policy.onnx + "
@@ -213,6 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

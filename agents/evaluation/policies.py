@@ -207,6 +207,7 @@ class WrappedModel:
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
+        """The actions for ``observation`` (one or a batch), normalised and frame-stacked as in training."""
         obs = np.asarray(observation, dtype=np.float32)
         single = obs.ndim == 1
         batch = self._normalise(obs.reshape(1, -1) if single else obs)

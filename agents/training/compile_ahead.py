@@ -125,6 +125,7 @@ def _exit_with_parent() -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Compile the comparison's kernels for ``ENV_ID EPISODES STEPS [RUN_DIR]``; returns 0."""
     env_id, episodes, steps, *run_dir = (argv if argv is not None else sys.argv[1:])
     _exit_with_parent()
     compile_comparison(env_id, int(episodes), int(steps))

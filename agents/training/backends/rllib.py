@@ -103,6 +103,7 @@ class RunnerVectorEnv(SaddleTrapVectorEnv):
         self.base_seed = int(base_seed)
 
     def reset(self, *, seed=None, options=None):
+        """Reset, with each env runner's seed spread so that no two runners share episodes."""
         if isinstance(seed, (int, np.integer)):
             runner = int(seed) - self.base_seed
             seed = self.base_seed + runner * self.num_envs
