@@ -33,6 +33,8 @@ def _check_scene(scene: object) -> None:
 
 @dataclass(frozen=True)
 class ABCD:
+    """The coefficients of the linearised equations of motion (the paper's Table I; `abcd`)."""
+
     A: float
     B: float
     C: float

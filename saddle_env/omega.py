@@ -43,10 +43,12 @@ class OmegaProfile:
         return cls(_finite_number("omega", omega))
 
     def array(self) -> np.ndarray:
+        """The profile packed as the compiled kernels read it."""
         return np.array([self.w0, self.rate, self.amp, self.freq, self.phase])
 
     @property
     def constant(self) -> bool:
+        """Whether Ω stays constant."""
         return self.rate == 0.0 and (self.amp == 0.0 or self.freq == 0.0)
 
     def __call__(self, t: np.ndarray | float) -> np.ndarray | float:

@@ -58,9 +58,11 @@ class Estimate:
 
     @property
     def interval(self) -> tuple[float, float]:
+        """The estimate's interval, (low, high)."""
         return self.low, self.high
 
     def as_dict(self) -> dict[str, Any]:
+        """The estimate as JSON-ready values (infinite bounds as "inf", "-inf")."""
         def num(v: float) -> float | str:
             return v if math.isfinite(v) else ("inf" if v > 0 else "-inf")
         return {"value": self.value, "std": num(self.std), "low": num(self.low),
@@ -86,6 +88,7 @@ class FitResult:
     x: np.ndarray | None = field(default=None, repr=False)
 
     def as_dict(self) -> dict[str, Any]:
+        """The fit as JSON-ready values, as ``saddle-fit`` writes it."""
         return {"estimates": {k: e.as_dict() for k, e in self.estimates.items()},
                 "tracks": self.tracks, "env_options": self.env_options, "drive": self.drive,
                 "cost": self.cost, "noise_scale": self.sigma_scale,

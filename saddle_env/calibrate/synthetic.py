@@ -136,6 +136,7 @@ __all__ = ["synthetic_tracks"]
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m saddle_env.calibrate.synthetic``."""
     ap = argparse.ArgumentParser(
         prog="python -m saddle_env.calibrate.synthetic",
         description="Write synthetic track files (one CSV per release) made by a level's "
@@ -161,6 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     from .cli import parse_set
     parser = build_parser()
     args = parser.parse_args(argv)

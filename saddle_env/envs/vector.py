@@ -104,6 +104,28 @@ class SaddleTrapVectorEnv(VectorEnv):
 
     def reset(self, *, seed: int | list[int | None] | None = None,
               options: dict[str, Any] | None = None):
+        """Start episodes for every ball, or the balls of ``options["reset_mask"]``.
+
+        Parameters
+        ----------
+        seed : int or list of (int or None), optional
+            An int ``s`` seeds ball i with ``s + i``; a list gives each ball its own seed.
+        options : dict, optional
+            ``reset_mask`` (a bool array of shape ``(num_envs,)``) picks the balls to reset;
+            other keys place them exactly, as in `SaddleTrapEnv.reset`.
+
+        Returns
+        -------
+        observations : numpy.ndarray
+            Shape ``(num_envs, obs_dim)``.
+        infos : dict
+            Gymnasium's vector infos.
+
+        Raises
+        ------
+        ValueError
+            On a list of the wrong length or a malformed ``reset_mask``.
+        """
         if isinstance(seed, (int, np.integer)):
             seeds: list[int | None] = [int(seed) + i for i in range(self.num_envs)]
         elif seed is None:
@@ -141,6 +163,32 @@ class SaddleTrapVectorEnv(VectorEnv):
         return mask.copy()
 
     def step(self, actions):
+        """Apply one action per ball for one control period.
+
+        Parameters
+        ----------
+        actions : array_like
+            Shape ``(num_envs,)`` or ``(num_envs, 1)``, each in [-1, 1].
+
+        Returns
+        -------
+        observations : numpy.ndarray
+            Shape ``(num_envs, obs_dim)``.
+        rewards : numpy.ndarray
+            One per ball.
+        terminations : numpy.ndarray
+            True where the ball detached or escaped.
+        truncations : numpy.ndarray
+            True where the episode reached ``max_episode_steps``.
+        infos : dict
+            Gymnasium's vector infos.
+
+        Raises
+        ------
+        RuntimeError
+            Before every ball was reset, or, with ``autoreset_mode`` DISABLED, while a finished
+            ball waits for its reset.
+        """
         if not self._started:
             never = np.flatnonzero(~self._placed).tolist()
             raise RuntimeError(f"call reset() before step() (balls {never} were never reset)")
@@ -221,6 +269,7 @@ class SaddleTrapVectorEnv(VectorEnv):
         return (self._renderer.draw(e.scenes[0], e.Y[0], e.balls[0], e.obs[0]),)
 
     def close_extras(self, **kwargs: Any) -> None:
+        """Close the renderer, if one is open."""
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None

@@ -338,6 +338,7 @@ class RunLog:
             self.writer = None
 
     def add(self, row: dict[str, Any]) -> None:
+        """Append one iteration's ``row`` to progress.csv and, if TensorBoard is installed, its scalars."""
         import csv
 
         new = not self.path.is_file()
@@ -354,6 +355,7 @@ class RunLog:
             self.writer.flush()
 
     def close(self) -> None:
+        """Close the TensorBoard writer."""
         if self.writer is not None:
             self.writer.close()
 
