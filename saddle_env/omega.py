@@ -12,11 +12,29 @@ from .scene import _finite_number
 
 @dataclass(frozen=True)
 class OmegaProfile:
-    """Ω(t) = w0 + rate·t + amp·sin(freq·t + phase)  [rad/s].
+    """The saddle's speed, Ω(t) = w0 + rate·t + amp·sin(freq·t + phase) [rad/s].
 
     Covers constant speed (the paper), a ramp (a motor at constant torque; within one
     control step of the environment) and a ripple. Ω̇ is finite everywhere, so the Euler
     force is well defined.
+
+    Parameters
+    ----------
+    w0 : float
+        The speed at t = 0 [rad/s].
+    rate : float
+        The ramp's slope [rad/s²].
+    amp : float
+        The ripple's amplitude [rad/s].
+    freq : float
+        The ripple's angular frequency [rad/s].
+    phase : float
+        The ripple's phase at t = 0 [rad].
+
+    Raises
+    ------
+    ValueError
+        If a value is not a finite number.
     """
 
     w0: float = 0.0

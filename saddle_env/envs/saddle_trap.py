@@ -104,10 +104,18 @@ class SaddleTrapEnv(gym.Env):
     at the end of the step), ``trapped_fraction``; when terminated, ``cause``
     ("detach" | "escape") and ``event_time`` (s since the episode started, located to 1e-12 s).
 
-    ## Arguments
-    Every field of `saddle_env.envs.EnvConfig` is a keyword, e.g.
-    ``gym.make("SaddleTrap-v0", R=0.033, contact="slipping", action_mode="target")``;
-    plus ``render_mode`` (``"rgb_array"`` or ``"human"``).
+    Parameters
+    ----------
+    render_mode : {"rgb_array", "human"}, optional
+        How `render` draws: to an array, or to a window.
+    **kwargs
+        Every field of `saddle_env.envs.EnvConfig` is a keyword, e.g.
+        ``gym.make("SaddleTrap-v0", R=0.033, contact="slipping", action_mode="target")``.
+
+    Raises
+    ------
+    ValueError
+        On an unknown option, a value outside its range, or an unknown render mode.
     """
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 50}

@@ -27,6 +27,15 @@ class SaddleTrapSB3VecEnv(VecEnv):
     """``num_envs`` SaddleTrap balls as an SB3 ``VecEnv``; options as `SaddleTrapEnv`.
 
     Seeding follows SB3: ``seed(s)`` then ``reset()`` seeds ball i with ``s + i``.
+
+    Parameters
+    ----------
+    num_envs : int
+        The number of balls.
+    max_episode_steps : int or None
+        The episode length in control steps (None: no limit).
+    **kwargs
+        `EnvConfig` options, as for ``gym.make``.
     """
 
     def __init__(self, num_envs: int = 1, max_episode_steps: int | None = DEFAULT_EPISODE_STEPS,

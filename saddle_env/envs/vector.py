@@ -64,6 +64,25 @@ class SaddleTrapVectorEnv(VectorEnv):
     ``reset(options={"reset_mask": mask, ...})`` resets only the balls where ``mask`` (a
     bool array of shape ``(num_envs,)``) is True, in any mode; other keys place them
     exactly, as in `SaddleTrapEnv`.
+
+    Parameters
+    ----------
+    num_envs : int
+        The number of balls.
+    max_episode_steps : int or None
+        The episode length in control steps (None: no time limit).
+    render_mode : {"rgb_array"}, optional
+        `render` draws ball 0 to an array.
+    autoreset_mode : AutoresetMode or str
+        What happens after a ball's episode ends (above).
+    **kwargs
+        `EnvConfig` options, as for ``gym.make``.
+
+    Raises
+    ------
+    ValueError
+        On an unknown option, a value outside its range, a bad ``max_episode_steps`` or
+        ``render_mode``.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": ["rgb_array"],
