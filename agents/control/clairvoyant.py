@@ -90,7 +90,7 @@ def _book(engine: Any, active: np.ndarray, k: int, dt: float, t: np.ndarray,
 
 def copy_rng(rng: np.random.Generator) -> np.random.Generator:
     """An independent generator in ``rng``'s exact state (its future draws, without
-    advancing it); 3x cheaper than `copy.deepcopy`, which it falls back to."""
+    advancing it); cheaper than `copy.deepcopy`, which it falls back to."""
     bg = rng.bit_generator
     try:
         twin = type(bg)(0)

@@ -421,6 +421,17 @@ def fit_tracks(tracks: Sequence[Track], config: EnvConfig, fit: Sequence[str], *
         Jacobian evaluations at most (1-1000).
     progress
         Called with a line per iteration (default: silent).
+
+    Returns
+    -------
+    FitResult
+        The estimates, the fitted options for ``gym.make`` and the fit's diagnostics.
+
+    Raises
+    ------
+    ValueError
+        If there are no tracks, a track has too few tracked frames, or an argument is out
+        of range (the message names it).
     """
     say = progress or (lambda _: None)
     tracks = list(tracks)

@@ -95,6 +95,18 @@ def run(rig: Rig, controller: Any, seconds: float, period: float | None = None, 
     progress
         Called with a line of text at the end of each release and every few seconds
         (e.g. ``print``).
+
+    Returns
+    -------
+    dict
+        The run's summary (as ``summary.json`` holds it): its settings, the releases and
+        the deadlines missed.
+
+    Raises
+    ------
+    ValueError
+        If ``seconds``, ``releases`` or ``lost_after`` is out of range, or the level is not
+        in voltage mode.
     """
     cfg = _resolve_config(rig, config, period)
     T = cfg.control_period

@@ -1,6 +1,6 @@
 """The SBX back end of `agents.training.trainer`: PPO from SBX (``sbx-rl``, Stable-Baselines3's API
-on JAX), which on the level recipes takes about twice the steps per second of SB3's PPO on
-the 2-core machine and learns what it learns (docs/training_profile.md, "SBX").
+on JAX), which on the level recipes takes more steps per second than SB3's PPO and learns
+what it learns (the measurements: docs/training_profile.md, "SBX").
 
 Only the learner differs from the SB3 back end: the environments, the recipe's keys, the
 callbacks, model selection, checkpoints on a schedule and on Ctrl-C/SIGTERM are
@@ -19,9 +19,9 @@ back end writes, with one addition:
   imitation of ``mpc``) and are copied into the flax network.
 
 XLA's multithreaded Eigen is switched off (``XLA_FLAGS``, unless already set) before JAX is
-first imported: on these 128-wide layers it was slower than one thread (8,600 against
-12,000 steps/s, docs/training_profile.md). JAX still runs a dispatch thread beside the
-process's main one, so SBX uses about 1.4 cores.
+first imported: on these 128-wide layers it was slower than one thread
+(docs/training_profile.md). JAX still runs a dispatch thread beside the process's main
+one, so SBX uses more than one core.
 """
 
 from __future__ import annotations
