@@ -40,10 +40,12 @@ Point = tuple[float, float, float, float, float]
 
 
 def shared_points() -> list[tuple[float, float, float]]:
+    """The grid of the parameters every object shares (tilt and the launcher's spreads)."""
     return list(itertools.product(TILTS, LAUNCH_SPREADS, LAUNCH_SPEED_SPREADS))
 
 
 def own_points(obj: str) -> list[tuple[float, float]]:
+    """The grid of the object ``obj``'s own dissipation parameters."""
     if obj == "steel":
         return list(itertools.product(ROLLING_RESISTANCES, ROLLING_DRAGS))
     return [(d, 0.0) for d in FILM_DRAGS]
@@ -112,4 +114,5 @@ def _save(path: Path, arrays: dict[str, np.ndarray]) -> None:
 
 
 def escapes_of(table: dict[str, np.ndarray], index: int, point: Point) -> np.ndarray:
+    """Series ``index``'s simulated escape times at grid ``point``."""
     return table[_key(index, point)]
