@@ -1,5 +1,5 @@
 """The one thing the build does beyond pyproject.toml: compile the kernels of a first
-`env.step` and a first `simulate` ahead of time (`saddle_env.compilation.aot_build`), so that a
+`env.step` and a first `simulate` ahead of time (`saddle_env.coldstart.aot_build`), so that a
 fresh install starts in about a second instead of compiling with numba for 10-20 s
 (docs/coldstart.md).
 
@@ -61,7 +61,7 @@ class build_aot(Command):
         if not done:
             shutil.rmtree(out, ignore_errors=True)
             print("saddle-env: installing without ahead-of-time kernels: numba compiles them "
-                  "on first use (python -m saddle_env.compilation.precompile --aot retries)")
+                  "on first use (python -m saddle_env.coldstart.precompile --aot retries)")
             return
         if not self.editable_mode:
             self._outputs = [str(p) for p in out.iterdir()]
@@ -74,9 +74,9 @@ class build_aot(Command):
 
 
 def _run_build(root: Path, env: dict) -> bool:
-    """``python -m saddle_env.compilation.precompile --aot`` in ``root``, in a session of its own so that a
+    """``python -m saddle_env.coldstart.precompile --aot`` in ``root``, in a session of its own so that a
     time-out or Ctrl-C stops its worker processes too."""
-    cmd = [sys.executable, "-m", "saddle_env.compilation.precompile", "--aot"]
+    cmd = [sys.executable, "-m", "saddle_env.coldstart.precompile", "--aot"]
     print(f"saddle-env: {' '.join(cmd[1:])} (a few minutes on 2 cores)", flush=True)
     try:
         proc = subprocess.Popen(cmd, cwd=root, env=env, start_new_session=True)

@@ -5,12 +5,16 @@ from .compilation import cache as _cache
 from .compilation import notice as _notice
 from .compilation import threads as _threads  # noqa: F401  (numba's threading layer, set before any parallel step)
 
-# Modules that moved (the compile machinery into `saddle_env.compilation`, the atomic writer
-# into `saddle_env.jobs`); the old names say where.
+# Modules that moved (the compile machinery into `saddle_env.compilation`, its tools for the
+# first call into `saddle_env.coldstart`, the atomic writer into `saddle_env.jobs`); the old
+# names say where.
 _moved.announce({
-    "saddle_env.compile_profile": "saddle_env.compilation.profile",
-    "saddle_env.precompile": "saddle_env.compilation.precompile",
-    "saddle_env.aot_build": "saddle_env.compilation.aot_build",
+    "saddle_env.compile_profile": "saddle_env.coldstart.profile",
+    "saddle_env.precompile": "saddle_env.coldstart.precompile",
+    "saddle_env.aot_build": "saddle_env.coldstart.aot_build",
+    "saddle_env.compilation.profile": "saddle_env.coldstart.profile",
+    "saddle_env.compilation.precompile": "saddle_env.coldstart.precompile",
+    "saddle_env.compilation.aot_build": "saddle_env.coldstart.aot_build",
     "saddle_env.analysis": "saddle_env.reproduce.precession",
     "saddle_env.files": "saddle_env.jobs.files",
 })

@@ -1,5 +1,5 @@
 """The ahead-of-time compiled kernels (saddle_env.compilation.aot,
-saddle_env.compilation.aot_build): a build is used only for the sources and platform it was built
+saddle_env.coldstart.aot_build): a build is used only for the sources and platform it was built
 from and for exactly its argument types, and (slow) a real build starts a fresh process's first step
 of every level and first simulate
 without compiling, bit for bit the JIT's, and retires itself when a source changes."""
@@ -17,8 +17,9 @@ from helpers import compiled_in_fresh_process, gone_within
 
 import saddle_env
 from saddle_env import integrators as I
+from saddle_env.coldstart import aot_build
+from saddle_env.coldstart import precompile as pc
 from saddle_env.compilation import aot as _aot
-from saddle_env.compilation import precompile as pc
 from saddle_env.compilation import specialise as S
 from saddle_env.compilation.specialise import FULL_KERNELS_ENV, checked, specialise
 from saddle_env.scene import ROLLING
@@ -34,7 +35,8 @@ def fake_build(tmp_path, monkeypatch):
     monkeypatch.setenv(_aot.AOT_ENV, "1")
 
     def write(**changes):
-        manifest = {"digest": _aot.source_digest(), "platform": _aot.platform_tag(),
+        manifest = {"sources": list(aot_build.SOURCES),
+                    "digest": _aot.source_digest(aot_build.SOURCES), "platform": _aot.platform_tag(),
                     **_aot.machine(),
                     "modules": [{"name": "fake", "file": "fake.py", "flags": ["ROLLING_ON"],
                                  "exports": {"saddle_env.integrators": ["integrate_h"]},
@@ -169,15 +171,25 @@ def test_the_digest_covers_every_source_of_the_package_and_its_environment(tmp_p
     pkg = tmp_path / "pkg"
     shutil.copytree(Path(saddle_env.__file__).parent, pkg,
                     ignore=shutil.ignore_patterns("__pycache__", "_aot"))
-    before = _aot.source_digest(pkg)
-    assert before == _aot.source_digest()
-    for rel in ("cli.py", "envs/engine.py"):  # not a kernel, but it picks their arguments
+    before = _aot.source_digest(aot_build.SOURCES, pkg)
+    assert before == _aot.source_digest(aot_build.SOURCES)
+    # not kernels, but one picks their arguments and one holds the build's exported callers
+    for rel in ("cli.py", "envs/engine.py", "coldstart/aot_build.py"):
         path = pkg / rel
         text = path.read_text()
         path.write_text(text + "\n# edited\n")
-        assert _aot.source_digest(pkg) != before
+        assert _aot.source_digest(aot_build.SOURCES, pkg) != before
         path.write_text(text)
-    assert _aot.source_digest(pkg) == before
+    assert _aot.source_digest(aot_build.SOURCES, pkg) == before
+
+
+@pytest.mark.parametrize("sources", [None, "envs", ["..", "envs"], ["/tmp"], [1]])
+def test_a_manifest_without_its_source_folders_by_name_is_not_used(fake_build, sources):
+    """The loader digests the folders the build's manifest names; a manifest that names
+    none, or names a path out of the package, is a build from other sources."""
+    fake_build(sources=sources)
+    assert _aot.compiled(("ROLLING_ON",), "saddle_env.integrators") == {}
+    assert "other sources" in _aot.status()
 
 
 def test_an_entry_point_is_used_for_its_own_argument_types_only(fake_build, monkeypatch):
@@ -336,7 +348,7 @@ def built_copy(tmp_path_factory):
     for name in ("SADDLE_ENV_FULL_KERNELS", _aot.AOT_ENV, _aot.AOT_CPU_ENV,  # as users run
                  *_aot.CPU_VARIABLES):
         env.pop(name, None)
-    done = subprocess.run([sys.executable, "-m", "saddle_env.compilation.precompile", "--aot"],
+    done = subprocess.run([sys.executable, "-m", "saddle_env.coldstart.precompile", "--aot"],
                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=2400)
     assert done.returncode == 0, done.stderr
     return tmp_path, env
@@ -518,7 +530,7 @@ def test_an_editable_install_builds_for_its_own_cpu_and_a_wheel_for_the_level(tm
 def test_a_build_that_overruns_is_stopped_with_its_workers(tmp_path, monkeypatch):
     """The time limit stops the build's whole process group (its worker processes too)."""
     setup = _setup_commands()
-    pkg = tmp_path / "saddle_env" / "compilation"
+    pkg = tmp_path / "saddle_env" / "coldstart"
     pkg.mkdir(parents=True)
     (pkg.parent / "__init__.py").write_text("")
     (pkg / "__init__.py").write_text("")

@@ -31,10 +31,13 @@ def _tree(tmp_path, monkeypatch):
     other = tmp_path / "agents"
     other.mkdir()
     (other / "mpc.py").write_text("import numba\nfrom saddle_env._kernels import x\n")
-    monkeypatch.setattr(_cache, "_PACKAGE", pkg)
-    monkeypatch.setattr(_cache, "_TREES", [pkg, other])
-    monkeypatch.setattr(_cache, "_STAMP", pkg / "__pycache__" / "numba-sources.json")
     return pkg, other
+
+
+def _refresh(pkg, other):
+    """What the two imports do: the package's refresh, then the other tree's, which names
+    the package as a tree it depends on (as `agents.control` does)."""
+    return _cache.refresh(pkg) + _cache.refresh(other, depends_on=[pkg])
 
 
 def _cached(path):
@@ -56,8 +59,8 @@ def _has_cache(path):
 
 
 def test_dependencies_follow_the_imports(tmp_path, monkeypatch):
-    _tree(tmp_path, monkeypatch)
-    mods = _cache._sources()
+    pkg, other = _tree(tmp_path, monkeypatch)
+    mods = _cache._sources([pkg, other])
     deps = {m: _cache._imports(m, p, mods) for m, p in mods.items()}
     assert deps["saddle_env._kernels"] == {"saddle_env.scene"}
     assert deps["saddle_env.envs._step"] == {"saddle_env._kernels", "saddle_env.integrators"}
@@ -71,28 +74,28 @@ def test_a_changed_file_drops_only_its_own_and_its_dependents_caches(tmp_path, m
     files = {name: pkg / name for name in ("_kernels.py", "integrators.py", "linear.py")}
     files["step"] = pkg / "envs" / "_step.py"
     files["mpc"] = other / "mpc.py"
-    assert _cache.refresh()  # no stamp yet: every module is new
+    assert _refresh(pkg, other)  # no stamp yet: every module is new
     for f in files.values():
         _cached(f)
-    assert _cache.refresh() == [] and all(_has_cache(f) for f in files.values())
+    assert _refresh(pkg, other) == [] and all(_has_cache(f) for f in files.values())
 
     # The environment's step changes: only its own cache goes.
     files["step"].write_text(files["step"].read_text() + "y = 2\n")
-    assert _modules(_cache.refresh()) == {"saddle_env.envs._step"}
+    assert _modules(_refresh(pkg, other)) == {"saddle_env.envs._step"}
     assert not _has_cache(files["step"])
     assert all(_has_cache(f) for k, f in files.items() if k != "step")
 
     # A module nothing compiled imports: nobody else's cache goes.
     _cached(files["step"])
     files["linear.py"].write_text("import math  # edited\n")
-    assert _modules(_cache.refresh()) == {"saddle_env.linear"}
+    assert _modules(_refresh(pkg, other)) == {"saddle_env.linear"}
     assert all(_has_cache(f) for k, f in files.items() if k != "linear.py")
 
     # The kernels change: every module that imports them, directly or not, recompiles.
     _cached(files["linear.py"])
     files["_kernels.py"].write_text("from .scene import P_A\nx = 2\n")
-    assert _modules(_cache.refresh()) == {"saddle_env._kernels", "saddle_env.integrators",
-                                          "saddle_env.envs._step", "agents.mpc"}
+    assert _modules(_refresh(pkg, other)) == {"saddle_env._kernels", "saddle_env.integrators",
+                                              "saddle_env.envs._step", "agents.mpc"}
     assert _has_cache(files["linear.py"])
     assert not any(_has_cache(f) for k, f in files.items() if k != "linear.py")
 
@@ -100,8 +103,20 @@ def test_a_changed_file_drops_only_its_own_and_its_dependents_caches(tmp_path, m
     for f in files.values():
         _cached(f)
     (pkg / "scene.py").write_text("P_A = 1\n")
-    assert "saddle_env.integrators" in _cache.refresh()
+    assert "saddle_env.integrators" in _refresh(pkg, other)
     assert not _has_cache(files["integrators.py"]) and _has_cache(files["linear.py"])
+
+
+def test_another_tree_is_refreshed_only_by_its_own_call(tmp_path, monkeypatch):
+    """The package's refresh reads no tree but its own (it names no package above it); the
+    other tree's call, naming the package as a dependency, drops its stale caches."""
+    pkg, other = _tree(tmp_path, monkeypatch)
+    _refresh(pkg, other)
+    _cached(other / "mpc.py")
+    (pkg / "_kernels.py").write_text("from .scene import P_A\nx = 2\n")
+    assert "agents.mpc" not in _cache.refresh(pkg) and _has_cache(other / "mpc.py")
+    assert _cache.refresh(other, depends_on=[pkg]) == ["agents.mpc"]
+    assert not _has_cache(other / "mpc.py")
 
 
 def test_only_a_changed_file_is_parsed_again_and_its_new_imports_count(tmp_path, monkeypatch):
@@ -109,32 +124,32 @@ def test_only_a_changed_file_is_parsed_again_and_its_new_imports_count(tmp_path,
     (parsing all of them was a third of ``import saddle_env``), and a file whose imports
     changed is parsed again, so the modules it now depends on make it stale."""
     pkg, _ = _tree(tmp_path, monkeypatch)
-    _cache.refresh()
+    _cache.refresh(pkg)
     parsed = []
     parse = _cache._imports
     monkeypatch.setattr(_cache, "_imports", lambda m, p, mods: parsed.append(m) or parse(m, p, mods))
-    assert _cache.refresh() == [] and parsed == []
+    assert _cache.refresh(pkg) == [] and parsed == []
     (pkg / "linear.py").write_text("import math\nfrom .integrators import x\n")
-    assert _modules(_cache.refresh()) == {"saddle_env.linear"}
+    assert _modules(_cache.refresh(pkg)) == {"saddle_env.linear"}
     assert parsed == ["saddle_env.linear"]
     _cached(pkg / "linear.py")
     (pkg / "_kernels.py").write_text("from .scene import P_A\nx = 2\n")
-    assert "saddle_env.linear" in _cache.refresh() and not _has_cache(pkg / "linear.py")
+    assert "saddle_env.linear" in _cache.refresh(pkg) and not _has_cache(pkg / "linear.py")
     (pkg / "new.py").write_text("")  # a new module: every file parsed again
     parsed.clear()
-    _cache.refresh()
-    assert len(parsed) == len(_cache._sources())
+    _cache.refresh(pkg)
+    assert len(parsed) == len(_cache._sources([pkg]))
 
 
 def test_touching_a_file_keeps_the_stamp_valid(tmp_path, monkeypatch):
     """A new time stamp with the same content (a reinstall, a checkout) drops nothing here;
     numba itself recompiles that one file's functions, whose index holds the stamp."""
     pkg, _ = _tree(tmp_path, monkeypatch)
-    _cache.refresh()
+    _cache.refresh(pkg)
     _cached(pkg / "integrators.py")
     os.utime(pkg / "_kernels.py", (1, 1))
-    assert _cache.refresh() == [] and _has_cache(pkg / "integrators.py")
-    assert json.loads(_cache._STAMP.read_text())["saddle_env.integrators"]
+    assert _cache.refresh(pkg) == [] and _has_cache(pkg / "integrators.py")
+    assert json.loads((pkg / _cache._STAMP_FILE).read_text())["saddle_env.integrators"]
 
 
 _TWO_FILES = {

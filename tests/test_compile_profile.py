@@ -1,4 +1,4 @@
-"""The compile profiler's phase accounting (`saddle_env.compilation.profile`)."""
+"""The compile profiler's phase accounting (`saddle_env.coldstart.profile`)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ def test_compile_phases_account_for_a_compile_and_restore_numba():
     import numba
     from numba.core import codegen, compiler_machinery
 
-    from saddle_env.compilation.profile import CompilePhases
+    from saddle_env.coldstart.profile import CompilePhases
 
     before = (compiler_machinery.PassManager.__dict__["_runPass"],
               codegen.CPUCodeLibrary.__dict__["_finalize_final_module"])
@@ -41,7 +41,7 @@ def test_compile_phases_account_for_a_compile_and_restore_numba():
 def test_the_other_passes_list_the_largest_and_count_the_rest(n_passes):
     """Under the table: the largest `PASSES_LISTED` passes by name, largest first, then one
     line for the rest with their count and seconds, only when there is a rest."""
-    from saddle_env.compilation.profile import CompilePhases
+    from saddle_env.coldstart.profile import CompilePhases
 
     phases = CompilePhases()
     phases.seconds[CompilePhases.OTHER] = float(sum(range(1, n_passes + 1)))

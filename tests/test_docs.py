@@ -180,7 +180,7 @@ def _tool(argv: list[str]) -> tuple[str, list[str]]:
             return "rllib-benchmark", argv[3:]
         if argv[1:3] in (["-m", "agents.benchmark"], ["-m", "agents.benchmark.run"]):
             return "benchmark", argv[3:]
-        if argv[1:3] == ["-m", "saddle_env.compilation.profile"]:
+        if argv[1:3] == ["-m", "saddle_env.coldstart.profile"]:
             return "compile-profile", argv[3:]
         if argv[1:2] == ["-m"] and f"python -m {argv[2]}" in HOOKS.CLIS:
             return f"python -m {argv[2]}", argv[3:]   # parsed; run only with --help
@@ -226,7 +226,7 @@ def _parser(tool: str) -> argparse.ArgumentParser | None:
     elif tool == "benchmark":
         from agents.benchmark.run import build_parser
     elif tool == "compile-profile":
-        from saddle_env.compilation.profile import build_parser
+        from saddle_env.coldstart.profile import build_parser
     elif tool in HOOKS.CLIS:
         return HOOKS.parser_for(tool)
     else:
@@ -628,7 +628,7 @@ def test_every_documented_tool_has_a_reference():
              "train.py": "train.py", "benchmark": "python -m agents.benchmark",
              "env-benchmark": "python -m saddle_env.envs.benchmark",
              "rllib-benchmark": "python -m agents.benchmark.rllib_throughput",
-             "compile-profile": "python -m saddle_env.compilation.profile"}
+             "compile-profile": "python -m saddle_env.coldstart.profile"}
     for page, _, argv in COMMANDS:
         tool, _ = _tool(argv)
         if tool in ("pip", "pytest", "ray", "packaging", ""):
@@ -783,7 +783,7 @@ def _main(tool: str):
     elif tool == "rllib-benchmark":
         from agents.benchmark.rllib_throughput import main
     elif tool == "compile-profile":
-        from saddle_env.compilation.profile import main
+        from saddle_env.coldstart.profile import main
     elif tool == "benchmark":
         from agents.benchmark.run import main
     elif tool.startswith("python -m "):

@@ -1,4 +1,5 @@
-"""The project's modules import each other without a circle.
+"""The project's modules import each other without a circle, and only down its layers
+(`LAYERS`).
 
 Every import statement of ``saddle_env/**``, ``agents/**`` and ``train.py`` is read with
 `ast`, function-local imports included (a local import only postpones a circle to run time;
@@ -140,36 +141,154 @@ def test_the_graph_has_the_edges_it_should(importer, imported):
     assert imported in import_graph(module_files())[importer]
 
 
-# The rooms of `agents`, lowest first: a module may import from its own room and the rooms
-# before it, never from a later one (agents/__init__.py says why each room is where it is).
-AGENT_LAYERS = (("agents", "agents.seeds", "agents.paths", "agents.cli_args"),
-                ("agents.control",), ("agents.evaluation",), ("agents.training",),
-                ("agents.benchmark",))
+# The layers of the project, lowest first: a module may import from its own layer and the
+# layers below it, never from one above (function-local imports included). An entry names a
+# module or a package (and everything inside it); a module belongs to the longest entry that
+# names it or a package around it. CONTRIBUTING.md ("The layers") shows this table to people.
+LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("foundations: data, constants and files",
+     ("saddle_env._moved", "saddle_env.scene", "saddle_env.jobs")),
+    ("compilation: numba, the on-disk cache, the install's build loaded",
+     ("saddle_env.compilation",)),
+    ("the simulator: kernels, integrators, simulate, prediction",
+     ("saddle_env._kernels", "saddle_env.omega", "saddle_env.linear",
+      "saddle_env.integrators", "saddle_env.lockstep", "saddle_env.runner",
+      "saddle_env.accuracy", "saddle_env.simulate", "saddle_env.prediction",
+      "saddle_env.iontrap")),
+    ("the environments", ("saddle_env.envs",)),
+    ("saddle_env's public face", ("saddle_env",)),
+    ("tools on the simulator and the environments",
+     ("saddle_env.coldstart", "saddle_env.bench", "saddle_env.calibrate", "saddle_env.cli",
+      "saddle_env.deploy", "saddle_env.lifetimes", "saddle_env.reproduce", "saddle_env.rig")),
+    ("agents: seeds, paths and shared command-line options",
+     ("agents", "agents.seeds", "agents.paths", "agents.cli_args")),
+    ("agents: controllers", ("agents.control",)),
+    ("agents: evaluation", ("agents.evaluation",)),
+    ("agents: training", ("agents.training",)),
+    ("agents: the benchmark and the figure store", ("agents.benchmark", "agents.figures")),
+    ("the training script", ("train",)),
+)
 
 
-def _layer(module: str) -> int | None:
-    found = None
-    for rank, prefixes in enumerate(AGENT_LAYERS):
-        if any(module == p or (p != "agents" and module.startswith(p + ".")) for p in prefixes):
-            found = rank
-    return found
+def layer_of(module: str, layers=LAYERS) -> int | None:
+    """The rank of ``module``'s layer (0 is the lowest), or None if no entry names it."""
+    best: tuple[int, int] | None = None  # (length of the entry, rank)
+    for rank, (_, entries) in enumerate(layers):
+        for entry in entries:
+            if (module == entry or module.startswith(entry + ".")) \
+                    and (best is None or len(entry) > best[0]):
+                best = (len(entry), rank)
+    return None if best is None else best[1]
 
 
-def test_the_agents_rooms_import_one_way():
-    graph = import_graph(module_files())
-    wrong = [f"{a} -> {b}" for a, targets in graph.items() for b in targets
-             if _layer(a) is not None and _layer(b) is not None and _layer(b) > _layer(a)]
-    assert not wrong, "a lower room of agents imports a higher one: " + ", ".join(wrong)
-    physics_to_agents = [f"{a} -> {b}" for a, targets in graph.items() for b in targets
-                         if a.startswith("saddle_env") and b.startswith("agents")]
-    assert not physics_to_agents, ", ".join(physics_to_agents)
+def _named_imports(module: str, path: Path, modules: dict[str, Path]) -> list[tuple[str, int]]:
+    """(project module, line) for every import statement of ``module``, at any depth: the
+    module each statement names (``from pkg import sub`` names pkg.sub when it is a module,
+    otherwise pkg itself). Unlike `import_graph`, an import of an enclosing package counts:
+    ``import saddle_env`` inside saddle_env.compilation reads saddle_env's public face."""
+    is_package = path.name == "__init__.py"
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = _resolve(module, is_package, node)
+            names = [f"{base}.{alias.name}" if f"{base}.{alias.name}" in modules else base
+                     for alias in node.names]
+        else:
+            continue
+        targets = {t for name in names if (t := _target(name, modules)) not in (None, module)}
+        out += [(target, node.lineno) for target in sorted(targets)]
+    return out
 
 
-def test_the_layering_check_sees_an_upward_import():
-    """The check above would pass trivially if `_layer` placed nothing."""
-    assert _layer("agents.control.mpc") < _layer("agents.evaluation.policies") \
-        < _layer("agents.training.backends.sb3") < _layer("agents.benchmark.leaderboard")
-    assert _layer("agents.seeds") == 0 and _layer("agents.control") == 1
+def upward_imports(modules: dict[str, Path], layers=LAYERS) -> list[str]:
+    """Every import from a lower layer into a higher one, as "file:line a -> b"."""
+    wrong = []
+    for module, path in modules.items():
+        own = layer_of(module, layers)
+        for target, line in _named_imports(module, path, modules):
+            theirs = layer_of(target, layers)
+            if own is not None and theirs is not None and theirs > own:
+                wrong.append(f"{path.relative_to(path.parents[len(module.split('.')) - 1])}"
+                             f":{line} {module} ({layers[own][0]}) -> {target} "
+                             f"({layers[theirs][0]})")
+    return wrong
+
+
+def test_imports_point_only_down_the_layers():
+    wrong = upward_imports(module_files())
+    assert not wrong, "a lower layer imports a higher one:\n" + "\n".join(wrong)
+
+
+def unplaced(modules, layers=LAYERS) -> list[str]:
+    """The modules no entry names: those of no entry, and those that fall only into their
+    root package's entry (saddle_env's public face, agents' foundations) without being that
+    package. They would escape `upward_imports`."""
+    def named(m: str) -> bool:
+        return any(m == e or m.startswith(e + ".") for _, es in layers for e in es if "." in e)
+
+    return [m for m in modules if layer_of(m, layers) is None or ("." in m and not named(m))]
+
+
+def test_every_module_has_a_layer():
+    missing = unplaced(module_files())
+    assert not missing, f"add these modules to a layer of LAYERS: {missing}"
+    assert unplaced(["saddle_env.new", "agents.new", "agents.control.new", "elsewhere"]) \
+        == ["saddle_env.new", "agents.new", "elsewhere"]
+
+
+def test_the_layering_check_catches_an_upward_import(tmp_path):
+    """A synthetic package: upward imports of every form (inside a function and relative,
+    ``import`` of the package itself, ``from ... import`` at module level) are caught, and
+    the downward and sideways ones are not."""
+    pkg = tmp_path / "saddle_env"
+    (pkg / "compilation").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("from .compilation import jit\n")
+    (pkg / "compilation" / "__init__.py").write_text("")
+    (pkg / "compilation" / "jit.py").write_text("def f():\n    from .. import envs\n")
+    (pkg / "compilation" / "ok.py").write_text("from . import jit\n")
+    (pkg / "envs.py").write_text("from .compilation.jit import f\n"
+                                 "from saddle_env.tool import t\n")
+    (pkg / "tool.py").write_text("import saddle_env.envs\nt = 1\n")
+    (pkg / "low.py").write_text("def g():\n    import saddle_env\n")
+    layers = (("low", ("saddle_env.low",)), ("compilation", ("saddle_env.compilation",)),
+              ("envs", ("saddle_env.envs",)), ("face", ("saddle_env",)),
+              ("tools", ("saddle_env.tool",)))
+    wrong = upward_imports(module_files(tmp_path), layers)
+    assert sorted(wrong) == [
+        "saddle_env/compilation/jit.py:2 saddle_env.compilation.jit (compilation) -> "
+        "saddle_env.envs (envs)",
+        "saddle_env/envs.py:2 saddle_env.envs (envs) -> saddle_env.tool (tools)",
+        "saddle_env/low.py:2 saddle_env.low (low) -> saddle_env (face)"]
+
+
+def test_agents_sit_above_the_physics_and_in_order():
+    """The table itself: the check above would pass trivially if it placed nothing."""
+    assert layer_of("saddle_env.compilation.cache") < layer_of("saddle_env._kernels") \
+        < layer_of("saddle_env.envs.engine") < layer_of("saddle_env") \
+        < layer_of("saddle_env.coldstart.precompile") < layer_of("agents.seeds")
+    assert layer_of("agents.control.mpc") < layer_of("agents.evaluation.policies") \
+        < layer_of("agents.training.backends.sb3") < layer_of("agents.benchmark.leaderboard") \
+        < layer_of("train")
+    assert layer_of("agents") == layer_of("agents.seeds")
+
+
+def test_contributing_shows_the_layers_in_order():
+    """CONTRIBUTING.md's "The layers" names every entry of `LAYERS` (in full or by its last
+    part), each layer after the one below it."""
+    text = (ROOT / "CONTRIBUTING.md").read_text(encoding="utf-8")
+    section = text.split("## The layers\n", 1)[1].split("\n## ", 1)[0]
+
+    def where(entry: str) -> int:
+        spellings = [f"`{entry}`", f"`{entry.rpartition('.')[2]}`", f"`{entry}.py`"]
+        found = [section.find(s) for s in spellings if s in section]
+        assert found, f"CONTRIBUTING.md's layers do not name {entry}"
+        return min(found)
+
+    first = [min(where(e) for e in entries) for _, entries in LAYERS]
+    assert first == sorted(first), [name for name, _ in LAYERS]
 
 
 @pytest.mark.parametrize("folder, most", [("saddle_env", 15), *(
@@ -189,7 +308,9 @@ def test_no_module_is_over_900_lines():
 @pytest.mark.parametrize("old, new", [("agents.leaderboard", "agents.benchmark.leaderboard"),
                                       ("agents.mpc", "agents.control.mpc"),
                                       ("saddle_env.precompile",
-                                       "saddle_env.compilation.precompile"),
+                                       "saddle_env.coldstart.precompile"),
+                                      ("saddle_env.compilation.profile",
+                                       "saddle_env.coldstart.profile"),
                                       ("saddle_env.files", "saddle_env.jobs.files")])
 def test_an_old_module_name_says_where_the_module_went(old, new):
     import importlib

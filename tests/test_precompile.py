@@ -1,4 +1,4 @@
-"""saddle_env.compilation.precompile: targets checked before any work, progress and failures
+"""saddle_env.coldstart.precompile: targets checked before any work, progress and failures
 reported,
 and (slow) a fresh process's first step after it compiles nothing."""
 
@@ -9,7 +9,7 @@ import sys
 import pytest
 from helpers import compiled_in_fresh_process
 
-from saddle_env.compilation import precompile as pc
+from saddle_env.coldstart import precompile as pc
 from saddle_env.envs import LEVELS
 from saddle_env.envs.engine import contact_uses
 
@@ -62,11 +62,11 @@ def test_after_precompiling_a_fresh_process_compiles_nothing(tmp_path):
     simulate then load everything (no numba compile event at all)."""
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
     env.pop("SADDLE_ENV_FULL_KERNELS", None)          # the per-scene copies, as users run
-    done = subprocess.run([sys.executable, "-m", "saddle_env.compilation.precompile", "--jobs", "2",
+    done = subprocess.run([sys.executable, "-m", "saddle_env.coldstart.precompile", "--jobs", "2",
                            "SaddleTrap-Storm-v0", "simulate"], env=env,
                           capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr
     assert "[2/2]" in done.stderr and "done in" in done.stderr
-    code = ("from saddle_env.compilation.profile import run_scenario\n"
+    code = ("from saddle_env.coldstart.profile import run_scenario\n"
             "run_scenario('SaddleTrap-Storm-v0'); run_scenario('simulate')")
     assert compiled_in_fresh_process(code, env, timeout=300) == ["<lambda>"]

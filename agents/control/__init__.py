@@ -3,3 +3,13 @@ measure them: constant speeds, zero and random (`controllers`), the searched bes
 (`best_constant`), model-predictive control (`mpc`), the clairvoyant upper reference
 (`clairvoyant`), and running seeded episodes of many balls at once (`rollout`). Imports only
 `saddle_env` and the top of `agents`."""
+
+from pathlib import Path
+
+from saddle_env.compilation import cache as _cache
+
+# `mpc`'s functions are compiled with numba's on-disk cache and call saddle_env's kernels, so
+# this package's cache files must go when a source they import changes, as saddle_env's own
+# do (saddle_env/compilation/cache.py). This tree (agents/) is refreshed here, before any of
+# its compiled functions is first called, naming saddle_env's tree as one it depends on.
+_cache.refresh(Path(__file__).resolve().parents[1], depends_on=[_cache.PACKAGE])

@@ -1,6 +1,6 @@
 """The ahead-of-time compiled kernels, when there are any that match the sources in place.
 
-The package's install builds them (`saddle_env.compilation.aot_build`): a C extension module per set
+The package's install builds them (`saddle_env.coldstart.aot_build`): a C extension module per set
 of contact models holding the compiled code of a first `env.step` and a first `simulate`,
 the same numba compile the JIT would make, built once. Here they are found and checked:
 the manifest they were built with names the digest of the package's sources, and a module
@@ -24,17 +24,14 @@ import os
 import platform
 import sys
 import sysconfig
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import TypeGuard
 
 AOT_ENV = "SADDLE_ENV_AOT"  # 0 turns the build off (at install: not built; at run time: not used)
 PACKAGE_DIR = Path(__file__).resolve().parents[1]  # saddle_env/
 AOT_DIR = PACKAGE_DIR / "_aot"
 MANIFEST = "manifest.json"
-# The sources a build depends on: the package's own modules and the environment's (the
-# kernels, the constants they fold in, and the code that picks their arguments). Any change
-# to one of them, even one no kernel reads, retires the build: safe rather than clever.
-SOURCE_SUBDIRS = ("", "envs", "compilation")
 
 # The CPU a build is compiled for. x86-64-v3 is the x86-64 psABI's third instruction-set
 # level (AVX2, FMA, BMI1/2, F16C, LZCNT, MOVBE: Intel from Haswell, 2013, AMD from Zen,
@@ -66,10 +63,12 @@ _argtypes: dict[int, tuple[str, ...]] = {}
 _threaded: dict[int, str] = {}
 
 
-def source_digest(package_dir: Path = PACKAGE_DIR) -> str:
-    """SHA-256 over the names and contents of the sources a build depends on."""
+def source_digest(folders: Sequence[str], package_dir: Path = PACKAGE_DIR) -> str:
+    """SHA-256 over the names and contents of the modules of ``folders``, the folders of the
+    package (``""``: its own top level) a build depends on. The build names them in its
+    manifest (``sources``), so that this layer names no folder of the layers above it."""
     h = hashlib.sha256()
-    for sub in SOURCE_SUBDIRS:
+    for sub in folders:
         for path in sorted((package_dir / sub).glob("*.py")):
             h.update(f"{path.relative_to(package_dir).as_posix()}\0".encode())
             h.update(path.read_bytes())
@@ -150,6 +149,13 @@ def read_manifest() -> dict | None:
     return manifest if isinstance(manifest, dict) else None
 
 
+def _folder_names(folders: object) -> TypeGuard[list[str]]:
+    """Whether a manifest's ``sources`` is a list of the package's own folders by name (a
+    manifest is data: a path out of the package is not followed)."""
+    return isinstance(folders, list) and all(
+        isinstance(f, str) and (f == "" or f.isidentifier()) for f in folders)
+
+
 def _load() -> dict[str, dict[str, dict[str, Callable]]]:
     """Import every module of a current build once; {} (and the reason in `_why_not`) when
     there is none, it is off, or it was built from other sources or for another platform,
@@ -167,14 +173,15 @@ def _load() -> dict[str, dict[str, dict[str, Callable]]]:
         return {}
     why = unusable(manifest, machine())
     if why is not None:
-        _why_not = f"{why}; rebuild with python -m saddle_env.compilation.precompile --aot"
+        _why_not = f"{why}; rebuild with python -m saddle_env.coldstart.precompile --aot"
         if manifest.get("cpu") in LEVEL_FEATURES:
             from .notice import announce_no_build
             announce_no_build(_why_not)   # a portable build that cannot serve here: said once
         return {}
-    if manifest.get("digest") != source_digest():
+    folders = manifest.get("sources")
+    if not _folder_names(folders) or manifest.get("digest") != source_digest(folders):
         _why_not = ("built from other sources (the package changed since; rebuild with "
-                    "python -m saddle_env.compilation.precompile --aot)")
+                    "python -m saddle_env.coldstart.precompile --aot)")
         logger.info("saddle_env: ahead-of-time kernels not used: %s", _why_not)
         return {}
     found: dict[str, dict[str, dict[str, Callable]]] = {}

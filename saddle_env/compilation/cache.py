@@ -7,13 +7,17 @@ object: after an edit of `_kernels.py` alone the cached callers in `integrators`
 `lockstep`, `envs._step` and `agents` would keep running the old physics. They also freeze
 module constants (`scene.P_A`, ...) as they compile.
 
-So on import, every module of the package (and every module of `agents` that compiles
-code) gets a digest of its own source and of every module it imports from these trees,
-directly or not. A module whose digest changed since the stamp was written has its cache
-files removed; the others keep theirs. An upgrade, or a ``git pull``, that changes one
-kernel file then recompiles what depends on it and nothing else: a change to
-`envs/_step.py` recompiles only the environment's step, one to `_kernels.py` everything
-compiled, since everything calls it (tests/test_cache.py).
+So on import, every module of the package gets a digest of its own source and of every
+module it imports from the package, directly or not. A module whose digest changed since
+the stamp was written has its cache files removed; the others keep theirs. An upgrade, or
+a ``git pull``, that changes one kernel file then recompiles what depends on it and nothing
+else: a change to `envs/_step.py` recompiles only the environment's step, one to
+`_kernels.py` everything compiled, since everything calls it (tests/test_cache.py).
+
+Another package whose compiled functions call the kernels (`agents.control`'s look-ahead)
+calls `refresh` for its own tree on its import, naming this package's tree as one it
+depends on: its modules' digests then cover the kernels they import, and this module
+names no package above it.
 
 Trees that cannot be written (numba then caches elsewhere, and an upgrade rewrites every
 file, which numba notices by itself) are skipped.
@@ -24,31 +28,31 @@ from __future__ import annotations
 import ast
 import hashlib
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
-_PACKAGE = Path(__file__).resolve().parents[1]  # saddle_env/
-# Packages whose compiled functions call into saddle_env's kernels.
-_TREES = [_PACKAGE, _PACKAGE.parent / "agents"]
-_STAMP = _PACKAGE / "__pycache__" / "numba-sources.json"
+PACKAGE = Path(__file__).resolve().parents[1]  # saddle_env/
+# Where a tree's stamp is kept, inside the tree: the digests its `refresh` last saw.
+_STAMP_FILE = Path("__pycache__") / "numba-sources.json"
 # The stamp's key for the import graph it was computed from (`_graph`); every other key is a
 # module's digest (a stamp written before the graph was kept has no such key).
 _GRAPH_KEY = "(import graph)"
 
 
-def _module_name(path: Path) -> str:
-    rel = path.relative_to(_PACKAGE.parent).with_suffix("")
+def _module_name(path: Path, tree: Path) -> str:
+    rel = path.relative_to(tree.parent).with_suffix("")
     parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
     return ".".join(parts)
 
 
-def _sources() -> dict[str, Path]:
-    """Module name -> file, for every module of the trees."""
+def _sources(trees: Sequence[Path]) -> dict[str, Path]:
+    """Module name -> file, for every module of the trees (packages' folders)."""
     out = {}
-    for tree in _TREES:
+    for tree in trees:
         if tree.is_dir():
             for p in tree.rglob("*.py"):
                 if "__pycache__" not in p.parts:
-                    out[_module_name(p)] = p
+                    out[_module_name(p, tree)] = p
     return out
 
 
@@ -107,7 +111,7 @@ def digests(graph: dict | None = None) -> dict[str, str]:
     """Module name -> digest of its source and of every source it depends on (from
     ``graph``, a `_graph` record; by default made afresh)."""
     # The graph's own module list: walking the source tree again would repeat `refresh`'s walk.
-    files = (graph or _graph(_sources(), {}))["files"]
+    files = (graph or _graph(_sources([PACKAGE]), {}))["files"]
     direct = {m: files[m][1] for m in files}
     own = {m: files[m][0] for m in files}
     out = {}
@@ -133,36 +137,39 @@ def _cache_files(path: Path) -> list[Path]:
     return [f for pattern in (f"{stem}.*.nbi", f"{stem}.*.nbc") for f in cache.glob(pattern)]
 
 
-def refresh() -> list[str]:
-    """Drop the cache files of every module whose sources changed since the stamp was
-    written; return those modules' names (empty if nothing was dropped)."""
+def refresh(tree: Path = PACKAGE, depends_on: Sequence[Path] = ()) -> list[str]:
+    """Drop the cache files of every module of ``tree`` whose sources changed since the
+    tree's stamp was written, counting the sources it imports from the trees of
+    ``depends_on`` too; return those modules' names (empty if nothing was dropped)."""
+    stamp_path = tree / _STAMP_FILE
     try:
         try:
-            stamp = json.loads(_STAMP.read_text())
+            stamp = json.loads(stamp_path.read_text())
         except (OSError, ValueError):
             stamp = {}
         stamp = stamp if isinstance(stamp, dict) else {}
         known = stamp.get(_GRAPH_KEY, {})
         before = {m: d for m, d in stamp.items() if m != _GRAPH_KEY}
-        modules = _sources()
+        modules = _sources([tree, *depends_on])
         graph = _graph(modules, known)
-        now = digests(graph)
+        own = {m for m, p in modules.items() if tree in p.parents}
+        now = {m: d for m, d in digests(graph).items() if m in own}
         if before == now and known == graph:
             return []
         stale = sorted(m for m in now if before.get(m) != now[m])
         for m in stale:
             for f in _cache_files(modules[m]):
                 f.unlink(missing_ok=True)
-        _STAMP.parent.mkdir(exist_ok=True)
-        _STAMP.write_text(json.dumps({**now, _GRAPH_KEY: graph}, indent=0, sort_keys=True))
+        stamp_path.parent.mkdir(exist_ok=True)
+        stamp_path.write_text(json.dumps({**now, _GRAPH_KEY: graph}, indent=0, sort_keys=True))
         return stale
     except OSError:  # read-only install: numba keeps its cache elsewhere
         return []
 
 
-def clear() -> None:
-    """Remove the in-tree cache files (what a fresh install starts from)."""
-    for tree in _TREES:
+def clear(trees: Sequence[Path] = (PACKAGE,)) -> None:
+    """Remove the in-tree cache files of ``trees`` (what a fresh install starts from)."""
+    for tree in trees:
         if tree.is_dir():
             for pattern in ("*.nbi", "*.nbc"):
                 for f in tree.rglob(pattern):

@@ -30,7 +30,7 @@ def _announce(name: str, fired: threading.Event) -> None:
     fired.set()
     logger.warning("saddle_env: compiling %s with numba, once: the compiled code is cached "
                    "on disk, so later runs (and this run's next calls) start at once "
-                   "(python -m saddle_env.compilation.precompile compiles every level ahead)",
+                   "(python -m saddle_env.coldstart.precompile compiles every level ahead)",
                    name)
 
 

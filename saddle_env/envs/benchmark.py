@@ -31,7 +31,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-import saddle_env  # noqa: F401  (registers SaddleTrap-v0)
+# SaddleTrap-v0 is registered: importing this module ran saddle_env's __init__ first.
 
 SWEEP_COLUMNS = ("num_envs", "saddle_steps_per_s", "saddle_scalar_steps_per_s",
                  "cartpole_steps_per_s")

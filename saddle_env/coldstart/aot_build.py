@@ -20,7 +20,7 @@ the manifest), on the same platform and a CPU that can run them, and otherwise l
 call to the JIT.
 
 Run by the package's install (setup.py; an install never fails for it) and by
-``python -m saddle_env.compilation.precompile --aot``.
+``python -m saddle_env.coldstart.precompile --aot``.
 """
 from __future__ import annotations
 
@@ -37,8 +37,8 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypedDict
 
-from . import aot as _aot
-from .specialise import specialise, variant_flags
+from ..compilation import aot as _aot
+from ..compilation.specialise import specialise, variant_flags
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -54,6 +54,14 @@ if TYPE_CHECKING:
     integrate_h: Callable[..., Any]
     integrate_batch: Callable[..., None]
     integrate_segments: Callable[..., None]
+
+
+# The package's folders a build depends on: its own modules and the environment's (the
+# kernels, the constants they fold in, and the code that picks their arguments), the
+# compilation layer, and this folder (the thin callers below are compiled into the build).
+# Any change to one of them, even one no kernel reads, retires the build: safe rather than
+# clever. The manifest names them for the loader (`aot.source_digest`).
+SOURCES = ("", "envs", "compilation", "coldstart")
 
 
 # The exported entry points call the JIT copies through these thin functions rather than
@@ -194,10 +202,10 @@ def _build_one(flags: tuple[str, ...], spec: BuildSpec, out_dir: str) -> dict:
     from numba.pycc import CC
 
     from .. import integrators, prediction
+    from ..compilation import aot_threads
     from ..envs import _step
     from ..lockstep import LANES
     from ..scene import CONTACT_MODELS
-    from . import aot_threads
 
     t0 = time.perf_counter()
     exports: dict[str, list[str]] = {}
@@ -336,7 +344,8 @@ def build(jobs: int, log=print) -> dict:
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
-    manifest = {"digest": _aot.source_digest(), "platform": _aot.platform_tag(),
+    manifest = {"sources": list(SOURCES), "digest": _aot.source_digest(SOURCES),
+                "platform": _aot.platform_tag(),
                 **_aot.machine(), **target,
                 "built": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                 "seconds": round(time.perf_counter() - t0, 1), "modules": modules}

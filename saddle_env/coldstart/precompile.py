@@ -1,6 +1,6 @@
 """Compile ahead: fill numba's on-disk cache before a first call has to wait for it.
 
-    python -m saddle_env.compilation.precompile [TARGET ...] [--jobs N]
+    python -m saddle_env.coldstart.precompile [TARGET ...] [--jobs N]
 
 The first call of a compiled function after an install or an upgrade compiles it (seconds
 per level: docs/coldstart.md); the code is then cached on disk, and later processes load it
@@ -17,7 +17,7 @@ A target is what one kind of first call compiles:
 * ``batch``: `saddle_env.simulate_batch` (the batch integrator over threads).
 
 With ``--aot`` it builds instead what the package's install builds
-(`saddle_env.compilation.aot_build`): the entry points of a first ``env.step`` and a first
+(`saddle_env.coldstart.aot_build`): the entry points of a first ``env.step`` and a first
 ``simulate``, compiled ahead of time into C extension modules that a fresh process loads without
 compiling (needs a C compiler). Run it after editing the package's sources in a source checkout: a
 build made from other sources is not used.
@@ -160,7 +160,7 @@ def precompile(targets: Sequence[str], jobs: int = 1,
 
 
 def _build_aot(jobs: int) -> int:
-    from . import aot as _aot
+    from ..compilation import aot as _aot
     from . import aot_build
 
     start = time.perf_counter()
@@ -179,8 +179,8 @@ def _build_aot(jobs: int) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The command line of ``python -m saddle_env.compilation.precompile``."""
-    p = argparse.ArgumentParser(prog="python -m saddle_env.compilation.precompile",
+    """The command line of ``python -m saddle_env.coldstart.precompile``."""
+    p = argparse.ArgumentParser(prog="python -m saddle_env.coldstart.precompile",
                                 description=__doc__.split("\n")[0])
     p.add_argument("targets", nargs="*", metavar="TARGET",
                    help="simulate, batch, a level id or vector:ID (default: every level "

@@ -1,6 +1,6 @@
 """Where the first call's compile time goes: numba compiles, per function and signature.
 
-    python -m saddle_env.compilation.profile [--fresh] [--isolated] [--top N] [--phases] [SCENARIO ...]
+    python -m saddle_env.coldstart.profile [--fresh] [--isolated] [--top N] [--phases] [SCENARIO ...]
 
 A scenario is ``simulate`` (the README's rolling ball, 10 s) or a registered level id
 (``gym.make(ID).reset(seed=0); step()``); by default ``simulate`` and every level of
@@ -36,7 +36,7 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-from . import aot as _aot
+from ..compilation import aot as _aot
 
 
 @dataclass
@@ -287,14 +287,14 @@ def _profile_here(names: list[str], top: int, signatures: bool = False,
 
 def _isolated(names: list[str]) -> list[tuple[str, float, float]]:
     """Each scenario in a fresh interpreter on an empty cache."""
-    from . import cache as _cache
+    from ..compilation import cache as _cache
 
     results = []
     for name in names:
         _cache.clear()
         code = ("import time; t0 = time.perf_counter(); import saddle_env; "
                 "t1 = time.perf_counter(); c1 = time.process_time(); "
-                "from saddle_env.compilation.profile import run_scenario, CompileRecorder\n"
+                "from saddle_env.coldstart.profile import run_scenario, CompileRecorder\n"
                 "with CompileRecorder() as r:\n"
                 f"    run_scenario({name!r})\n"
                 "print(time.perf_counter() - t1, time.process_time() - c1, "
@@ -311,8 +311,8 @@ def _isolated(names: list[str]) -> list[tuple[str, float, float]]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The command line of ``python -m saddle_env.compilation.profile``."""
-    ap = argparse.ArgumentParser(prog="python -m saddle_env.compilation.profile",
+    """The command line of ``python -m saddle_env.coldstart.profile``."""
+    ap = argparse.ArgumentParser(prog="python -m saddle_env.coldstart.profile",
                                  description=__doc__.split("\n\n")[0])
     ap.add_argument("scenarios", nargs="*",
                     help="'simulate' and/or level ids (default: simulate and every level)")
@@ -340,7 +340,7 @@ def main(argv: list[str] | None = None) -> int:
         _isolated(names)
         return 0
     if args.fresh:
-        from . import cache as _cache
+        from ..compilation import cache as _cache
 
         _cache.clear()
     results = _profile_here(names, args.top, args.signatures, args.phases)
