@@ -20,7 +20,7 @@ GitHub as well as on the site::
 
 ``<!-- fig NAME SPEC -->`` renders with a format spec of Python's ``format`` (``.0f``,
 ``,.0f``), which may round the stored value; ``mean`` before the spec keeps an interval's
-mean alone. The docs build (docs/hooks.py) replaces each pair by the current value, and
+mean alone; ``<!-- fig NAME date -->`` renders the date of the figure's measurement. The docs build (docs/hooks.py) replaces each pair by the current value, and
 
     python -m agents.figures --write     # rewrite README.md and docs/ in place
     python -m agents.figures --check     # exit 1 naming each stale file
@@ -96,10 +96,21 @@ def _variant(rows: list[dict[str, Any]], variant: str) -> list[dict[str, Any]]:
     return [r for r in rows if r["variant"] == variant]
 
 
+def best_const_voltage(board: dict[str, Any], env_id: str = "SaddleTrap-Lab-v0") -> float:
+    """The voltage that holds the saddle at a voltage-mode level's best constant speed on the
+    leaderboard: that speed over the level's steady motor gain [rad/s per V]."""
+    from saddle_env.envs import level_config   # only this figure needs a level's motor
+
+    omega = next(p["omega"] for p in board["levels"][env_id]["policies"]
+                 if p["key"] == "best-const")
+    return float(omega) / level_config(env_id).motor_gain
+
+
 # Figures computed from a results file's rows (``derive:`` in the store): the real-saddle
 # check's held-out predictions (docs/figures/lifetimes_validation.json, one row per series
-# and model variant).
+# and model variant), and the Lab level's best constant as a voltage (docs/leaderboard.json).
 DERIVED: dict[str, Any] = {
+    "lab-best-const-voltage": best_const_voltage,
     # the calibrated model's worst onset on a steel series, |predicted / lab - 1| in %
     "lifetimes-onset-error-steel": lambda rows: max(
         100 * abs(r["onset_rps"] / r["lab_onset_rps"] - 1)
@@ -191,9 +202,13 @@ def format_figure(figure: dict[str, Any], opts: Sequence[str] = ()) -> str:
 
 
 def render_figure(name: str, opts: str = "") -> str:
+    """A figure's value as text, formatted by ``opts`` (`format_figure`); ``date`` alone, the
+    date of its measurement, so that a text dates a figure without retyping the date."""
     store = figures()
     if name not in store:
         raise FigureError(f"unknown figure {name!r}: add it to {STORE.relative_to(REPO_ROOT)}")
+    if opts.split() == ["date"]:
+        return str(store[name]["date"])
     return format_figure(store[name], opts.split())
 
 
@@ -211,8 +226,10 @@ def render(text: str, keep_markers: bool = True) -> str:
 
 
 def rendered_files() -> list[Path]:
-    """The files that may hold figures: the README and every page of docs/."""
-    return [REPO_ROOT / "README.md", *sorted((REPO_ROOT / "docs").rglob("*.md"))]
+    """The files that may hold figures: the README, CONTRIBUTING (a page of the site too) and
+    every page of docs/."""
+    return [REPO_ROOT / "README.md", REPO_ROOT / "CONTRIBUTING.md",
+            *sorted((REPO_ROOT / "docs").rglob("*.md"))]
 
 
 def stale_files() -> list[Path]:

@@ -132,3 +132,20 @@ def test_readme_tables_take_every_measured_cell_from_the_store(heading, columns)
         for cell in cells[columns]:
             typed = TYPED.search(figures.MARKER.sub("", cell))
             assert not typed, f"README {heading!r}: {cell.strip()!r} types a figure by hand"
+
+
+def test_a_text_dates_a_figure_from_the_store():
+    text = "<!-- fig main-job-seconds date -->1999-01-01<!-- /fig -->"
+    assert figures.render(text, keep_markers=False) == figures.figures()["main-job-seconds"]["date"]
+
+
+def test_lab_best_constant_voltage_is_the_leaderboard_speed_over_the_motor_gain():
+    """The rig's how-to and tests/test_rig_loop.py hold the saddle at this voltage: the
+    leaderboard's best constant speed on the Lab level, not a speed typed beside it."""
+    from saddle_env.envs import level_config
+
+    omega = figures.figures()["lb.Lab.best-const.omega"]["value"]
+    volts = figures.figures()["lab-best-const-voltage"]["value"]
+    assert volts * level_config("SaddleTrap-Lab-v0").motor_gain == pytest.approx(omega)
+    rig = (figures.REPO_ROOT / "docs" / "how-to" / "rig.md").read_text()
+    assert "constant_voltage(rig.config, <!-- fig lab-best-const-voltage -->" in rig
