@@ -180,7 +180,8 @@ def figures() -> dict[str, dict[str, Any]]:
 
 def format_figure(figure: dict[str, Any], opts: Sequence[str] = ()) -> str:
     """A figure as text: a number with the spec (the marker's or the figure's ``format``), an
-    interval as ``mean [low, high]``, a pair as ``low–high``, anything else as it is."""
+    interval as ``mean [low, high]``, a pair as ``low–high``, a longer list (one value per
+    seed, say) as ``a, b, c``, anything else as it is."""
     opts = list(opts)
     mean_only = "mean" in opts
     opts = [o for o in opts if o != "mean"]
@@ -198,6 +199,8 @@ def format_figure(figure: dict[str, Any], opts: Sequence[str] = ()) -> str:
         return f"{number(value['mean'])} [{number(value['low'])}, {number(value['high'])}]"
     if isinstance(value, list) and len(value) == 2:
         return f"{number(value[0])}–{number(value[1])}"
+    if isinstance(value, list):
+        return ", ".join(number(x) for x in value)
     return number(value)
 
 
