@@ -4,9 +4,10 @@
 A figure has a name, a value, its unit, the date and machine of the measurement and the
 command that remakes it. Its value is either typed into the store (``value:``), read from a
 results file a tool wrote (``source:`` a JSON file of the repository, ``key:`` a dotted path
-into it, ``combine: sum`` to add up a mapping's values, ``scale:`` a factor such as
-1/3600, or ``derive:`` one of ``DERIVED``'s computations over the file's rows), or one
-of the leaderboard's results, which are figures without a store entry:
+into it, list positions included, ``combine: sum`` to add up a mapping's values,
+``over:`` a second key whose value divides the first, ``scale:`` a factor such as 1/3600,
+or ``derive:`` one of ``DERIVED``'s computations over the file's rows), or one of the
+leaderboard's results, which are figures without a store entry:
 ``lb.LEVEL.POLICY`` is the mean trapping time [95 % interval] of a policy on a level
 (``LEVEL`` is the id without ``SaddleTrap-`` and ``-v0``, ``default`` for ``SaddleTrap-v0``;
 ``POLICY`` a key of ``docs/leaderboard.json``, ``shipped`` for the level's shipped agent),
@@ -128,11 +129,15 @@ DERIVED: dict[str, Any] = {
 
 
 def _lookup(path: Path, key: str) -> Any:
+    """The value at ``key``, a dotted path of mapping keys and list positions (``paths.0.x``)."""
     value: Any = json.loads(path.read_text())
     for part in key.split("."):
-        if not isinstance(value, dict) or part not in value:
+        if isinstance(value, list) and part.isdigit() and int(part) < len(value):
+            value = value[int(part)]
+        elif isinstance(value, dict) and part in value:
+            value = value[part]
+        else:
             raise FigureError(f"{path.relative_to(REPO_ROOT)} has no key {key!r}")
-        value = value[part]
     return value
 
 
@@ -161,6 +166,8 @@ def load_store(store: Path = STORE, leaderboard: Path = LEADERBOARD) -> dict[str
             entry["value"] = _lookup(REPO_ROOT / entry["source"], entry["key"])
             if entry.get("combine") == "sum":
                 entry["value"] = sum(entry["value"].values())
+            if "over" in entry:   # a ratio of two values of the same file
+                entry["value"] /= _lookup(REPO_ROOT / entry["source"], entry["over"])
             entry["value"] *= entry.get("scale", 1)
         if name in figures:
             raise FigureError(f"{store.name}: {name!r} is a leaderboard figure already")

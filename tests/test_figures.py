@@ -149,3 +149,22 @@ def test_lab_best_constant_voltage_is_the_leaderboard_speed_over_the_motor_gain(
     assert volts * level_config("SaddleTrap-Lab-v0").motor_gain == pytest.approx(omega)
     rig = (figures.REPO_ROOT / "docs" / "how-to" / "rig.md").read_text()
     assert "constant_voltage(rig.config, <!-- fig lab-best-const-voltage -->" in rig
+
+
+def test_a_ratio_and_a_list_position_of_a_results_file(tmp_path, monkeypatch):
+    results = tmp_path / "r.json"
+    results.write_text('{"paths": [{"x": 6.0}, {"x": 2.0}]}')
+    store = tmp_path / "figures.yml"
+    store.write_text("ratio:\n  source: r.json\n  key: paths.0.x\n  over: paths.1.x\n"
+                     "  unit: x\n  date: 2026-01-01\n  machine: m\n  command: c\n"
+                     "missing:\n  source: r.json\n  key: paths.2.x\n"
+                     "  unit: x\n  date: 2026-01-01\n  machine: m\n  command: c\n")
+    monkeypatch.setattr(figures, "REPO_ROOT", tmp_path)
+    with pytest.raises(figures.FigureError, match="has no key 'paths.2.x'"):
+        figures.load_store(store)
+    store.write_text(store.read_text().split("missing:")[0])
+    assert figures.load_store(store)["ratio"]["value"] == 3.0
+
+
+def test_one_value_per_seed_reads_as_a_list():
+    assert figures.format_figure({"value": [150, 85, 66]}, ["d"]) == "150, 85, 66"
