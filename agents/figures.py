@@ -11,8 +11,10 @@ leaderboard's results, which are figures without a store entry:
 ``lb.LEVEL.POLICY`` is the mean trapping time [95 % interval] of a policy on a level
 (``LEVEL`` is the id without ``SaddleTrap-`` and ``-v0``, ``default`` for ``SaddleTrap-v0``;
 ``POLICY`` a key of ``docs/leaderboard.json``, ``shipped`` for the level's shipped agent),
-``lb.LEVEL.POLICY.kept`` the percentage of balls kept 10 s, ``lb.LEVEL.best-const.omega``
-the best constant speed in rad/s, ``lb.date`` the leaderboard's date.
+``lb.LEVEL.POLICY.kept`` the percentage of balls kept 10 s (``.detach``: detached),
+``lb.LEVEL.best-const.omega`` the best constant speed in rad/s,
+``lb.LEVEL.shipped.margin`` the shipped agent's mean less best-const's upper bound [s],
+``lb.date`` the leaderboard's date.
 
 A text names a figure with a marker pair around its rendered copy, which reads right on
 GitHub as well as on the site::
@@ -80,12 +82,19 @@ def _leaderboard_figures(board: dict[str, Any]) -> dict[str, dict[str, Any]]:
             time = policy["trapping_time"]
             figures[name] = {"value": {k: time[k] for k in ("mean", "low", "high")},
                              "unit": "s", "format": ".2f", **common}
-            kept = policy["kept"]
-            figures[name + ".kept"] = {"value": {k: 100 * kept[k] for k in ("mean", "low", "high")},
-                                       "unit": "%", "format": ".0f", **common}
+            for share in ("kept", "detach"):
+                if share in policy:
+                    figures[f"{name}.{share}"] = {
+                        "value": {k: 100 * policy[share][k] for k in ("mean", "low", "high")},
+                        "unit": "%", "format": ".0f", **common}
             if "omega" in policy:
                 figures[name + ".omega"] = {"value": policy["omega"], "unit": "rad/s",
                                             "format": "g", **common}
+        shipped, best = figures.get(f"lb.{short}.shipped"), figures.get(f"lb.{short}.best-const")
+        if shipped and best:   # how far the shipped agent's mean lies above best-const's interval
+            figures[f"lb.{short}.shipped.margin"] = {
+                "value": shipped["value"]["mean"] - best["value"]["high"], "unit": "s",
+                "format": ".1f", **common}
     return figures
 
 
