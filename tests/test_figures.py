@@ -168,3 +168,13 @@ def test_a_ratio_and_a_list_position_of_a_results_file(tmp_path, monkeypatch):
 
 def test_one_value_per_seed_reads_as_a_list():
     assert figures.format_figure({"value": [150, 85, 66]}, ["d"]) == "150, 85, 66"
+
+
+def test_readme_headline_dates_come_from_the_store():
+    """The 'measured by' column dates each figure through a date marker, so a re-measurement
+    moves the date with the value."""
+    readme = (figures.REPO_ROOT / "README.md").read_text()
+    for cells in _table(readme, "## Headline figures"):
+        for cell in cells[1:]:
+            typed = re.search(r"\b20\d\d-\d\d-\d\d\b", figures.MARKER.sub("", cell))
+            assert not typed, f"README headline cell {cell.strip()!r} types a date by hand"
