@@ -207,7 +207,10 @@ def format_figure(figure: dict[str, Any], opts: Sequence[str] = ()) -> str:
     value = figure["value"]
 
     def number(x: Any) -> str:
-        return format(x, spec) if isinstance(x, (int, float)) else str(x)
+        if not isinstance(x, (int, float)):
+            return str(x)
+        # 1.9e-8, as the texts write it, not Python's 1.9e-08
+        return re.sub(r"e([+-])0(\d)$", r"e\1\2", format(x, spec))
 
     if isinstance(value, dict):
         if mean_only:

@@ -51,6 +51,7 @@ def test_rounding_only_formats_the_stored_value():
     assert figures.format_figure(figure, [".2f"]) == "9.35 [9.24, 9.45]"
     assert figures.format_figure(figure, ["mean", ".1f"]) == "9.3"
     assert figures.format_figure({"value": [6744, 6799]}, [",d"]) == "6,744–6,799"
+    assert figures.format_figure({"value": 1.9e-8}, [".1e"]) == "1.9e-8"   # as texts write it
 
 
 def test_leaderboard_figures_match_the_leaderboard_page():
