@@ -195,8 +195,9 @@ def figures() -> dict[str, dict[str, Any]]:
 
 
 def format_figure(figure: dict[str, Any], opts: Sequence[str] = ()) -> str:
-    """A figure as text: a number with the spec (the marker's or the figure's ``format``), an
-    interval as ``mean [low, high]``, a pair as ``low–high``, a longer list (one value per
+    """A figure as text: a number with the spec (the marker's or the figure's ``format``; a
+    signed spec such as ``+.2f`` writes a negative value with the minus sign), an
+    interval as ``mean [low, high]``, a mean with its standard error as ``mean ± se``, a pair as ``low–high``, a longer list (one value per
     seed, say) as ``a, b, c``, anything else as it is."""
     opts = list(opts)
     mean_only = "mean" in opts
@@ -210,8 +211,13 @@ def format_figure(figure: dict[str, Any], opts: Sequence[str] = ()) -> str:
         if not isinstance(x, (int, float)):
             return str(x)
         # 1.9e-8, as the texts write it, not Python's 1.9e-08
-        return re.sub(r"e([+-])0(\d)$", r"e\1\2", format(x, spec))
+        text = re.sub(r"e([+-])0(\d)$", r"e\1\2", format(x, spec))
+        # a signed spec (+.2f) writes a difference: with the minus sign, as the texts do
+        return "\u2212" + text[1:] if spec.startswith("+") and text.startswith("-") else text
 
+    if isinstance(value, dict) and "se" in value:   # a mean and its standard error
+        return number(value["mean"]) if mean_only else \
+            f"{number(value['mean'])} ± {format(value['se'], spec.lstrip('+'))}"
     if isinstance(value, dict):
         if mean_only:
             return number(value["mean"])

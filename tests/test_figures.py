@@ -52,6 +52,8 @@ def test_rounding_only_formats_the_stored_value():
     assert figures.format_figure(figure, ["mean", ".1f"]) == "9.3"
     assert figures.format_figure({"value": [6744, 6799]}, [",d"]) == "6,744–6,799"
     assert figures.format_figure({"value": 1.9e-8}, [".1e"]) == "1.9e-8"   # as texts write it
+    assert figures.format_figure({"value": -0.18}, ["+.2f"]) == "\u22120.18"    # a difference
+    assert figures.format_figure({"value": {"mean": 0.02, "se": 0.09}}, ["+.2f"]) == "+0.02 ± 0.09"
 
 
 def test_leaderboard_figures_match_the_leaderboard_page():
