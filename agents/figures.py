@@ -106,6 +106,11 @@ def _variant(rows: list[dict[str, Any]], variant: str) -> list[dict[str, Any]]:
     return [r for r in rows if r["variant"] == variant]
 
 
+def _least_and_most(values: Any) -> list[float]:
+    values = list(values)
+    return [min(values), max(values)]
+
+
 def best_const_voltage(board: dict[str, Any], env_id: str = "SaddleTrap-Lab-v0") -> float:
     """The voltage that holds the saddle at a voltage-mode level's best constant speed on the
     leaderboard: that speed over the level's steady motor gain [rad/s per V]."""
@@ -134,6 +139,17 @@ DERIVED: dict[str, Any] = {
         r["median_abs_log_ratio"] for r in _variant(rows, "calibrated"))),
     "lifetimes-rigid-median-factor": lambda rows: math.exp(max(
         r["median_abs_log_ratio"] for r in _variant(rows, "rigid ball"))),
+    # the same worst error as a log ratio, and the rigid ball's best series and its count > 2
+    "lifetimes-median-log": lambda rows: max(
+        r["median_abs_log_ratio"] for r in _variant(rows, "calibrated")),
+    "lifetimes-rigid-median-factor-least": lambda rows: math.exp(min(
+        r["median_abs_log_ratio"] for r in _variant(rows, "rigid ball"))),
+    "lifetimes-rigid-series-above-2": lambda rows: sum(
+        math.exp(r["median_abs_log_ratio"]) > 2 for r in _variant(rows, "rigid ball")),
+    # how early the calibrated model's onset comes for the 19 mm steel balls, least and most, %
+    "lifetimes-onset-early-19mm": lambda rows: _least_and_most(
+        100 * (1 - r["onset_rps"] / r["lab_onset_rps"])
+        for r in _variant(rows, "calibrated") if _steel(r) and "19 mm" in r["series"]),
 }
 
 
