@@ -23,7 +23,8 @@ GitHub as well as on the site::
 
 ``<!-- fig NAME SPEC -->`` renders with a format spec of Python's ``format`` (``.0f``,
 ``,.0f``), which may round the stored value; ``mean`` before the spec keeps an interval's
-mean alone; ``<!-- fig NAME date -->`` renders the date of the figure's measurement. The docs build (docs/hooks.py) replaces each pair by the current value, and
+mean alone; ``<!-- fig NAME date -->`` renders the date of the figure's measurement. The
+docs build (docs/hooks.py) replaces each pair by the current value, and
 
     python -m agents.figures --write     # rewrite README.md and docs/ in place
     python -m agents.figures --check     # exit 1 naming each stale file
@@ -114,7 +115,7 @@ def _least_and_most(values: Any) -> list[float]:
 def best_const_voltage(board: dict[str, Any], env_id: str = "SaddleTrap-Lab-v0") -> float:
     """The voltage that holds the saddle at a voltage-mode level's best constant speed on the
     leaderboard: that speed over the level's steady motor gain [rad/s per V]."""
-    from saddle_env.envs import level_config   # only this figure needs a level's motor
+    from saddle_env.envs import level_config  # only this figure needs a level's motor
 
     omega = next(p["omega"] for p in board["levels"][env_id]["policies"]
                  if p["key"] == "best-const")
@@ -213,8 +214,9 @@ def figures() -> dict[str, dict[str, Any]]:
 def format_figure(figure: dict[str, Any], opts: Sequence[str] = ()) -> str:
     """A figure as text: a number with the spec (the marker's or the figure's ``format``; a
     signed spec such as ``+.2f`` writes a negative value with the minus sign), an
-    interval as ``mean [low, high]``, a mean with its standard error as ``mean ± se``, a pair as ``low–high``, a longer list (one value per
-    seed, say) as ``a, b, c``, anything else as it is."""
+    interval as ``mean [low, high]``, a mean with its standard error as ``mean ± se``, a
+    pair as ``low–high``, a longer list (one value per seed, say) as ``a, b, c``, anything
+    else as it is."""
     opts = list(opts)
     mean_only = "mean" in opts
     opts = [o for o in opts if o != "mean"]
