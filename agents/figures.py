@@ -248,8 +248,14 @@ def format_figure(figure: dict[str, Any], opts: Sequence[str] = ()) -> str:
 
 
 def render_figure(name: str, opts: str = "") -> str:
-    """A figure's value as text, formatted by ``opts`` (`format_figure`); ``date`` alone, the
-    date of its measurement, so that a text dates a figure without retyping the date."""
+    """The figure ``name`` of the store, formatted with ``opts`` (`format_figure`); ``date``
+    alone gives the date of its measurement, so that a text dates a figure without retyping it.
+
+    Raises
+    ------
+    FigureError
+        If the store has no figure ``name``.
+    """
     store = figures()
     if name not in store:
         raise FigureError(f"unknown figure {name!r}: add it to {STORE.relative_to(REPO_ROOT)}")
@@ -279,10 +285,12 @@ def rendered_files() -> list[Path]:
 
 
 def stale_files() -> list[Path]:
+    """The rendered files whose figures differ from the store's."""
     return [p for p in rendered_files() if render(p.read_text()) != p.read_text()]
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m agents.figures``."""
     p = argparse.ArgumentParser(
         prog="python -m agents.figures",
         description="Render the figure store (docs/figures/figures.yml and the leaderboard's "
@@ -298,6 +306,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     args = build_parser().parse_args(argv)
     try:
         if args.show:

@@ -42,6 +42,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``saddle-sim``."""
     d = Scene()
     ap = _Parser(
         prog="saddle-sim",
@@ -100,6 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> Trajectory:
+    """The trajectory that the parsed command line ``args`` asks for."""
     scene = Scene(a=args.a, b=args.b, R=args.R, alpha=args.alpha, g=args.g,
                   contact=args.contact, rim_radius=args.rim,
                   drilling_friction=args.drilling_friction, drag_linear=args.drag_linear,
@@ -114,6 +116,7 @@ def run(args: argparse.Namespace) -> Trajectory:
 
 
 def render(traj: Trajectory, fmt: str) -> str:
+    """The trajectory as text in the format ``fmt`` (a table or JSON)."""
     if fmt == "json":
         return json.dumps(traj.as_dict()) + "\n"
     cols = [traj.t, traj.x, traj.y, traj.vx, traj.vy, traj.N_over_mg, traj.h]
@@ -133,6 +136,7 @@ def render(traj: Trajectory, fmt: str) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.rim is not None and math.isnan(args.rim):

@@ -178,6 +178,7 @@ class RRFTrap:
 
     @property
     def model_code(self) -> int:
+        """The compiled kernels' code for this trap."""
         return ION_RRF
 
     def params(self) -> np.ndarray:
@@ -287,9 +288,11 @@ class PaulTrap:
 
     @property
     def model_code(self) -> int:
+        """The compiled kernels' code for this trap."""
         return ION_PAUL
 
     def params(self) -> np.ndarray:
+        """The packed parameter vector read by the compiled kernels."""
         p = np.zeros(N_PARAMS)
         p[K.I_KQUAD], p[K.I_KDC], p[P_RIM] = self.kappa, self.kappa_dc, self.r0
         return p
@@ -315,6 +318,7 @@ class PaulTrap:
         return math.sqrt(2.0 * self.kappa / Q_MAX)
 
     def drive(self) -> tuple[OmegaProfile, float]:
+        """The drive as the integrator takes it: the Ω profile and the phase."""
         return OmegaProfile(self.omega), self.phase
 
 
@@ -347,14 +351,17 @@ class IonTrajectory:
 
     @property
     def x(self) -> np.ndarray:
+        """x of each output time."""
         return self.state[:, 0]
 
     @property
     def y(self) -> np.ndarray:
+        """y of each output time."""
         return self.state[:, 1]
 
     @property
     def r(self) -> np.ndarray:
+        """Distance from the trap's centre at each output time."""
         return np.hypot(self.x, self.y)
 
     def lab_xy(self) -> np.ndarray:

@@ -33,6 +33,8 @@ def _check_scene(scene: object) -> None:
 
 @dataclass(frozen=True)
 class ABCD:
+    """The coefficients of the linearised equations of motion (the paper's Table I; `abcd`)."""
+
     A: float
     B: float
     C: float
@@ -49,9 +51,22 @@ class ABCD:
 def abcd(scene: Scene, omega: float, spin_z: float = 0.0) -> ABCD:
     """Table I coefficients at saddle speed ``omega`` [rad/s].
 
-    ``spin_z`` is the ball's spin about the vertical relative to the saddle [rad/s] (the
-    paper's ω_z); it enters only for a rolling ball. Slipping and point use Table I's
-    right column with R = scene.radius (0 for the point).
+    Slipping and point use Table I's right column with R = scene.radius (0 for the point).
+
+    Parameters
+    ----------
+    scene : Scene
+        The saddle and the ball.
+    omega : float
+        The saddle's speed [rad/s].
+    spin_z : float
+        The ball's spin about the vertical relative to the saddle [rad/s] (the paper's
+        ω_z); it enters only for a rolling ball.
+
+    Returns
+    -------
+    ABCD
+        The coefficients.
     """
     _check_scene(scene)
     W = _finite_number("omega", omega)
@@ -78,6 +93,20 @@ def system_matrix(scene: Scene, omega: float, spin_z: float = 0.0) -> np.ndarray
     -μk (ẋ_c - Ω y_c) to ẍ_c and -μk (ẏ_c + Ω x_c) to ÿ_c, where μ = 1 for a slipping ball
     and 1/(1 + α) for a rolling one (the contact force makes the ball's spin take its share).
     Without drag this is ``abcd(...).matrix()``.
+
+    Parameters
+    ----------
+    scene : Scene
+        The saddle and the ball.
+    omega : float
+        The saddle's speed [rad/s].
+    spin_z : float
+        The ball's spin about the vertical relative to the saddle [rad/s] (`abcd`).
+
+    Returns
+    -------
+    numpy.ndarray
+        The 4 × 4 matrix.
     """
     M = abcd(scene, omega, spin_z).matrix()
     k = scene.drag_linear / (1.0 + scene.alpha) if scene.rolling else scene.drag_linear
@@ -90,10 +119,26 @@ def system_matrix(scene: Scene, omega: float, spin_z: float = 0.0) -> np.ndarray
 
 
 def growth_rate(scene: Scene, omega: float, spin_z: float = 0.0) -> float:
-    """Largest real part [1/s] of the eigenvalues of `system_matrix`: > 0 means the orbit
-    grows as e^{rate·t}. Zero (to round-off) where the drag-free motion is marginally
-    stable; with drag, its sign tells whether the air damps the orbit or, dissipation-
-    induced instability, drives it out."""
+    """Largest real part [1/s] of the eigenvalues of `system_matrix`.
+
+    Zero (to round-off) where the drag-free motion is marginally stable; with drag, its
+    sign tells whether the air damps the orbit or, dissipation-induced instability, drives
+    it out.
+
+    Parameters
+    ----------
+    scene : Scene
+        The saddle and the ball.
+    omega : float
+        The saddle's speed [rad/s].
+    spin_z : float
+        The ball's spin about the vertical relative to the saddle [rad/s] (`abcd`).
+
+    Returns
+    -------
+    float
+        The rate [1/s]; > 0 means the orbit grows as e^{rate·t}.
+    """
     return float(np.max(np.linalg.eigvals(system_matrix(scene, omega, spin_z)).real))
 
 
@@ -106,6 +151,20 @@ def eigenfrequencies(scene: Scene, omega: float, spin_z: float = 0.0) -> np.ndar
     """The four complex eigen-frequencies ϖ [rad/s] (x ∝ e^{iϖt}), sorted by real part.
 
     A negative imaginary part means growth, e^{|Im ϖ| t}: the paper's instability.
+
+    Parameters
+    ----------
+    scene : Scene
+        The saddle and the ball.
+    omega : float
+        The saddle's speed [rad/s].
+    spin_z : float
+        The ball's spin about the vertical relative to the saddle [rad/s] (`abcd`).
+
+    Returns
+    -------
+    numpy.ndarray
+        Four complex frequencies [rad/s].
     """
     return eigenfrequencies_of(abcd(scene, omega, spin_z))
 
@@ -123,7 +182,22 @@ def eigenfrequencies_of(c: ABCD) -> np.ndarray:
 
 
 def is_stable(scene: Scene, omega: float, spin_z: float = 0.0) -> bool:
-    """Linear (marginal) stability: both roots ϖ² real and positive (paper Eq. Inequalities)."""
+    """Linear (marginal) stability: both roots ϖ² real and positive (paper Eq. Inequalities).
+
+    Parameters
+    ----------
+    scene : Scene
+        The saddle and the ball.
+    omega : float
+        The saddle's speed [rad/s].
+    spin_z : float
+        The ball's spin about the vertical relative to the saddle [rad/s] (`abcd`).
+
+    Returns
+    -------
+    bool
+        Whether the linearised motion is (marginally) stable.
+    """
     return is_stable_abcd(abcd(scene, omega, spin_z))
 
 
@@ -138,7 +212,17 @@ def critical_omega(scene: Scene) -> float:
 
     Symmetric saddle: sqrt(2g/(a − 2R)) for a rigid ball (rolling or slipping), sqrt(2g/a)
     for the mass point (paper Eqs. RigidBodyThreshold, MassPointThreshold). Asymmetric
-    saddle: the lower edge of `stable_band` (``nan`` if no speed stabilises the ball).
+    saddle: the lower edge of `stable_band`.
+
+    Parameters
+    ----------
+    scene : Scene
+        The saddle and the ball.
+
+    Returns
+    -------
+    float
+        Ω_crt [rad/s]; ``nan`` if no speed stabilises the ball.
     """
     _check_scene(scene)
     if scene.a == scene.b:
@@ -153,7 +237,19 @@ def mass_point_band(a: float, b: float, g: float = 9.8) -> tuple[float, float] |
     Stable iff Q = AC > 0 (Ω² > 2g/a), the discriminant P² − 4Q ≥ 0 (when b < a:
     Ω² ≤ g(a + b)²/(4ab(a − b))) and P = A + C + BD < 0 (Ω² > g(a − b)/(ab)). The last
     condition holds across the band iff a < 3b; for a ≥ 3b both roots ϖ² are negative there
-    and no speed stabilises the point. Ω_high = inf when b ≥ a.
+    and no speed stabilises the point.
+
+    Parameters
+    ----------
+    a, b : float
+        The saddle's lengths [m] (z = x²/a − y²/b).
+    g : float
+        Gravitational acceleration [m/s²].
+
+    Returns
+    -------
+    (float, float) or None
+        The band [rad/s]; Ω_high = inf when b ≥ a.
     """
     a, b, g = (_finite_number(k, v) for k, v in (("a", a), ("b", b), ("g", g)))
     if a <= 0 or b <= 0 or g < 0:
@@ -168,13 +264,28 @@ def mass_point_band(a: float, b: float, g: float = 9.8) -> tuple[float, float] |
 
 def stable_band(scene: Scene, spin_z: float = 0.0, omega_max: float | None = None,
                 n_grid: int = 4000) -> list[tuple[float, float]]:
-    """Intervals of Ω in (0, omega_max] where the drag-free linearised motion is stable
-    (`is_stable`; the scene's drag is ignored — see `damped_band`).
+    """Intervals of Ω in (0, omega_max] where the drag-free linearised motion is stable.
 
-    Scans a grid (geometric above Ω_ref = sqrt(2g/min(a, b))) and refines every edge by
-    bisection to ~1e-12 relative. An interval reaching ``omega_max`` is reported with an
-    upper end of ``inf`` (no upper bound was found below omega_max; for the symmetric
-    saddle there is none).
+    Stability is `is_stable`'s; the scene's drag is ignored (see `damped_band`). Scans a
+    grid (geometric above Ω_ref = sqrt(2g/min(a, b))) and refines every edge by bisection
+    to ~1e-12 relative.
+
+    Parameters
+    ----------
+    scene : Scene
+        The saddle and the ball.
+    spin_z : float
+        The ball's spin about the vertical relative to the saddle [rad/s] (`abcd`).
+    omega_max : float, optional
+        The highest speed scanned [rad/s]; default 100·Ω_ref.
+    n_grid : int
+        Grid points of the scan.
+
+    Returns
+    -------
+    list of (float, float)
+        The stable intervals [rad/s]. One reaching ``omega_max`` has an upper end of ``inf``
+        (no upper bound was found below omega_max; for the symmetric saddle there is none).
     """
     _check_scene(scene)
     return _bands_where(lambda w: is_stable(scene, w, spin_z), scene, omega_max, n_grid)
@@ -183,14 +294,30 @@ def stable_band(scene: Scene, spin_z: float = 0.0, omega_max: float | None = Non
 def damped_band(scene: Scene, spin_z: float = 0.0, omega_max: float | None = None,
                 n_grid: int = 4000) -> list[tuple[float, float]]:
     """Intervals of Ω in (0, omega_max] where the linearised motion with the scene's linear
-    drag does not grow (`growth_rate` ≤ 0), on the grid and edge refinement of
-    `stable_band`.
+    drag does not grow (`growth_rate` ≤ 0).
 
-    Without drag this is `stable_band`: there the stable modes neither grow nor decay, and
-    a rate of zero computed by an eigensolver is only zero to round-off, so the exact
-    criterion is used instead. With drag the rate changes sign at an edge, and the band
-    may lose part of the drag-free one (dissipation-induced instability) — e.g. on an
-    asymmetric saddle a rolling ball's band can become finite.
+    Uses the grid and edge refinement of `stable_band`. Without drag this is
+    `stable_band`: there the stable modes neither grow nor decay, and a rate of zero
+    computed by an eigensolver is only zero to round-off, so the exact criterion is used
+    instead. With drag the rate changes sign at an edge, and the band may lose part of the
+    drag-free one (dissipation-induced instability) — e.g. on an asymmetric saddle a rolling
+    ball's band can become finite.
+
+    Parameters
+    ----------
+    scene : Scene
+        The saddle and the ball, with its linear drag.
+    spin_z : float
+        The ball's spin about the vertical relative to the saddle [rad/s] (`abcd`).
+    omega_max : float, optional
+        The highest speed scanned [rad/s], as in `stable_band`.
+    n_grid : int
+        Grid points of the scan.
+
+    Returns
+    -------
+    list of (float, float)
+        The intervals [rad/s], as in `stable_band`.
     """
     _check_scene(scene)
     if scene.drag_linear == 0.0:
@@ -249,11 +376,35 @@ def centre_from_contact(scene: Scene, x: np.ndarray, y: np.ndarray) -> tuple[np.
 
 def linear_trajectory(scene: Scene, omega: float, centre_state: np.ndarray, t: np.ndarray,
                       spin_z: float = 0.0) -> np.ndarray:
-    """Exact solution of the linearised equations: (len(t), 4) rows (x_c, y_c, ẋ_c, ẏ_c),
-    with the scene's linear air drag (`system_matrix`).
+    """Exact solution of the linearised equations, with the scene's linear air drag
+    (`system_matrix`).
 
-    ``t`` must be evenly spaced from 0; the solution is advanced by the matrix exponential
-    of one spacing, so it carries no discretisation error.
+    The solution is advanced by the matrix exponential of one spacing of ``t``, so it
+    carries no discretisation error.
+
+    Parameters
+    ----------
+    scene : Scene
+        The saddle and the ball.
+    omega : float
+        The saddle's speed [rad/s].
+    centre_state : numpy.ndarray
+        The start (x_c, y_c, ẋ_c, ẏ_c) of the ball's centre [m, m/s].
+    t : numpy.ndarray
+        Times [s], evenly spaced from 0.
+    spin_z : float
+        The ball's spin about the vertical relative to the saddle [rad/s] (`abcd`).
+
+    Returns
+    -------
+    numpy.ndarray
+        (len(t), 4) rows (x_c, y_c, ẋ_c, ẏ_c).
+
+    Raises
+    ------
+    ValueError
+        If ``centre_state`` is not 4 finite numbers, or ``t`` is not a finite 1-D array
+        starting at 0.
     """
     from scipy.linalg import expm
 

@@ -112,7 +112,7 @@ def _rates(model, m, P, fr, Y, Kout, Nout, dragged, work):
     loops are written out per case because the compiler vectorises only what is constant
     across lanes: a block without drag passes the drag coefficients as the constant 0, so
     the inlined rates lose their drag branch (a branch that may differ between lanes made
-    the environment's step twice as slow, measured), and a block without the work slot
+    the environment's step much slower), and a block without the work slot
     drops the power. A lane gets the same numbers in every case that applies to it."""
     if model == ROLLING and not dragged and not work:
         for q in range(m):

@@ -12,11 +12,29 @@ from .scene import _finite_number
 
 @dataclass(frozen=True)
 class OmegaProfile:
-    """Ω(t) = w0 + rate·t + amp·sin(freq·t + phase)  [rad/s].
+    """The saddle's speed, Ω(t) = w0 + rate·t + amp·sin(freq·t + phase) [rad/s].
 
     Covers constant speed (the paper), a ramp (a motor at constant torque; within one
     control step of the environment) and a ripple. Ω̇ is finite everywhere, so the Euler
     force is well defined.
+
+    Parameters
+    ----------
+    w0 : float
+        The speed at t = 0 [rad/s].
+    rate : float
+        The ramp's slope [rad/s²].
+    amp : float
+        The ripple's amplitude [rad/s].
+    freq : float
+        The ripple's angular frequency [rad/s].
+    phase : float
+        The ripple's phase at t = 0 [rad].
+
+    Raises
+    ------
+    ValueError
+        If a value is not a finite number.
     """
 
     w0: float = 0.0
@@ -43,10 +61,12 @@ class OmegaProfile:
         return cls(_finite_number("omega", omega))
 
     def array(self) -> np.ndarray:
+        """The profile packed as the compiled kernels read it."""
         return np.array([self.w0, self.rate, self.amp, self.freq, self.phase])
 
     @property
     def constant(self) -> bool:
+        """Whether Ω stays constant."""
         return self.rate == 0.0 and (self.amp == 0.0 or self.freq == 0.0)
 
     def __call__(self, t: np.ndarray | float) -> np.ndarray | float:

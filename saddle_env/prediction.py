@@ -38,13 +38,18 @@ class Prediction:
 
     Attributes
     ----------
-    t : (n, S, m) time of each sample since the run's start [s].
-    state : (n, S, m, k) state at each sample, padded as in `simulate_batch` (`padded_width`);
+    t
+        (n, S, m) time of each sample since the run's start [s].
+    state
+        (n, S, m, k) state at each sample, padded as in `simulate_batch` (`padded_width`);
         NaN where a segment has fewer samples, was skipped (duration ≤ 0) or was not reached
         (an event came first).
-    normal : (n, S, m) N/m at each sample [m/s²] (NaN where ``state`` is).
-    status : (n,) STATUS_* code of each run (an event, a failure or STATUS_DONE).
-    final_state : (n, 5) the state where each run ended (at the event if one fired).
+    normal
+        (n, S, m) N/m at each sample [m/s²] (NaN where ``state`` is).
+    status
+        (n,) STATUS_* code of each run (an event, a failure or STATUS_DONE).
+    final_state
+        (n, 5) the state where each run ended (at the event if one fired).
     """
 
     t: np.ndarray
@@ -113,18 +118,27 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
 
     Parameters
     ----------
-    models : int or (n,) — contact model codes (`Scene.model_code`), one for all or per run.
-    P : (n, N_PARAMS) packed scene parameters (`Scene.params()`).
-    Y0 : (n, k ≤ 7) start states (padded as in `simulate_batch`), or (n, STATE_WIDTH) kernel
+    models : int or numpy.ndarray
+        Contact model codes (`Scene.model_code`), one for all or (n,), one per run.
+    P
+        (n, N_PARAMS) packed scene parameters (`Scene.params()`).
+    Y0
+        (n, k ≤ 7) start states (padded as in `simulate_batch`), or (n, STATE_WIDTH) kernel
         states (with the work slot, as `states_from_observations` builds them).
-    drives : (n, S, DRIVE_WIDTH) drive rows (DRIVE_*); the angle θ0 of segments after the first is
+    drives
+        (n, S, DRIVE_WIDTH) drive rows (DRIVE_*); the angle θ0 of segments after the first is
         replaced by where the previous one ended.
-    durations : (n, S) [s]; a segment of duration ≤ 0 is skipped.
-    sample : float — largest spacing of the samples [s].
-    method, rtol, atol, events, max_steps : as in `simulate` (adaptive steps only).
-    max_step : float — largest step [s]; default as in `simulate`, from the largest |Ω| the
+    durations
+        (n, S) [s]; a segment of duration ≤ 0 is skipped.
+    sample : float
+        Largest spacing of the samples [s].
+    method, rtol, atol, events, max_steps
+        As in `simulate` (adaptive steps only).
+    max_step : float
+        Largest step [s]; default as in `simulate`, from the largest |Ω| the
         drives reach.
-    scales : (n, STATE_WIDTH) state scales for the tolerances; default `state_scale` of each row.
+    scales
+        (n, STATE_WIDTH) state scales for the tolerances; default `state_scale` of each row.
 
     Returns
     -------

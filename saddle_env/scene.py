@@ -225,6 +225,7 @@ class Scene:
 
     @property
     def model_code(self) -> int:
+        """The compiled kernels' code for the contact model."""
         return {"rolling": ROLLING, "coulomb": COULOMB}.get(self.contact, SLIPPING)
 
     def params(self) -> np.ndarray:

@@ -78,6 +78,7 @@ def measure(model: str | Path, calls: int = 5000, warmup: int = 200, seed: int =
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m agents.benchmark.deploy_latency``."""
     p = argparse.ArgumentParser(
         prog="python -m agents.benchmark.deploy_latency",
         description="Per-call latency (median, p99, µs, one thread) of an exported controller "
@@ -90,6 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.calls < 1 or args.warmup < 0:

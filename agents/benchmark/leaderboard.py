@@ -152,6 +152,7 @@ def _cell(d: dict[str, float], fmt: str, scale: float = 1.0) -> str:
 
 
 def level_markdown(table: dict[str, Any], figure: str | None) -> str:
+    """One level's section of the leaderboard page, from its results ``table`` and survival ``figure``."""
     level = get_level(table["env_id"])
     lines = [f"## {level.id}", "", level.summary[0].upper() + level.summary[1:] + ".", ""]
     clair = clairvoyant_reference(level.id)
@@ -193,6 +194,7 @@ def level_markdown(table: dict[str, Any], figure: str | None) -> str:
 
 def write_markdown(results: dict[str, Any], path: Path, figures: dict[str, str],
                    command: str) -> None:
+    """Write the leaderboard page to ``path``, with the ``command`` that made it."""
     head = [
         "# Leaderboard",
         "",
@@ -260,6 +262,7 @@ def levels_markdown() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m agents.benchmark.leaderboard``."""
     p = argparse.ArgumentParser(
         prog="python -m agents.benchmark.leaderboard",
         description="Evaluate every baseline and shipped agent on every task level on a frozen "
@@ -295,6 +298,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.episodes < 1:

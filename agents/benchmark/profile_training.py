@@ -66,6 +66,7 @@ class Timers:
         self._patches: list[tuple[Any, str, Any]] = []
 
     def wrap(self, owner: Any, name: str, category: str) -> None:
+        """Time every call of ``owner.name`` under ``category`` until `restore`."""
         original = getattr(owner, name)
         timers = self
 
@@ -86,6 +87,7 @@ class Timers:
         setattr(owner, name, timed)
 
     def restore(self) -> None:
+        """Put back every method that `wrap` replaced."""
         for owner, name, original in reversed(self._patches):
             if original is None:
                 delattr(owner, name)
@@ -94,6 +96,7 @@ class Timers:
         self._patches.clear()
 
     def table(self, wall: float) -> list[dict[str, Any]]:
+        """Seconds, share of ``wall`` and calls per category; "other" is the untimed rest."""
         rows = []
         timed = sum(self.seconds.values())
         for cat in CATEGORIES:
@@ -105,6 +108,7 @@ class Timers:
 
 
 def markdown(rows: list[dict[str, Any]], wall: float, title: str) -> str:
+    """The rows of `Timers.table` as a Markdown table under ``title``."""
     out = [f"**{title}** — wall {wall:.1f} s", "",
            "| part | seconds | share | calls |", "|---|---|---|---|"]
     for r in rows:
@@ -280,6 +284,7 @@ def profile_imitation(env_id: str, rounds: int, episodes: int, epochs: int = 10,
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     ap.add_argument("--env", default="SaddleTrap-Capture-v0", metavar="ID",

@@ -75,6 +75,7 @@ def clairvoyant_reference(level_id: str, path: Path = REFERENCES) -> dict[str, A
 
 
 def normalise(t: float, ref: dict[str, Any]) -> float:
+    """Trapping time ``t`` on the scale where random is 0 and the reference's upper policy is 1."""
     lo, hi = ref["random"], ref[ref["upper"]]
     return (t - lo) / (hi - lo)
 

@@ -188,6 +188,7 @@ def rllib_rates(runners: int, n_envs: int, seconds: float, mode: str = "vector_e
 
 
 def plot(rows: list[dict], path: Path) -> bool:
+    """Plot the throughput ``rows`` to ``path``; False if matplotlib is missing."""
     try:
         import matplotlib
 
@@ -226,6 +227,7 @@ def _ints(text: str) -> list[int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m agents.benchmark.rllib_throughput``."""
     ap = argparse.ArgumentParser(prog="python -m agents.benchmark.rllib_throughput",
                                  description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=10.0, help="timing window per figure")
@@ -244,6 +246,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     ap = build_parser()
     args = ap.parse_args(argv)
     if not args.seconds > 0 or args.n_envs < 1:

@@ -113,6 +113,7 @@ def cells(levels: Sequence[str] | None = None, algos: Sequence[str] | None = Non
 
 
 def result_path(out: Path, level: str, algo: str, seed: int) -> Path:
+    """The result file of one run: ``<out>/<level>/<algo>/seed<seed>.json``."""
     return Path(out) / level / algo / f"seed{seed}.json"
 
 
@@ -149,6 +150,7 @@ class RecurrentPolicy:
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """The actions for ``observation``, with each ball's LSTM state packed in ``state``."""
         lstm = None if state is None else (np.ascontiguousarray(state[:, 0].swapaxes(0, 1)),
                                            np.ascontiguousarray(state[:, 1].swapaxes(0, 1)))
         actions, (h, c) = self.model.predict(observation, state=lstm,
@@ -310,6 +312,7 @@ def _run_ray(todo: list[tuple[str, str, int]], out: Path, cell: dict[str, Any],
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m agents.benchmark``."""
     p = argparse.ArgumentParser(
         prog="python -m agents.benchmark",
         description="Standard algorithms on every non-calm level over training seeds, each "
@@ -347,6 +350,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
     out = Path(args.out)

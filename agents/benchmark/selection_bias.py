@@ -157,6 +157,7 @@ def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def markdown(summary: list[dict[str, Any]]) -> str:
+    """The selection-bias ``summary`` as a Markdown table."""
     lines = ["| level | rule | runs | bias, trapping time [s] | of which the episode set's "
              "offset [s] | bias, return |", "|---|---|---|---|---|---|"]
     for e in summary:
@@ -169,6 +170,7 @@ def markdown(summary: list[dict[str, Any]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     ap = argparse.ArgumentParser(description="The bias of model selection: recorded score "
                                              "against unseen episodes, max rule and top-k.")
     ap.add_argument("runs", nargs="+", metavar="RUN", help="finished run folders")

@@ -133,6 +133,7 @@ def ship(runs: Sequence[Path], name: str, models_dir: Path = MODELS_DIR) -> Path
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     p = argparse.ArgumentParser(prog="python -m agents.benchmark.ship", description=__doc__.split("\n")[0])
     p.add_argument("runs", nargs="+", type=Path, help="run folders of one recipe")
     p.add_argument("--name", required=True, help="model name in agents/models/ (no .zip)")

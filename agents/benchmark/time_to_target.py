@@ -1,4 +1,4 @@
-"""Time to target: how many wall-clock seconds of training a recipe needs to beat the best
+r"""Time to target: how many wall-clock seconds of training a recipe needs to beat the best
 constant speed and to reach ``mpc``, ``python -m agents.benchmark.time_to_target --env ID``.
 
 For each training seed (default 0, 1, 2) it trains the recipe (`agents.training.trainer.train`,
@@ -31,7 +31,7 @@ default ``<out>/time_to_target.png``; ``docs/figures/time_to_target.png`` for th
 best-const and ``mpc`` as horizontal lines.
 
     python -m agents.benchmark.time_to_target --env SaddleTrap-Capture-v0
-    python -m agents.benchmark.time_to_target --env SaddleTrap-Capture-v0 --hyperparams my.yml \\
+    python -m agents.benchmark.time_to_target --env SaddleTrap-Capture-v0 --hyperparams my.yml \
         --label fast --figure docs/figures/time_to_target.png
 """
 
@@ -242,6 +242,7 @@ def final_table(env_id: str, models: list[tuple[str, Path]], episodes: int,
 
 
 def plot(rows: list[dict[str, Any]], ref: dict[str, Any], path: Path, title: str) -> Path:
+    """Plot the time-to-target ``rows`` against the references ``ref``; returns ``path``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -270,6 +271,7 @@ def plot(rows: list[dict[str, Any]], ref: dict[str, Any], path: Path, title: str
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     ap = argparse.ArgumentParser(description="Wall-clock time for a recipe to beat "
                                              "best-const and reach mpc (median over seeds).",
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)

@@ -90,7 +90,7 @@ def _book(engine: Any, active: np.ndarray, k: int, dt: float, t: np.ndarray,
 
 def copy_rng(rng: np.random.Generator) -> np.random.Generator:
     """An independent generator in ``rng``'s exact state (its future draws, without
-    advancing it); 3x cheaper than `copy.deepcopy`, which it falls back to."""
+    advancing it); cheaper than `copy.deepcopy`, which it falls back to."""
     bg = rng.bit_generator
     try:
         twin = type(bg)(0)
@@ -119,6 +119,7 @@ class BallState:
 
     @classmethod
     def capture(cls, engine: TrapEngine, rngs: Any, i: int) -> BallState:
+        """Copy ball ``i``'s whole state out of ``engine`` (and its random generator from ``rngs``)."""
         return cls(int(engine.models[i]), engine.P[i].copy(), engine.scales[i].copy(),
                    engine.Y[i].copy(), engine.balls[i].copy(), engine.out[i].copy(),
                    engine.frame[i].copy(), engine.obs[i].copy(), engine.noise[i].copy(),
@@ -462,10 +463,18 @@ class ClairvoyantController(Controller):
                                           loader=loader)
 
     def episode_actor(self) -> ClairvoyantActor:
+        """A fresh actor that plans each episode from the environment's state."""
         return ClairvoyantActor(self.planner)
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
+        """Not available: this controller reads the environment, not the observation.
+
+        Raises
+        ------
+        RuntimeError
+            Always; run it through `agents.control.rollout.run_episodes` instead.
+        """
         raise RuntimeError("the clairvoyant controller reads the environment, not the "
                            "observation: run it through agents.control.rollout.run_episodes "
                            "(saddle-eval --policy clairvoyant) or evaluate_clairvoyant")
@@ -484,6 +493,7 @@ class ClairvoyantActor:
         self.plan_seconds = 0.0
 
     def start(self, n: int) -> None:
+        """Prepare for ``n`` balls."""
         self._step = np.zeros(n, dtype=np.int64)
 
     def attach(self, env: Any, max_episode_steps: int) -> None:
@@ -508,6 +518,7 @@ class ClairvoyantActor:
         self.plan_seconds += time.perf_counter() - t0
 
     def __call__(self, obs: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """The planned action of each ball in ``idx`` at its current step."""
         if self.env is None:
             raise RuntimeError("the clairvoyant actor needs the environment (attach)")
         Y = self.env.engine.Y

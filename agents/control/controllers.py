@@ -48,6 +48,11 @@ class Controller:
     Subclasses implement ``_act(obs, omega) -> (n,) actions`` for a float64 batch ``obs``
     and the observed speed ``omega`` [rad/s]. ``row_independent``: each row's action depends
     on that row only, so a caller may pass any subset of a batch.
+
+    Parameters
+    ----------
+    config : EnvConfig
+        The level the controller acts on (its action mode, motor and observation layout).
     """
 
     name = "controller"
@@ -74,8 +79,26 @@ class Controller:
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
-        """Actions for one observation ``(obs_dim,)`` → ``(1,)`` or a batch ``(n, obs_dim)`` →
-        ``(n, 1)`` (float32 in [-1, 1]); ``state`` is passed through (no recurrent state)."""
+        """The actions for one observation or a batch (Stable-Baselines3's signature).
+
+        Parameters
+        ----------
+        observation : array_like
+            One observation ``(obs_dim,)`` or a batch ``(n, obs_dim)``.
+        state : object, optional
+            Passed through (a controller here keeps no recurrent state).
+        episode_start : array_like, optional
+            Unused; for SB3's signature.
+        deterministic : bool
+            Unused: the controllers are deterministic.
+
+        Returns
+        -------
+        actions : numpy.ndarray
+            float32 in [-1, 1], ``(1,)`` for one observation, ``(n, 1)`` for a batch.
+        state : object
+            ``state``, unchanged.
+        """
         batch, single = self._batch(observation)
         omega = batch[:, -1] * self.config.omega_max
         return self._out(self._act(batch, omega), single), state
@@ -158,6 +181,7 @@ class ConstantSpeed(Controller):
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
+        """The actions for ``observation`` (one or a batch); ``state`` carries the commanded speed."""
         if self.config.action_mode in ("target", "voltage"):  # a constant action holds it
             return super().predict(observation, state, episode_start, deterministic)
         batch, single = self._batch(observation)

@@ -177,9 +177,11 @@ class PolicyActor:
         self.fresh = np.ones(0, dtype=bool)
 
     def start(self, n: int) -> None:
+        """Prepare for ``n`` balls, each at the start of an episode."""
         self.state, self.fresh = None, np.ones(n, dtype=bool)
 
     def __call__(self, obs: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """The policy's actions for the balls ``idx``, keeping each ball's recurrent state."""
         rows = idx if self.row_independent else np.arange(len(obs))
         if len(rows) == 0:
             return np.zeros(0)

@@ -1,10 +1,10 @@
-"""``saddle-eval``: evaluate policies (baselines, model files, or controller classes of your
+r"""``saddle-eval``: evaluate policies (baselines, model files, or controller classes of your
 own) on the same seeded episodes of a task level and tabulate how long they keep the ball.
 
 ```
-saddle-eval --policy const-1.2 --policy mpc --policy runs/ppo/model.zip \\
-            --policy runs/ppo_rllib_seed0_<date>/final --policy exported/ppo_storm \\
-            --policy my_controllers.py:Bang --policy-kwargs '{"gain": 2}' \\
+saddle-eval --policy const-1.2 --policy mpc --policy runs/ppo/model.zip \
+            --policy runs/ppo_rllib_seed0_<date>/final --policy exported/ppo_storm \
+            --policy my_controllers.py:Bang --policy-kwargs '{"gain": 2}' \
             --episodes 200 --seed 0 [--env ID] [--env-kwargs R=0.033 air_force=0.3]
             [--json] [--out DIR]
 ```
@@ -115,6 +115,7 @@ def wilson_interval(successes: int, n: int) -> dict[str, float]:
 
 
 def summarise(res: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
+    """Intervals of the trapping time and of each end's share, from an evaluation's results."""
     n = len(res["time"])
     causes = res["cause"]
     table = {"trapping_time": bootstrap_interval(res["time"]),
@@ -151,13 +152,37 @@ def evaluate(specs: Sequence[str | tuple[str, Any]], config: EnvConfig, episodes
              ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Evaluate every policy on episodes ``seed .. seed + episodes − 1``.
 
-    ``specs``: baseline names, model paths or controller classes (``file.py:Class``; see
-    `load_policy`), or (spec, policy) pairs of already loaded policies. ``env_id``: the level
-    ``config`` was built from (recorded with the options that override it; default: the
-    options over `EnvConfig`'s defaults). ``trust``: load model files with their pickles
-    (see `load_policy`); default: as data. ``policy_kwargs``: the arguments controller
-    classes are built with. Returns (table, details): the table is what ``--json`` prints;
-    details hold the per-episode arrays and traces for files and plots.
+    Parameters
+    ----------
+    specs : sequence of str or (str, policy) pairs
+        Baseline names, model paths or controller classes (``file.py:Class``; see
+        `load_policy`), or (spec, policy) pairs of already loaded policies.
+    config : EnvConfig
+        The level's configuration.
+    episodes : int
+        The number of episodes.
+    seed : int
+        Episode i is ``reset(seed=seed + i)``.
+    max_episode_steps : int
+        The episode length.
+    progress : bool
+        Show a progress bar.
+    examples : int
+        Episodes whose traces are kept for the plots.
+    env_id : str, optional
+        The level ``config`` was built from (recorded with the options that override it;
+        default: the options over `EnvConfig`'s defaults).
+    trust : bool
+        Load model files with their pickles (see `load_policy`); default: as data.
+    policy_kwargs : dict, optional
+        The arguments controller classes are built with.
+
+    Returns
+    -------
+    table : dict
+        What ``saddle-eval --json`` prints.
+    details : dict
+        The per-episode arrays and traces, for files and plots.
     """
     level = get_level(env_id) if env_id is not None else None
     table: dict[str, Any] = {}
@@ -197,15 +222,40 @@ def evaluate_controller(controller: Any, env_id: str = ENV_ID, episodes: int = 1
                         ) -> dict[str, Any]:
     """Your controller beside the baselines, on the same seeded episodes of a level.
 
-    ``controller``: any object with Stable-Baselines3's ``predict(observation, state=None,
-    episode_start=None, deterministic=True) -> (action, state)``, or a spec string that
-    `load_policy` takes (``"path/to/file.py:ClassName"``, a baseline's name, a model file).
-    ``baselines``: the rows beside it (``const-1.0`` holds Ω at the rigid ball's Ω_crt).
-    ``seed``: episode i is ``reset(seed=seed + i)``; the default, the leaderboard's frozen test
-    seeds, makes the rows comparable with the leaderboard's (docs/leaderboard.md), whose
-    baselines were measured on the first 1,000 of them. ``env_kwargs``: options over the
-    level's. Returns the table ``saddle-eval --json`` prints: ``table["policies"]`` holds one
-    row per policy, yours first, each with the mean trapping time and its 95 % interval.
+    Parameters
+    ----------
+    controller : object or str
+        Any object with Stable-Baselines3's ``predict(observation, state=None,
+        episode_start=None, deterministic=True) -> (action, state)``, or a spec string that
+        `load_policy` takes (``"path/to/file.py:ClassName"``, a baseline's name, a model file).
+    env_id : str
+        The level.
+    episodes : int
+        The number of episodes.
+    seed : int
+        Episode i is ``reset(seed=seed + i)``; the default, the leaderboard's frozen test
+        seeds, makes the rows comparable with the leaderboard's (docs/leaderboard.md).
+    baselines : sequence of str
+        The rows beside yours (``const-1.0`` holds Ω at the rigid ball's Ω_crt).
+    name : str, optional
+        Your row's name; default the controller's ``name`` or its class's.
+    env_kwargs : dict, optional
+        Options over the level's.
+    max_episode_steps : int, optional
+        The episode length; default the level's.
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    dict
+        The table ``saddle-eval --json`` prints: ``table["policies"]`` holds one row per
+        policy, yours first, each with the mean trapping time and its 95 % interval.
+
+    Raises
+    ------
+    TypeError
+        If ``controller`` has no ``predict`` method.
     """
     level, config = resolve_env(env_id, dict(env_kwargs or {}))
     steps = max_episode_steps or level.max_episode_steps
@@ -296,6 +346,7 @@ def markdown(table: dict[str, Any]) -> str:
 # Plots
 # --------------------------------------------------------------------------------------
 def plot(table: dict[str, Any], details: dict[str, Any], config: EnvConfig, out: Path) -> list[Path]:
+    """Draw the evaluation's figures into ``out``; returns the files written."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -350,6 +401,7 @@ def plot(table: dict[str, Any], details: dict[str, Any], config: EnvConfig, out:
 # Command line
 # --------------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``saddle-eval``."""
     p = argparse.ArgumentParser(
         prog="saddle-eval",
         description="Evaluate policies (baseline names or Stable-Baselines3 .zip files) on the "
@@ -402,6 +454,7 @@ def _default_env_id(specs: Sequence[str]) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.episodes < 1:

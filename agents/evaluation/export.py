@@ -122,8 +122,32 @@ def graph_bytes(net: Any, input_dim: int, opset: int = F.OPSET) -> tuple[bytes, 
 
 def export_policy(model: str | os.PathLike, out: str | os.PathLike, trust: bool = False,
                   opset: int = F.OPSET, seed: int = 0) -> Path:
-    """Write ``model``'s exported folder to ``out`` (created; files in it replaced) and
-    check it (see the module); returns ``out``."""
+    """Write ``model``'s exported folder to ``out`` and check it (see the module).
+
+    Parameters
+    ----------
+    model : str or os.PathLike
+        A Stable-Baselines3 model file (``.zip``) with its sidecar.
+    out : str or os.PathLike
+        The folder to write (created; files in it replaced).
+    trust : bool
+        Load the model file with its pickles; default: as data.
+    opset : int
+        The ONNX opset of the graph.
+    seed : int
+        Seeds the observations the folder is checked on.
+
+    Returns
+    -------
+    Path
+        ``out``.
+
+    Raises
+    ------
+    ValueError
+        If ``model`` is not a ``.zip`` file, ``opset`` is out of range, or the folder's
+        actions differ from the model's.
+    """
     require("torch", "train", "saddle-export")
     require("onnx", "deploy", "saddle-export")
     require("onnxruntime", "deploy", "saddle-export's check of the folder")
@@ -194,6 +218,7 @@ def max_difference(policy: Any, folder: str | os.PathLike, obs: np.ndarray) -> f
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``saddle-export``."""
     p = argparse.ArgumentParser(
         prog="saddle-export",
         description="Export a trained Stable-Baselines3 model file to a folder (policy.onnx + "
@@ -213,6 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

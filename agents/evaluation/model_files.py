@@ -44,6 +44,7 @@ class UntrustedFileError(ValueError):
 
 
 def untrusted(path: str | os.PathLike, what: str) -> UntrustedFileError:
+    """The error for a file that only ``--trust-model`` may load, saying ``what`` it holds."""
     return UntrustedFileError(f"{path}: {what}; {TRUST_HINT}")
 
 
@@ -298,6 +299,7 @@ def normalizer_state(norm: Any) -> dict[str, Any]:
 
 
 def save_normalizer(norm: Any, path: str | os.PathLike) -> Path:
+    """Write the normaliser ``norm``'s statistics to ``path`` as JSON; returns the path."""
     path = Path(path)
     path.write_text(json.dumps(normalizer_state(norm), indent=1) + "\n")
     return path
@@ -351,6 +353,7 @@ class ObservationNormalizer:
         self.norm_obs = bool(state["norm_obs"])
 
     def normalize_obs(self, obs: np.ndarray) -> np.ndarray:
+        """``obs`` normalised and clipped as in training (unchanged if observations are not normalised)."""
         if not self.norm_obs:
             return obs
         return np.clip((obs - self.mean) / np.sqrt(self.var + self.epsilon),

@@ -207,6 +207,7 @@ class WrappedModel:
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
+        """The actions for ``observation`` (one or a batch), normalised and frame-stacked as in training."""
         obs = np.asarray(observation, dtype=np.float32)
         single = obs.ndim == 1
         batch = self._normalise(obs.reshape(1, -1) if single else obs)
@@ -223,14 +224,31 @@ class WrappedModel:
 def load_policy(name_or_path: str | os.PathLike, config: EnvConfig | None = None,
                 max_episode_steps: int | None = None, trust: bool = False,
                 policy_kwargs: dict[str, Any] | None = None) -> Any:
-    """A baseline by name (``BASELINES``, or ``const-<K>`` for any K) built for ``config``,
-    a user's controller class (``path/to/file.py:ClassName`` or ``package.module:ClassName``,
-    built with ``policy_kwargs``: `agents.evaluation.user_code`), a Stable-Baselines3 model
-    loaded from a ``.zip`` file (algorithm detected; wrapped as its sidecar's
-    ``frame_stack``/``normalize`` say), a folder ``saddle-export`` wrote (``policy.json``:
-    `saddle_env.deploy.Controller`), or an RLlib checkpoint directory.
-    ``max_episode_steps`` is the episode length ``best-const`` is searched for (default:
-    the search's own). Files are read as data unless ``trust`` (see `load_model`)."""
+    """A policy by name or path, ready to act on ``config``'s level.
+
+    Parameters
+    ----------
+    name_or_path : str or os.PathLike
+        A baseline's name (``BASELINES``, or ``const-<K>`` for any K); a user's controller
+        class (``path/to/file.py:ClassName`` or ``package.module:ClassName``, built with
+        ``policy_kwargs``: `agents.evaluation.user_code`); a Stable-Baselines3 model file
+        (``.zip``; algorithm detected, wrapped as its sidecar's ``frame_stack`` and
+        ``normalize`` say); a folder ``saddle-export`` wrote (run by
+        `saddle_env.deploy.Controller`); or an RLlib checkpoint directory.
+    config : EnvConfig, optional
+        The level's configuration; default `EnvConfig`'s defaults.
+    max_episode_steps : int, optional
+        The episode length ``best-const`` is searched for (default: the search's own).
+    trust : bool
+        Load files with their pickles; default: as data (see `load_model`).
+    policy_kwargs : dict, optional
+        The arguments a controller class is built with.
+
+    Returns
+    -------
+    object
+        A policy with Stable-Baselines3's ``predict``.
+    """
     config = EnvConfig() if config is None else config
     name = str(name_or_path)
     if name == "best-const" and max_episode_steps is not None:

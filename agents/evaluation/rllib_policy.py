@@ -52,6 +52,7 @@ def latest_checkpoint(path: str | os.PathLike) -> Path | None:
 
 
 def checkpoint_sidecar(path: str | os.PathLike) -> dict[str, Any] | None:
+    """The sidecar of the RLlib checkpoint at ``path``, or None if it has none or it is unreadable."""
     try:
         data = json.loads((Path(path) / SIDECAR).read_text())
     except (OSError, ValueError):
@@ -83,6 +84,7 @@ class RllibPolicy:
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
+        """The actions of the checkpoint's module for ``observation`` (one or a batch)."""
         torch = self._torch
         obs = np.asarray(observation, dtype=np.float32)
         single = obs.ndim == 1

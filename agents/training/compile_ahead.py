@@ -3,8 +3,8 @@
 ``train.py`` ends by comparing the agent with best-const and `mpc` on fresh episodes
 (`agents.training.run_report.compare`). On a fresh install that comparison first compiles the vector
 env's threaded step (200 balls step over threads, which training's smaller batches never
-do) and `mpc`'s look-ahead for the level's contact models: 28 s on the idle 2-core machine
-after the main job's four minutes of training (docs/coldstart.md). `train` starts this module
+do) and `mpc`'s look-ahead for the level's contact models, after the main job's training
+(how long that takes: docs/coldstart.md). `train` starts this module
 in a second process as training begins, where the second core has room, and waits for it
 before the comparison; with a warm cache it loads and exits in seconds.
 
@@ -15,7 +15,7 @@ compiles (or loads) the same functions with the same signatures. Given the run's
 then draws the learning curve's reference lines (best-const and `mpc` on the curve's own
 episodes, `run_report.curve_references`) there, so the end of the run only checks that they
 are for the curve's episode set and reads them: `mpc` on Capture's 256 validation episodes
-is half a minute of the second core. It starts only where that
+is a long job for the second core. It starts only where that
 cannot race the run's own work on shared files: a registered level as it is (no
 ``--env-kwargs``) whose best constant speed is already in the cache, so neither process
 searches for it. ``SADDLE_ENV_COMPILE_AHEAD=0`` turns it off.
@@ -125,6 +125,7 @@ def _exit_with_parent() -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Compile the comparison's kernels for ``ENV_ID EPISODES STEPS [RUN_DIR]``; returns 0."""
     env_id, episodes, steps, *run_dir = (argv if argv is not None else sys.argv[1:])
     _exit_with_parent()
     compile_comparison(env_id, int(episodes), int(steps))

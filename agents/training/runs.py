@@ -206,6 +206,7 @@ class Stop(BaseException):
 
 class _Held:
     """A stop that came while files were being written (`stops_held`)."""
+
     depth = 0
     pending: BaseException | None = None
 
@@ -234,6 +235,7 @@ class StopRequest(SignalRecord):
     save ends."""
 
     def lost(self) -> bool:
+        """Whether the stop is lost: never while a save holds it."""
         return super().lost() and not _Held.depth
 
 

@@ -66,7 +66,7 @@ def fresh_set(settings: TrainSettings) -> dict[str, Any]:
     `FRESH_FACTOR` × ``eval_episodes`` of them, the first half of the run's own block of
     seeds (`_reselect_block`), so that the offset of one set of episodes (easier or harder
     than the level's average) is noise across runs rather than a bias shared by all of them
-    (sets of a few hundred of Capture's episodes differ by 0.1-0.3 s; docs/model_selection.md)."""
+    (how much sets of episodes differ: docs/model_selection.md)."""
     start, n, steps = _reselect_block(settings)
     return episode_set(settings.environment()[1], start, n, steps)
 

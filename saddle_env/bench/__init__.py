@@ -142,6 +142,7 @@ def _version(name: str) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m saddle_env.bench``."""
     ap = argparse.ArgumentParser(
         prog="saddle-bench",
         description="Work-precision benchmark: wall time per simulated second against the "
@@ -167,6 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     ap = build_parser()
     args = ap.parse_args(argv)
     if args.replot is not None:

@@ -2,8 +2,7 @@
 does, for the OpenBLAS builds in numpy's and scipy's wheels, without the dependency).
 
 On a small shared machine an OpenBLAS call on a 4×4 matrix can spend milliseconds waking
-its worker threads: ``scipy.linalg.expm`` of a 4×4 took 15 ms with the default threads and
-0.1 ms with one, on the 2-core machine the benchmark was written on. The benchmark times
+its worker threads, far longer than the computation itself takes on one. The benchmark times
 tiny linear algebra (the peer's 3×3 solves, the linearised tier's matrix exponential) and
 runs its own parallelism through numba, so it pins BLAS to one thread for fairness.
 """

@@ -79,20 +79,24 @@ class Case:
     mu: float = 0.022
 
     def scene(self, tier: Tier) -> Scene:
+        """The case's scene for the contact ``tier`` ("linear" runs the rolling scene)."""
         contact = "rolling" if tier == "linear" else tier
         if contact == "coulomb":
             return Scene(a=self.a, R=self.R, contact=contact, rim_radius=0.1, mu=self.mu)
         return Scene(a=self.a, R=self.R, contact=contact, rim_radius=0.1)
 
     def state(self, tier: Tier, x0: float | None = None, y0: float | None = None) -> np.ndarray:
+        """The initial state for ``tier``, released at (``x0``, ``y0``) or the case's own point."""
         return initial_state(self.scene(tier), self.x0 if x0 is None else x0,
                              self.y0 if y0 is None else y0, start=self.start, omega=self.omega)
 
     def grid(self) -> np.ndarray:
+        """The output times, every ``dt_out`` from 0 to ``t_end``."""
         n = int(round(self.t_end / self.dt_out))
         return np.arange(n + 1) * self.dt_out
 
     def columns(self) -> dict[str, object]:
+        """The case's parameters as the results table's columns."""
         return {k: v for k, v in asdict(self).items()
                 if k in ("a", "R", "omega", "x0", "y0", "start", "t_end", "dt_out")}
 
@@ -109,12 +113,14 @@ class Config:
 
     @property
     def kind(self) -> str:
+        """"exact" (expm), "fixed" (a fixed step) or "adaptive"."""
         if self.method == "expm":
             return "exact"
         return "fixed" if math.isfinite(self.dt) else "adaptive"
 
     @property
     def label(self) -> str:
+        """The setting's name in the tables and figures."""
         if self.method == "expm":
             return "linearised (expm)"
         if self.solver == "scipy":
@@ -236,6 +242,7 @@ def batch_states(case: Case, tier: Tier, n: int) -> np.ndarray:
 
 def measure_ours(case: Case, tier: Tier, cfg: Config, refs: dict[str, np.ndarray],
                  batch: bool) -> dict[str, object]:
+    """Time `saddle_env.simulate` (or the batch) on one case and setting; its error against ``refs``."""
     sc = case.scene(tier)
     s0 = case.state(tier)
     kw = _sim_kwargs(case, cfg)
@@ -253,6 +260,7 @@ def measure_ours(case: Case, tier: Tier, cfg: Config, refs: dict[str, np.ndarray
 
 
 def measure_batch(case: Case, tier: Tier, kw: SimKwargs) -> dict[str, object]:
+    """Time `saddle_env.simulate_batch` on the case's batch of releases."""
     import numba
 
     sc = case.scene(tier)

@@ -59,12 +59,14 @@ class PeerModel:
 
     # -- the saddle's motion -----------------------------------------------------------
     def Omega(self, t: float) -> tuple[float, float]:
+        """Ω(t) and dΩ/dt [rad/s, rad/s²]."""
         ph = self.freq * t + self.phase
         motor = self.decay * np.exp(-self.decay_rate * t)
         return (self.w0 + self.rate * t + self.amp * np.sin(ph) + motor,
                 self.rate + self.amp * self.freq * np.cos(ph) - self.decay_rate * motor)
 
     def angle(self, t: float) -> float:
+        """The saddle's angle θ(t) [rad], Ω integrated from ``theta0``."""
         th = self.theta0 + self.w0 * t + 0.5 * self.rate * t * t
         if self.decay != 0.0:  # ∫₀ᵗ decay·e^{−k s} ds
             th += self.decay * (1.0 - np.exp(-self.decay_rate * t)) / self.decay_rate
@@ -121,6 +123,7 @@ class PeerModel:
 
     # -- right-hand side --------------------------------------------------------------
     def contact_velocity(self, y: np.ndarray) -> np.ndarray:
+        """The contact point's velocity (ẋ, ẏ) from the state ``y``."""
         if not self.rolling:
             return np.asarray(y[2:4], dtype=float)
         n, c, J, _ = self.frame(y[:2])

@@ -31,6 +31,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``saddle-fit``."""
     ap = _Parser(
         prog="saddle-fit",
         description="Fit the simulator's unknowns (air drag, rolling resistance, friction, the "
@@ -132,6 +133,7 @@ def report(result: FitResult) -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
     say = (lambda _: None) if args.quiet else (lambda s: print(s, flush=True))

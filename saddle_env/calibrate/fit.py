@@ -44,8 +44,25 @@ class FitWarning(UserWarning):
 
 @dataclass
 class Estimate:
-    """One fitted parameter: value, standard deviation and 95 % interval (±inf where the tracks
-    do not determine it)."""
+    """One fitted parameter: value, standard deviation and 95 % interval.
+
+    Parameters
+    ----------
+    name : str
+        The parameter (a name of `model.PARAMETERS`).
+    value : float
+        The estimate.
+    std : float
+        Its standard deviation (inf where the tracks do not determine it).
+    low, high : float
+        The 95 % interval's ends (±inf where the tracks do not determine it).
+    unit : str
+        The parameter's unit.
+    start : float
+        The value the fit started from.
+    identifiable : bool
+        Whether the tracks determine the parameter.
+    """
 
     name: str
     value: float
@@ -58,9 +75,11 @@ class Estimate:
 
     @property
     def interval(self) -> tuple[float, float]:
+        """The estimate's interval, (low, high)."""
         return self.low, self.high
 
     def as_dict(self) -> dict[str, Any]:
+        """The estimate as JSON-ready values (infinite bounds as "inf", "-inf")."""
         def num(v: float) -> float | str:
             return v if math.isfinite(v) else ("inf" if v > 0 else "-inf")
         return {"value": self.value, "std": num(self.std), "low": num(self.low),
@@ -70,7 +89,37 @@ class Estimate:
 
 @dataclass
 class FitResult:
-    """What `fit_tracks` found (see `as_dict` for the results file)."""
+    """What `fit_tracks` found (see `as_dict` for the results file).
+
+    Parameters
+    ----------
+    estimates : dict of str to Estimate
+        Each fitted parameter's estimate.
+    tracks : list of dict
+        Per track: its source, frames, segments, residual RMS [m] and the fitted start
+        angle (and speed) where they were fitted.
+    env_options : dict
+        The fitted options, ready for ``gym.make`` or ``--env-kwargs``.
+    drive : str
+        What drove the saddle's speed in the fit: "omega" or "voltage".
+    cost : float
+        The final least-squares cost.
+    sigma_scale : float
+        The residuals' spread in units of the noise they were weighted with.
+    iterations : int
+        Jacobian evaluations made.
+    status : str
+        The optimiser's message.
+    warnings : list of str
+        What the fit found suspect (e.g. a track whose residuals stand out, segments that
+        failed to integrate).
+    noise : dict of str to float
+        The noise levels the residuals were weighted with.
+    model : Model, optional
+        The fit's model (not written to the results file).
+    x : numpy.ndarray, optional
+        The final parameter vector (not written to the results file).
+    """
 
     estimates: dict[str, Estimate]
     tracks: list[dict[str, Any]]
@@ -86,6 +135,7 @@ class FitResult:
     x: np.ndarray | None = field(default=None, repr=False)
 
     def as_dict(self) -> dict[str, Any]:
+        """The fit as JSON-ready values, as ``saddle-fit`` writes it."""
         return {"estimates": {k: e.as_dict() for k, e in self.estimates.items()},
                 "tracks": self.tracks, "env_options": self.env_options, "drive": self.drive,
                 "cost": self.cost, "noise_scale": self.sigma_scale,
@@ -351,18 +401,37 @@ def fit_tracks(tracks: Sequence[Track], config: EnvConfig, fit: Sequence[str], *
 
     Parameters
     ----------
-    tracks : the measured tracks (`read_tracks`).
-    config : the scene's known parameters (a level's `EnvConfig` with overrides); a fitted
+    tracks
+        The measured tracks (`read_tracks`).
+    config
+        The scene's known parameters (a level's `EnvConfig` with overrides); a fitted
         parameter starts from its value there.
-    fit : the parameters to fit.
-    drive : 'omega', 'voltage' or None/'auto' (`choose_drive`).
-    segment : shooting segments' length [s], 0.02-2.
-    position_noise, omega_noise : the camera's and the tachometer's noise [m], [rad/s], the
+    fit
+        The parameters to fit.
+    drive
+        'omega', 'voltage' or None/'auto' (`choose_drive`).
+    segment
+        Shooting segments' length [s], 0.02-2.
+    position_noise, omega_noise
+        The camera's and the tachometer's noise [m], [rad/s], the
         residuals' starting weights (default: the config's noise, else 1 mm and 0.2 rad/s);
         after a first fit each is re-estimated from its residuals' spread and the fit
         repeated (up to twice), so the intervals follow the data's own noise.
-    max_iterations : Jacobian evaluations at most (1-1000).
-    progress : called with a line per iteration (default: silent).
+    max_iterations
+        Jacobian evaluations at most (1-1000).
+    progress
+        Called with a line per iteration (default: silent).
+
+    Returns
+    -------
+    FitResult
+        The estimates, the fitted options for ``gym.make`` and the fit's diagnostics.
+
+    Raises
+    ------
+    ValueError
+        If there are no tracks, a track has too few tracked frames, or an argument is out
+        of range (the message names it).
     """
     say = progress or (lambda _: None)
     tracks = list(tracks)

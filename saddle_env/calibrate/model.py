@@ -142,6 +142,7 @@ class TrackPlan:
 
     @property
     def segments(self) -> int:
+        """The number of shooting segments."""
         return len(self.nodes) - 1
 
 
@@ -204,6 +205,7 @@ class Layout:
         self.size = i
 
     def node_block(self, v: np.ndarray, k: int) -> np.ndarray:
+        """Track ``k``'s node states in the parameter vector ``v``, one row per node."""
         plan = self.plans[k]
         s = self.node_slots[k]
         return v[s:s + len(plan.nodes) * self.width].reshape(len(plan.nodes), self.width)
@@ -263,6 +265,7 @@ class Model:
         return out
 
     def scene_at(self, values: dict[str, float]) -> Scene:
+        """The scene with the fitted parameters set to ``values``."""
         changes = {n: values[n] for n in SCENE_PARAMETERS if n in self.names}
         if "mu" in changes and self.scene.mu_static is not None:
             changes["mu_static"] = max(self.scene.mu_static, changes["mu"])
@@ -309,6 +312,7 @@ class Model:
 
     # ---------------------------------------------------------------- residuals
     def evaluate(self, v: np.ndarray) -> Evaluation:
+        """Simulate every segment from the parameter vector ``v``: residuals and what made them."""
         values = self.values(v)
         scene = self.scene_at(values)
         p = scene.params()
@@ -390,6 +394,7 @@ class Model:
         return Evaluation(out, predicted, defects, omegas, failed)
 
     def residuals(self, v: np.ndarray) -> np.ndarray:
+        """The weighted residuals at the parameter vector ``v``."""
         return self.evaluate(v).residuals
 
     # ---------------------------------------------------------------- structure
@@ -485,4 +490,5 @@ def contact_from_centre(scene: Scene, cx: np.ndarray, cy: np.ndarray) -> np.ndar
 
 
 def wrap(angle: float) -> float:
+    """``angle`` wrapped into [-π, π)."""
     return float((angle + math.pi) % (2 * math.pi) - math.pi)

@@ -47,14 +47,20 @@ def synthetic_tracks(env_id: str = "SaddleTrap-Lab-v0", n_tracks: int = 3,
 
     Parameters
     ----------
-    env_id : a registered level; its ball, motor and latency unless ``options`` change them.
+    env_id
+        A registered level; its ball, motor and latency unless ``options`` change them.
         The air draught and motor ripple are off unless given (a fit's model has neither), the
         ball's size is the fixed ``R`` (not drawn from ``ball_radii``).
-    seconds, fps : each track's length [s] and frame rate [1/s] (1-10,000).
-    position_noise : the camera's noise [m], Gaussian, per coordinate.
-    omega_noise, theta_noise : the tachometer's [rad/s] and the encoder's [rad] noise.
-    columns : the optional columns to write, from ("omega", "voltage", "theta").
-    hold, action_range : the commands: uniform in ``action_range`` (the action, -1 to 1)
+    seconds, fps
+        Each track's length [s] and frame rate [1/s] (1-10,000).
+    position_noise
+        The camera's noise [m], Gaussian, per coordinate.
+    omega_noise, theta_noise
+        The tachometer's [rad/s] and the encoder's [rad] noise.
+    columns
+        The optional columns to write, from ("omega", "voltage", "theta").
+    hold, action_range
+        The commands: uniform in ``action_range`` (the action, -1 to 1)
         held for ``hold`` seconds each.
 
     Returns
@@ -136,6 +142,7 @@ __all__ = ["synthetic_tracks"]
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m saddle_env.calibrate.synthetic``."""
     ap = argparse.ArgumentParser(
         prog="python -m saddle_env.calibrate.synthetic",
         description="Write synthetic track files (one CSV per release) made by a level's "
@@ -161,6 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     from .cli import parse_set
     parser = build_parser()
     args = parser.parse_args(argv)

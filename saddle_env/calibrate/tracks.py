@@ -52,8 +52,30 @@ class Track:
 
     ``x`` and ``y`` hold NaN where tracking lost the ball (`tracked` says where it did not);
     an optional channel is None when the file has no such column, and NaN where a reading is
-    missing. Arrays are float64 and read-only. ``file_lines`` (each row's line in its file) only
-    makes error messages point at lines instead of rows.
+    missing. Arrays are float64 and read-only.
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Frame times [s], increasing.
+    x, y : numpy.ndarray
+        The ball's centre [m], seen from above in the laboratory frame.
+    omega : numpy.ndarray, optional
+        The tachometer's speed [rad/s].
+    voltage : numpy.ndarray, optional
+        The motor's voltage [V].
+    theta : numpy.ndarray, optional
+        The saddle's angle [rad].
+    source : str
+        Where the track came from, for error messages.
+    file_lines : numpy.ndarray, optional
+        Each row's line in its file, so that error messages point at lines, not rows.
+
+    Raises
+    ------
+    TrackError
+        If a required column is missing, the arrays' lengths differ, or the values break the
+        format (docs/reference/tracks.md).
     """
 
     t: np.ndarray
@@ -153,11 +175,24 @@ def _parse_number(text: str, src: str, line: int, name: str) -> float:
 
 
 def read_track(path: str | Path) -> Track:
-    """Read one track file (see the module's docstring for the format).
+    """Read one track file (the format: docs/reference/tracks.md).
 
-    Raises `TrackError` naming the file and line for a missing or unknown column, a row of the
-    wrong width, a cell that is not a number, times that do not increase, an infinite value, a
-    half-lost frame, positions that are not in metres, or a file beyond the size limits.
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file.
+
+    Returns
+    -------
+    Track
+        The track, checked.
+
+    Raises
+    ------
+    TrackError
+        Naming the file and line, for a missing or unknown column, a row of the wrong width, a
+        cell that is not a number, times that do not increase, an infinite value, a half-lost
+        frame, positions that are not in metres, or a file beyond the size limits.
     """
     path = Path(path)
     src = str(path)
@@ -222,7 +257,23 @@ def _parse_rows(rows: Iterable[list[str]], source: str) -> Track:
 
 
 def read_tracks(paths: str | Path | Iterable[str | Path]) -> list[Track]:
-    """Tracks from files, or from every ``*.csv`` in a run folder (sorted by name)."""
+    """Tracks from files, or from every ``*.csv`` in a run folder (sorted by name).
+
+    Parameters
+    ----------
+    paths : str, Path or iterable of them
+        Track files, or a folder of them.
+
+    Returns
+    -------
+    list of Track
+        The tracks, in the order given (a folder's by file name).
+
+    Raises
+    ------
+    TrackError
+        If there are no track files, or one of them breaks the format (`read_track`).
+    """
     if isinstance(paths, (str, Path)):
         p = Path(paths)
         if p.is_dir():
@@ -252,5 +303,20 @@ def format_track(track: Track, comments: Iterable[str] = ()) -> str:
 
 
 def write_track(path: str | Path, track: Track, comments: Iterable[str] = ()) -> Path:
-    """Write a track file whole or not at all (a stop mid-write leaves no half file)."""
+    """Write a track file whole or not at all (a stop mid-write leaves no half file).
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file to write.
+    track : Track
+        The track.
+    comments : iterable of str
+        Comment lines to put at the top of the file.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
     return write_text_atomically(path, format_track(track, comments))

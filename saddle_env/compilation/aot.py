@@ -137,10 +137,12 @@ def unusable(built: Mapping[str, object], here: Mapping[str, str]) -> str | None
 
 
 def flags_key(flags: tuple[str, ...]) -> str:
+    """The manifest's key for a set of CPU ``flags``."""
     return ",".join(flags)
 
 
 def read_manifest() -> dict | None:
+    """The ahead-of-time build's manifest, or None if it is missing or unreadable."""
     try:
         manifest = json.loads((AOT_DIR / MANIFEST).read_text())
     except (OSError, ValueError):

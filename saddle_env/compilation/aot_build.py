@@ -2,8 +2,8 @@
 single env's, the vector env's below 2 x LANES balls on one thread, training's 64, and from
 2 x LANES on numba's threads), its `reset`, a first `simulate`, `simulate_batch` and
 `predict_batch` (a model-predictive controller's look-ahead), as a C extension module per
-set of contact models, so that a fresh process starts without numba's 10-20 s of compiling
-(docs/coldstart.md).
+set of contact models, so that a fresh process starts without numba's compiling (how long
+that takes: docs/coldstart.md).
 
 What is built is numba's own compile of the kernels, not a second implementation: for each
 set of contact models a registered level, a one-model environment or `simulate`, or the ion
@@ -114,7 +114,7 @@ def _release_gil_in_exports() -> None:
     ``nogil`` function: the batch kernels run on several Python threads at once
     (`compilation.threads.in_threads`). pycc compiles every export with one set of compiler flags and
     offers no option for it, so its flags class is given the setting (in this build's worker
-    process only). Releasing and taking back the GIL costs well under a microsecond a call."""
+    process only). Releasing and taking back the GIL is cheap beside a kernel's call."""
     from numba.core.compiler import Flags
     from numba.pycc import compiler
 

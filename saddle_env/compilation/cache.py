@@ -88,7 +88,7 @@ def _imports(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
 def _graph(modules: dict[str, Path], known: dict) -> dict:
     """Each module's own digest and the modules it imports (`_imports`), parsing only the
     files whose content changed since ``known`` (the same record from the stamp): parsing
-    every file took about 0.3 s of each ``import saddle_env``, a third of the import. A new
+    every file was a large part of each ``import saddle_env``. A new
     or removed module re-parses them all (it can change what an import names)."""
     names = hashlib.sha256("\n".join(sorted(modules)).encode()).hexdigest()
     reuse = known.get("modules") == names

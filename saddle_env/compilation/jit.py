@@ -16,7 +16,7 @@ def one_signature(dispatcher):
     compiled code is its own type (``Literal[int](4)`` for COULOMB, ``Literal[bool](True)``):
     `rhs` was compiled six times over for literal and plain models and ``want_normal`` flags,
     `integrate_h` twice, `_event_value` eight times, and each copy pulls in the code below it
-    (measured, docs/coldstart.md). None of these functions needs a constant argument (LLVM
+    (docs/coldstart.md). None of these functions needs a constant argument (LLVM
     still folds a constant at an inlined call), so calls from compiled code are typed
     without the literals, one specialisation each."""
     typed = dispatcher.get_call_template
@@ -51,7 +51,7 @@ def ir_inline(f):
     layer above `integrators.integrate_h` paid for the integrator once more (the
     environment's step had four: docs/coldstart.md). Not for large helpers with several
     call sites: numba types each inlined copy again, and its type inference grows faster
-    than the code (measured: inlining the integrator's helpers made compiling slower)."""
+    than the code (inlining the integrator's helpers made compiling slower)."""
     return one_signature(_ir_inline(f))
 
 
@@ -59,7 +59,7 @@ def jit_per_constant(f):
     """`jit` that keeps numba's compile per constant argument, for a copy loop whose length
     is a constant at each call (`envs._step._load`, `_store`: `ROW_WIDTH` or
     `STATE_WIDTH`): compiled per constant, the loop has a fixed length the compiler unrolls.
-    Typed plain (`one_signature`), the 1024-ball vector env stepped 15 % slower (measured)."""
+    Typed plain (`one_signature`), the vector env steps slower."""
     d: Any = _jit(f)  # Any: carries our own mark, which numba's Dispatcher does not declare
     d._per_constant = True
     return d

@@ -112,6 +112,7 @@ def run_target(target: str) -> float:
 
 
 def usable_cores() -> int:
+    """The cores this process may run on."""
     try:
         return len(os.sched_getaffinity(0))
     except AttributeError:   # not on Linux
@@ -178,6 +179,7 @@ def _build_aot(jobs: int) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m saddle_env.compilation.precompile``."""
     p = argparse.ArgumentParser(prog="python -m saddle_env.compilation.precompile",
                                 description=__doc__.split("\n")[0])
     p.add_argument("targets", nargs="*", metavar="TARGET",
@@ -192,6 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.jobs is not None and args.jobs < 1:

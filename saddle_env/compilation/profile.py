@@ -192,6 +192,7 @@ class CompilePhases:
         self._saved.clear()
 
     def table(self) -> str:
+        """The phases' own CPU seconds and shares as a text table."""
         total = sum(self.seconds.values())
         lines = [f"{'phase (own CPU seconds)':<48} {'s':>6} {'share':>6}"]
         for label, sec in sorted(self.seconds.items(), key=lambda kv: -kv[1]):
@@ -310,6 +311,7 @@ def _isolated(names: list[str]) -> list[tuple[str, float, float]]:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m saddle_env.compilation.profile``."""
     ap = argparse.ArgumentParser(prog="python -m saddle_env.compilation.profile",
                                  description=__doc__.split("\n\n")[0])
     ap.add_argument("scenarios", nargs="*",
@@ -327,6 +329,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     args = build_parser().parse_args(argv)
     # What numba's JIT compiles is measured here: the ahead-of-time build, which a first call
     # would use instead (`saddle_env.compilation.aot`), stays out (also in the --isolated

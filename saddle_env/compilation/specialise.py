@@ -85,8 +85,8 @@ def _copy_of(dispatcher, space: dict, tag: str):
     """A copy of a compiled function whose globals are ``space``, compiled as the original
     (same options, same typing rule), cached on disk under its own name. Only compiled code
     calls a copy unless it is a `python_entry`, so the others are built without numba's
-    wrappers for Python and C callers: those wrappers were a fixed cost of about a tenth of
-    each function's compile, 1.2 s of a rolling level's 11 s first step (docs/coldstart.md)."""
+    wrappers for Python and C callers: those wrappers were a fixed cost in each function's
+    compile (docs/coldstart.md)."""
     f = dispatcher.py_func
     twin = types.FunctionType(f.__code__, space, f.__name__, f.__defaults__, f.__closure__)
     twin.__qualname__ = f"{f.__qualname__}__{tag}"

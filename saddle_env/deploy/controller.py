@@ -57,9 +57,31 @@ class Controller:
 
     @classmethod
     def from_dir(cls, folder: str | os.PathLike, threads: int = 1) -> Controller:
-        """Check the folder (`saddle_env.deploy.folder`: schema, graph, sizes) and load its
-        graph on the CPU with ``threads`` intra- and inter-op threads (default one: the same
-        actions on any machine, and no thread pool to share a small computer's cores)."""
+        """Check an exported folder and load its graph.
+
+        The check is `saddle_env.deploy.folder`'s: schema, graph, sizes. The graph runs on the
+        CPU.
+
+        Parameters
+        ----------
+        folder : str or os.PathLike
+            A folder ``saddle-export`` wrote.
+        threads : int
+            onnxruntime's intra- and inter-op threads; default one: the same actions on any
+            machine, and no thread pool to share a small computer's cores.
+
+        Returns
+        -------
+        Controller
+            The controller.
+
+        Raises
+        ------
+        ValueError
+            If ``threads`` is not a positive integer.
+        PolicyFolderError
+            If the folder fails the check.
+        """
         if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
             raise ValueError(f"threads must be a positive integer, got {threads!r}")
         spec = read_spec(folder)
@@ -110,9 +132,20 @@ class Controller:
         return self._history.copy()
 
     def act(self, observation: Any) -> np.ndarray:
-        """The action for one raw observation ``(observation_dim,)``, or for one frame
-        ``(frame_dim,)`` of a level whose observation is a history, as float32
-        ``(action_dim,)``."""
+        """The action for one raw observation, or for one frame of a level whose observation is a
+        history.
+
+        Parameters
+        ----------
+        observation : array_like
+            ``(observation_dim,)``, or one frame ``(frame_dim,)`` (the controller keeps the
+            level's history).
+
+        Returns
+        -------
+        numpy.ndarray
+            The action, float32 ``(action_dim,)``.
+        """
         obs = np.asarray(observation, dtype=np.float32)
         frame_dim = self.spec.layout["frame_dim"]
         if obs.ndim == 1 and self.spec.layout["frames"] > 1 and obs.shape[0] == frame_dim:
@@ -128,9 +161,29 @@ class Controller:
 
     def predict(self, observation: Any, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:
-        """Stable-Baselines3's ``predict``: actions for one observation or a batch; ``state``
-        is the frame stack (None when the policy stacks no frames). Always deterministic: the
-        exported graph is the policy's deterministic action."""
+        """Stable-Baselines3's ``predict``: actions for one observation or a batch.
+
+        Always deterministic: the exported graph is the policy's deterministic action.
+
+        Parameters
+        ----------
+        observation : array_like
+            One whole observation or a batch of them.
+        state : numpy.ndarray, optional
+            The frame stack, as returned by the previous call (None when the policy stacks no
+            frames).
+        episode_start : array_like, optional
+            True where an episode starts: its frame stack restarts.
+        deterministic : bool
+            Ignored (always deterministic).
+
+        Returns
+        -------
+        actions : numpy.ndarray
+            The actions.
+        state : numpy.ndarray or None
+            The frame stack, for the next call.
+        """
         obs = np.asarray(observation, dtype=np.float32)
         self._check(obs, "observation")
         single = obs.ndim == 1

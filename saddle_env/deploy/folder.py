@@ -171,7 +171,26 @@ def _json_plain(value: Any, depth: int = 0) -> bool:
 
 
 def read_spec(folder: str | os.PathLike, limits: Limits = LIMITS) -> PolicySpec:
-    """``policy.json`` of ``folder``, checked field by field (see the module)."""
+    """``policy.json`` of ``folder``, checked field by field (see the module).
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        A folder ``saddle-export`` wrote.
+    limits : Limits
+        The size limits the folder must keep to.
+
+    Returns
+    -------
+    PolicySpec
+        The folder's description of the policy.
+
+    Raises
+    ------
+    PolicyFolderError
+        Naming the folder and the field, if the file is missing, too large, not JSON, or a
+        field is missing or out of range.
+    """
     folder = Path(folder)
     path = folder / POLICY_JSON
     try:

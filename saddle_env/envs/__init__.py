@@ -9,6 +9,7 @@ ENV_ID = "SaddleTrap-v0"  # the calm level, the default of every tool
 
 
 def register() -> None:
+    """Register the task levels with Gymnasium (``import saddle_env`` does it)."""
     from .levels import register_levels
 
     register_levels()

@@ -377,8 +377,7 @@ def _coulomb_balls(lo, hi, models, P, scales, Y, balls, cfg, actions, active, ta
     """Step the active coulomb balls lo..hi-1 on the scalar path (a phase may change inside a
     step), whole state rows; return how many failed. A loop of their own: handling them in
     the loop over the other balls, with a longer row copy behind a branch, made the
-    environment's step 30-40 % slower for the other balls (20 steps of 1024 rolling balls:
-    10.2-11.8 ms against 7.7-8.4; measured)."""
+    environment's step slower for the other balls."""
     failed = 0
     for i in range(lo, hi):
         if not COULOMB_ON or not active[i] or models[i] != COULOMB:  # `compilation.specialise`
@@ -547,7 +546,7 @@ def step_parallel(models, P, scales, Y, balls, cfg, actions, active, tab_fields,
 def _observe_into(model, p, y, ball, cfg, noise, obs, row):
     """`observe_one` into the float32 observation row ``obs`` through the float64 ``row``,
     as the step observes into its float64 record (`_finish`): one compiled `observe_one`
-    for both (a float32 row was a second specialisation, ~5 % of the environment's compile
+    for both (a float32 row was a second specialisation, adding to the environment's compile
     time; the values are the same, rounded to float32 on the copy instead of the store)."""
     observe_one(model, p, y, ball, cfg, noise, row)
     for k in range(obs.shape[0]):

@@ -167,6 +167,7 @@ def plot(sweep: list[dict[str, float]], path: Path) -> bool:
 
 
 def run(args: argparse.Namespace) -> dict[str, object]:
+    """Measure the environments' throughput as ``args`` asks; returns the results."""
     res = _Results(args.out)
     print("single env through gym.make ...", flush=True)
     cartpole = _single_rate("CartPole-v1", 0, args.seconds)
@@ -206,6 +207,7 @@ def run(args: argparse.Namespace) -> dict[str, object]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     ap = argparse.ArgumentParser(prog="python -m saddle_env.envs.benchmark",
                                  description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=3.0, help="timing window per measurement")

@@ -296,6 +296,13 @@ class EnvConfig:
 
     @classmethod
     def from_kwargs(cls, **kwargs: object) -> EnvConfig:
+        """The configuration from keyword options (``gym.make``'s), each checked.
+
+        Raises
+        ------
+        ValueError
+            On an unknown option or a value outside its range.
+        """
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(kwargs) - known)
         if unknown:
@@ -311,6 +318,7 @@ class EnvConfig:
         return self.omega_max * self.rim_radius
 
     def as_dict(self) -> dict[str, Any]:
+        """Every option and its value."""
         return asdict(self)
 
     def voltage_of_action(self, action: Any) -> Any:
@@ -346,6 +354,7 @@ class EnvConfig:
         return Scene(**kw)
 
     def extreme_scenes(self) -> list[Scene]:
+        """The scenes at the corners of the randomised ranges (radii, saddle shapes, contact models)."""
         radii = self.ball_radii or (self.R,)
         a_values = self.a_range or (self.a,)
         models = self.contact_models or (self.contact,)

@@ -539,6 +539,7 @@ class TrapEngine:
 
     # -- views ---------------------------------------------------------------------------
     def cause(self, i: int | np.integer) -> str | None:
+        """How ball ``i``'s episode ended ("detach", "escape"), or None while it runs."""
         return EVENT_KINDS.get(int(self.out[i, S.O_STATUS]))
 
 
@@ -590,6 +591,13 @@ def check_reset_start(opts: ResetOptions, c: EnvConfig) -> None:
 
 
 def check_reset_omega(opts: ResetOptions, omega_max: float) -> None:
+    """Check the reset option ``omega`` against [0, ``omega_max``].
+
+    Raises
+    ------
+    ValueError
+        If it lies outside.
+    """
     if "omega" in opts and not 0 <= float(opts["omega"]) <= omega_max:
         raise ValueError(f"reset option 'omega' must lie in [0, omega_max = {omega_max}], "
                          f"got {opts['omega']}")

@@ -22,7 +22,26 @@ DEFAULT_EPISODE_STEPS = 500  # 10 s at the default 20 ms control period
 @dataclass(frozen=True)
 class Level:
     """One registered task: its id, a one-line summary, what it models and why it is hard,
-    and the `EnvConfig` options that define it (everything else at its default)."""
+    and the `EnvConfig` options that define it (everything else at its default).
+
+    Parameters
+    ----------
+    id : str
+        The Gymnasium id, e.g. ``"SaddleTrap-Storm-v0"``.
+    summary : str
+        One line on what the level is.
+    models : str
+        What of a real saddle it models.
+    why_hard : str
+        What makes it hard for a controller.
+    options : Mapping
+        The `EnvConfig` options that differ from the defaults.
+    max_episode_steps : int
+        The episode length in control steps.
+    reward_threshold : float or None
+        Gymnasium's "solved" marker: the model-predictive controller's mean return on the
+        level's test set (docs/levels.md).
+    """
 
     id: str
     summary: str
@@ -180,7 +199,23 @@ LEVEL_IDS: tuple[str, ...] = tuple(level.id for level in LEVELS)
 
 
 def get_level(env_id: str) -> Level:
-    """The registered level ``env_id``; a clear error naming the known ids otherwise."""
+    """The registered level ``env_id``.
+
+    Parameters
+    ----------
+    env_id : str
+        A level's Gymnasium id (one of ``saddle_env.LEVELS``).
+
+    Returns
+    -------
+    Level
+        The level.
+
+    Raises
+    ------
+    ValueError
+        If no level has that id; the message lists the known ids.
+    """
     for level in LEVELS:
         if level.id == env_id:
             return level
@@ -188,7 +223,25 @@ def get_level(env_id: str) -> Level:
 
 
 def level_config(env_id: str, **overrides: Any) -> EnvConfig:
-    """The resolved options of level ``env_id`` with keyword ``overrides``."""
+    """The resolved options of level ``env_id`` with keyword ``overrides``.
+
+    Parameters
+    ----------
+    env_id : str
+        A level's Gymnasium id.
+    **overrides
+        `EnvConfig` options on top of the level's.
+
+    Returns
+    -------
+    EnvConfig
+        The checked configuration.
+
+    Raises
+    ------
+    ValueError
+        On an unknown level, an unknown option or a value outside its range.
+    """
     return get_level(env_id).config(**overrides)
 
 

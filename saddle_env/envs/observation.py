@@ -66,6 +66,7 @@ class ObsLayout:
 
     @property
     def dim(self) -> int:
+        """The observation's length: one frame's times the frames stacked."""
         return self.frame_dim * self.frames
 
     def speed(self, obs: np.ndarray, omega_max: float) -> np.ndarray:
@@ -77,6 +78,7 @@ class ObsLayout:
         return None if self.command is None else np.asarray(obs)[..., self.command] * omega_max
 
     def angle_cos_sin(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """The saddle angle's (cos, sin) columns of a batch, or None if the layout has none."""
         if self.cos is None:
             return None
         obs = np.asarray(obs)

@@ -23,6 +23,8 @@ BACKGROUND = (250, 250, 247)
 
 
 class SaddleRenderer:
+    """Draws the saddle, the ball and its trail with pygame, to an array or a window."""
+
     def __init__(self, config: EnvConfig, mode: str):
         try:
             import pygame
@@ -51,6 +53,7 @@ class SaddleRenderer:
         self.spokes = np.linspace(0, 2 * math.pi, 16, endpoint=False)
 
     def clear(self) -> None:
+        """Forget the ball's trail (a new episode)."""
         self.trail.clear()
 
     # -- projection ------------------------------------------------------------------------
@@ -69,6 +72,7 @@ class SaddleRenderer:
 
     # -- drawing ---------------------------------------------------------------------------
     def draw(self, scene, y: np.ndarray, ball: np.ndarray, obs: np.ndarray):
+        """Draw one frame; returns it as an RGB array in "rgb_array" mode."""
         pg = self.pg
         surf = self.surface
         surf.fill(BACKGROUND)
@@ -134,6 +138,7 @@ class SaddleRenderer:
         return np.transpose(pg.surfarray.array3d(surf), (1, 0, 2)).copy()
 
     def close(self) -> None:
+        """Close the window, if one is open."""
         if self.window is not None:
             self.pg.display.quit()
             self.window = None

@@ -19,6 +19,7 @@ if TYPE_CHECKING:
 
 
 def action_space() -> spaces.Box:
+    """The action space of every level: one number in [-1, 1]."""
     return spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
 
 
@@ -103,10 +104,18 @@ class SaddleTrapEnv(gym.Env):
     at the end of the step), ``trapped_fraction``; when terminated, ``cause``
     ("detach" | "escape") and ``event_time`` (s since the episode started, located to 1e-12 s).
 
-    ## Arguments
-    Every field of `saddle_env.envs.EnvConfig` is a keyword, e.g.
-    ``gym.make("SaddleTrap-v0", R=0.033, contact="slipping", action_mode="target")``;
-    plus ``render_mode`` (``"rgb_array"`` or ``"human"``).
+    Parameters
+    ----------
+    render_mode : {"rgb_array", "human"}, optional
+        How `render` draws: to an array, or to a window.
+    **kwargs
+        Every field of `saddle_env.envs.EnvConfig` is a keyword, e.g.
+        ``gym.make("SaddleTrap-v0", R=0.033, contact="slipping", action_mode="target")``.
+
+    Raises
+    ------
+    ValueError
+        On an unknown option, a value outside its range, or an unknown render mode.
     """
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 50}
@@ -138,9 +147,27 @@ class SaddleTrapEnv(gym.Env):
 
     @property
     def omega(self) -> float:
+        """The saddle's speed Ω [rad/s] now."""
         return float(self.engine.balls[0, S.B_OMEGA])
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """Start an episode.
+
+        Parameters
+        ----------
+        seed : int, optional
+            Seeds the episode's random draws (release, randomised parameters, noise).
+        options : dict, optional
+            Places the ball exactly instead of at random (keys as in the class's "Starting
+            state" above).
+
+        Returns
+        -------
+        observation : numpy.ndarray
+            The first observation.
+        info : dict
+            As described under "Info" above.
+        """
         super().reset(seed=seed)
         self.engine.reset(np.array([0]), [self.np_random], options)
         self._needs_reset = False
@@ -151,6 +178,31 @@ class SaddleTrapEnv(gym.Env):
         return self.engine.obs[0].copy(), self._info(False)
 
     def step(self, action):
+        """Apply ``action`` for one control period.
+
+        Parameters
+        ----------
+        action : array_like
+            One number in [-1, 1] (its meaning depends on ``action_mode``).
+
+        Returns
+        -------
+        observation : numpy.ndarray
+            The observation at the end of the period.
+        reward : float
+            The period's reward.
+        terminated : bool
+            True if the ball detached or escaped.
+        truncated : bool
+            Always False; ``gym.make``'s time limit truncates.
+        info : dict
+            As described under "Info" above.
+
+        Raises
+        ------
+        RuntimeError
+            If the episode has ended or not begun (call `reset`).
+        """
         if self._needs_reset:
             raise RuntimeError("call reset() before step() (the episode has ended or not begun)")
         a = check_actions(action, 1, self._action)
@@ -175,6 +227,14 @@ class SaddleTrapEnv(gym.Env):
         return info
 
     def render(self):
+        """Draw the current frame.
+
+        Returns
+        -------
+        numpy.ndarray or None
+            An RGB array in "rgb_array" mode; None in "human" mode (it draws to a window) or
+            without a render mode.
+        """
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' "
                             "or 'human' to gym.make")
@@ -186,6 +246,7 @@ class SaddleTrapEnv(gym.Env):
                                    self.engine.obs[0])
 
     def close(self):
+        """Close the render window, if one is open."""
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None

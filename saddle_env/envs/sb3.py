@@ -27,6 +27,15 @@ class SaddleTrapSB3VecEnv(VecEnv):
     """``num_envs`` SaddleTrap balls as an SB3 ``VecEnv``; options as `SaddleTrapEnv`.
 
     Seeding follows SB3: ``seed(s)`` then ``reset()`` seeds ball i with ``s + i``.
+
+    Parameters
+    ----------
+    num_envs : int
+        The number of balls.
+    max_episode_steps : int or None
+        The episode length in control steps (None: no limit).
+    **kwargs
+        `EnvConfig` options, as for ``gym.make``.
     """
 
     def __init__(self, num_envs: int = 1, max_episode_steps: int | None = DEFAULT_EPISODE_STEPS,
@@ -42,6 +51,7 @@ class SaddleTrapSB3VecEnv(VecEnv):
         self._action_buf = np.zeros(self.num_envs)
 
     def reset(self):
+        """Reset every ball; returns the observations (SB3's VecEnv API)."""
         for i, s in enumerate(self._seeds):
             if s is not None:
                 self._rngs[i] = seeding.np_random(s)[0]
@@ -53,9 +63,11 @@ class SaddleTrapSB3VecEnv(VecEnv):
         return self.engine.obs.copy()
 
     def step_async(self, actions: np.ndarray) -> None:
+        """Take the actions of the next `step_wait`, checked."""
         self._actions = check_actions(actions, self.num_envs, self._action_buf).copy()
 
     def step_wait(self):
+        """Step every ball; a finished ball restarts at once (SB3's VecEnv API)."""
         e = self.engine
         e.step(self._actions, self._active, self._rngs)
         self._steps += 1
@@ -81,6 +93,7 @@ class SaddleTrapSB3VecEnv(VecEnv):
         return obs, rewards, dones, infos
 
     def close(self) -> None:
+        """Nothing to close: the balls hold no resources."""
         pass
 
     # -- the VecEnv attribute protocol: the balls share one config -------------------------
@@ -92,6 +105,7 @@ class SaddleTrapSB3VecEnv(VecEnv):
         return list(indices)
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        """The attribute ``attr_name`` of the balls ``indices`` (they share one configuration)."""
         if attr_name == "render_mode":
             return [None for _ in self._indices(indices)]
         if attr_name == "scene":
@@ -100,15 +114,31 @@ class SaddleTrapSB3VecEnv(VecEnv):
         return [value for _ in self._indices(indices)]
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        """Not available: the options are fixed at construction.
+
+        Raises
+        ------
+        AttributeError
+            Always.
+        """
         raise AttributeError("SaddleTrapSB3VecEnv options are fixed at construction; "
                              "build a new one to change them")
 
     def env_method(self, method_name: str, *method_args, indices: VecEnvIndices = None,
                    **method_kwargs) -> list[Any]:
+        """Not available: the balls have no methods of their own.
+
+        Raises
+        ------
+        AttributeError
+            Always.
+        """
         raise AttributeError(f"SaddleTrapSB3VecEnv has no per-ball method {method_name!r}")
 
     def env_is_wrapped(self, wrapper_class, indices: VecEnvIndices = None) -> list[bool]:
+        """False for every ball: no ball is wrapped."""
         return [False for _ in self._indices(indices)]
 
     def get_images(self) -> Sequence[np.ndarray | None]:
+        """None for every ball: the balls do not render."""
         return [None for _ in range(self.num_envs)]

@@ -64,6 +64,25 @@ class SaddleTrapVectorEnv(VectorEnv):
     ``reset(options={"reset_mask": mask, ...})`` resets only the balls where ``mask`` (a
     bool array of shape ``(num_envs,)``) is True, in any mode; other keys place them
     exactly, as in `SaddleTrapEnv`.
+
+    Parameters
+    ----------
+    num_envs : int
+        The number of balls.
+    max_episode_steps : int or None
+        The episode length in control steps (None: no time limit).
+    render_mode : {"rgb_array"}, optional
+        `render` draws ball 0 to an array.
+    autoreset_mode : AutoresetMode or str
+        What happens after a ball's episode ends (above).
+    **kwargs
+        `EnvConfig` options, as for ``gym.make``.
+
+    Raises
+    ------
+    ValueError
+        On an unknown option, a value outside its range, a bad ``max_episode_steps`` or
+        ``render_mode``.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": ["rgb_array"],
@@ -104,6 +123,28 @@ class SaddleTrapVectorEnv(VectorEnv):
 
     def reset(self, *, seed: int | list[int | None] | None = None,
               options: dict[str, Any] | None = None):
+        """Start episodes for every ball, or the balls of ``options["reset_mask"]``.
+
+        Parameters
+        ----------
+        seed : int or list of (int or None), optional
+            An int ``s`` seeds ball i with ``s + i``; a list gives each ball its own seed.
+        options : dict, optional
+            ``reset_mask`` (a bool array of shape ``(num_envs,)``) picks the balls to reset;
+            other keys place them exactly, as in `SaddleTrapEnv.reset`.
+
+        Returns
+        -------
+        observations : numpy.ndarray
+            Shape ``(num_envs, obs_dim)``.
+        infos : dict
+            Gymnasium's vector infos.
+
+        Raises
+        ------
+        ValueError
+            On a list of the wrong length or a malformed ``reset_mask``.
+        """
         if isinstance(seed, (int, np.integer)):
             seeds: list[int | None] = [int(seed) + i for i in range(self.num_envs)]
         elif seed is None:
@@ -141,6 +182,32 @@ class SaddleTrapVectorEnv(VectorEnv):
         return mask.copy()
 
     def step(self, actions):
+        """Apply one action per ball for one control period.
+
+        Parameters
+        ----------
+        actions : array_like
+            Shape ``(num_envs,)`` or ``(num_envs, 1)``, each in [-1, 1].
+
+        Returns
+        -------
+        observations : numpy.ndarray
+            Shape ``(num_envs, obs_dim)``.
+        rewards : numpy.ndarray
+            One per ball.
+        terminations : numpy.ndarray
+            True where the ball detached or escaped.
+        truncations : numpy.ndarray
+            True where the episode reached ``max_episode_steps``.
+        infos : dict
+            Gymnasium's vector infos.
+
+        Raises
+        ------
+        RuntimeError
+            Before every ball was reset, or, with ``autoreset_mode`` DISABLED, while a finished
+            ball waits for its reset.
+        """
         if not self._started:
             never = np.flatnonzero(~self._placed).tolist()
             raise RuntimeError(f"call reset() before step() (balls {never} were never reset)")
@@ -221,6 +288,7 @@ class SaddleTrapVectorEnv(VectorEnv):
         return (self._renderer.draw(e.scenes[0], e.Y[0], e.balls[0], e.obs[0]),)
 
     def close_extras(self, **kwargs: Any) -> None:
+        """Close the renderer, if one is open."""
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None

@@ -28,6 +28,7 @@ SADDLE = (2.67, 2.51)  # the lab's P2, c₊ and c₋ [1/m]
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The parsed command line of ``python -m saddle_env.lifetimes.bench``."""
     p = argparse.ArgumentParser(prog="python -m saddle_env.lifetimes.bench",
                                 description="Time one lifetime curve (15 speeds × 24 releases) "
                                             "at several integrator tolerances.")
@@ -42,6 +43,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     args = parse_args(argv)
     model, _ = load_calibration()
     times: dict[float, list[float]] = {tol: [] for tol in TOLERANCES}

@@ -15,6 +15,7 @@ from .model import DIAMETER_RANGE_MM, MAX_RELEASES, OBJECTS, predict_lifetimes
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``saddle-lifetimes``."""
     p = argparse.ArgumentParser(
         prog="saddle-lifetimes",
         description="Predict mean trapping times on a real rotating saddle z = c+ x^2 - c- y^2 "
@@ -46,6 +47,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.seed < 0:

@@ -64,8 +64,23 @@ class Series:
 
 
 def load_lab_series(path: str | Path | None = None) -> list[Series]:
-    """The lab's series (the shipped file by default), in the file's order. A file that is
-    not the lab's layout gets a ValueError naming what is wrong."""
+    """The lab's series of releases, in the file's order.
+
+    Parameters
+    ----------
+    path : str or Path, optional
+        A lifetimes CSV file in the lab's layout; default the shipped one.
+
+    Returns
+    -------
+    list of Series
+        One day's releases of one object on one saddle each.
+
+    Raises
+    ------
+    ValueError
+        If the file is not in the lab's layout, naming what is wrong.
+    """
     if path is None:
         text = resources.files(__package__).joinpath(LAB_FILE).read_text(encoding="utf-8")
     else:

@@ -69,6 +69,7 @@ class Choice:
     objective: float
 
     def model(self) -> LabModel:
+        """The lab model with these parameters."""
         finite = math.isfinite(self.evaporation_mean)
         return LabModel(tilt=self.tilt, launch_spread=self.launch_spread,
                         launch_speed_spread=self.launch_speed_spread,
@@ -79,6 +80,7 @@ class Choice:
                         if finite else 0.0)
 
     def point(self, obj: str) -> G.Point:
+        """The grid point of the object ``obj`` ("steel" or a liquid-nitrogen drop)."""
         own = ((self.rolling_resistance, self.rolling_drag) if obj == "steel"
                else (self.film_drag, 0.0))
         return (self.tilt, self.launch_spread, self.launch_speed_spread, *own)
@@ -123,6 +125,7 @@ class Fitter:
 
     def curve(self, i: int, point: G.Point,
               evaporation: tuple[float, float] = (math.inf, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+        """Series ``i``'s predicted curve at grid ``point`` (cached)."""
         key = (i, point, evaporation if self.series[i].obj == "ln2" else None)
         if key not in self._curves:
             self._curves[key] = curve(G.escapes_of(self.table, i, point), self.series[i].obj,
@@ -176,6 +179,7 @@ class Fitter:
         return best
 
     def predicted(self, i: int, choice: Choice) -> np.ndarray:
+        """Series ``i``'s predicted mean trapping times under ``choice``."""
         s = self.series[i]
         return self.curve(i, choice.point(s.obj),
                           (choice.evaporation_mean, choice.evaporation_fraction))[0]
@@ -193,6 +197,7 @@ def theory_threshold(s: Series, g: float = 9.81) -> float:
 
 
 def bootstrap(fitter: Fitter, draws: int, seed: int) -> list[Choice]:
+    """The fit repeated on ``draws`` resamplings of the lab's releases."""
     rng = np.random.default_rng(seed)
     everything = list(range(len(fitter.series)))
     out = []
@@ -242,6 +247,7 @@ def _interval(values: list[float]) -> list[float | None]:
 
 def calibration_record(fitter: Fitter, best: Choice, draws: list[Choice], releases: int,
                        seed: int) -> dict[str, object]:
+    """The calibration as ``calibration.json`` holds it: the best fit and bootstrap intervals."""
     names = ("tilt", "launch_spread", "launch_speed_spread", "rolling_resistance",
              "rolling_drag", "film_drag", "evaporation_mean")
     intervals = {n: _interval([getattr(c, n) for c in draws]) for n in names} if draws else {}
@@ -270,6 +276,7 @@ def calibration_record(fitter: Fitter, best: Choice, draws: list[Choice], releas
 
 
 def write_validation(rows: list[dict[str, object]], out: Path) -> None:
+    """Write the validation ``rows`` to ``out`` as JSON and CSV."""
     write_text_atomically(out / "validation.json", json.dumps(rows, indent=1) + "\n")
     keys = ("series", "variant", "lab_onset_rps", "theory_threshold_rps", "onset_rps",
             "lab_cutoff_rps", "cutoff_rps", "median_abs_log_ratio", "max_predicted_s")
@@ -281,6 +288,7 @@ def write_validation(rows: list[dict[str, object]], out: Path) -> None:
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """The parsed command line of ``python -m saddle_env.lifetimes.fit``."""
     p = argparse.ArgumentParser(
         prog="python -m saddle_env.lifetimes.fit",
         description="Calibrate the real-saddle model on the lab's series (grid fit, bootstrap "
@@ -306,6 +314,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     args = parse_args(argv)
     series = load_lab_series()
     table = G.simulate_grid(series, args.out, releases=args.releases, seed=args.seed,

@@ -28,8 +28,8 @@ from .model import LabModel, release_times
 # effect alone are points of it. A droplet's evaporation (mean [s], spread as a fraction of
 # the mean) is chosen afterwards, without simulating again.
 TILTS = (0.0, 1e-3, 2e-3, 3e-3, 4e-3)
-LAUNCH_SPREADS = (1e-3, 2e-3, 3e-3)
-LAUNCH_SPEED_SPREADS = (0.0, 0.01)
+LAUNCH_SPREADS = (5e-4, 1e-3, 2e-3, 3e-3)
+LAUNCH_SPEED_SPREADS = (0.0, 0.01, 0.02)
 ROLLING_RESISTANCES = (0.0, 5e-4, 1e-3, 1.5e-3)
 ROLLING_DRAGS = (0.0, 0.03, 0.05, 0.07, 0.1)
 FILM_DRAGS = (0.0, 0.2, 0.3, 0.4, 0.5, 0.6)
@@ -40,10 +40,12 @@ Point = tuple[float, float, float, float, float]
 
 
 def shared_points() -> list[tuple[float, float, float]]:
+    """The grid of the parameters every object shares (tilt and the launcher's spreads)."""
     return list(itertools.product(TILTS, LAUNCH_SPREADS, LAUNCH_SPEED_SPREADS))
 
 
 def own_points(obj: str) -> list[tuple[float, float]]:
+    """The grid of the object ``obj``'s own dissipation parameters."""
     if obj == "steel":
         return list(itertools.product(ROLLING_RESISTANCES, ROLLING_DRAGS))
     return [(d, 0.0) for d in FILM_DRAGS]
@@ -112,4 +114,5 @@ def _save(path: Path, arrays: dict[str, np.ndarray]) -> None:
 
 
 def escapes_of(table: dict[str, np.ndarray], index: int, point: Point) -> np.ndarray:
+    """Series ``index``'s simulated escape times at grid ``point``."""
     return table[_key(index, point)]

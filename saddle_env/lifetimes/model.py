@@ -123,8 +123,21 @@ class LabModel:
 
 @dataclass(frozen=True)
 class LifetimePrediction:
-    """Predicted trapping times: per speed, the mean and standard deviation over the
-    releases [s], each release's time (speeds × releases), and the model that made them."""
+    """Predicted trapping times, per speed, and the model that made them.
+
+    Parameters
+    ----------
+    rps : numpy.ndarray
+        The saddle's speeds [revolutions per second].
+    mean_s : numpy.ndarray
+        Per speed, the mean trapping time over the releases [s].
+    std_s : numpy.ndarray
+        Per speed, the standard deviation over the releases [s].
+    lifetimes : numpy.ndarray
+        Each release's trapping time [s], shape (speeds, releases).
+    model : dict
+        The model's parameters, as ``--json`` prints them.
+    """
 
     rps: np.ndarray
     mean_s: np.ndarray
@@ -240,8 +253,15 @@ def lifetimes_of(model: LabModel, obj: str, escapes: np.ndarray, seed: int) -> n
 
 
 def load_calibration() -> tuple[LabModel, dict[str, object]]:
-    """The shipped calibration (`saddle_env.lifetimes.fit` writes it): the model and the
-    record of how it was fitted."""
+    """The shipped calibration (`saddle_env.lifetimes.fit` writes it).
+
+    Returns
+    -------
+    model : LabModel
+        The calibrated model.
+    record : dict
+        How it was fitted: the fit's settings, the objective and the bootstrap intervals.
+    """
     text = resources.files(__package__).joinpath(CALIBRATION_FILE).read_text(encoding="utf-8")
     record = json.loads(text)
     known = {f.name for f in fields(LabModel)}

@@ -68,6 +68,7 @@ def _growth(roots: np.ndarray) -> float:
 
 
 def fig_analogy(ctx: Context) -> None:
+    """Draw the ion-trap analogy figure (the module's docstring) into ``ctx``'s folder."""
     import matplotlib.pyplot as plt
 
     g = 9.8

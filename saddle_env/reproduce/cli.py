@@ -58,6 +58,7 @@ def _names(value: str) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``saddle-reproduce``."""
     ap = _Parser(
         prog="saddle-reproduce",
         description="Regenerate the seed paper's quantitative figures (PNG + CSV) and its key "

@@ -43,6 +43,8 @@ CONVENTION = ("none for the theory; the simulation releases the ball on the line
 
 @dataclass(frozen=True)
 class Panel:
+    """One panel of the figure: its scene, speed range and the speeds simulated."""
+
     key: str                    # CSV and summary name
     title: str
     scene: Scene                # drag-free; each level sets drag_linear
@@ -106,6 +108,7 @@ def simulated_growth_rate(scene: Scene, omega: float, window: float) -> float:
 
 
 def fig_damping(ctx: Context) -> None:
+    """Draw the damping figure (the module's docstring) into ``ctx``'s folder."""
     import matplotlib.pyplot as plt
 
     window = QUICK_WINDOW if ctx.quick else SIM_WINDOW

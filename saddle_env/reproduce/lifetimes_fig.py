@@ -23,6 +23,7 @@ QUICK_T_MAX = 20.0  # [s] quick runs keep a trapped ball this long, not the mode
 
 
 def fig_lifetimes(ctx: Context) -> None:
+    """Draw the real-saddle lifetimes figure (the module's docstring) into ``ctx``'s folder."""
     model, record = load_calibration()
     releases = QUICK_RELEASES if ctx.quick else RELEASES
     if ctx.quick:

@@ -31,7 +31,7 @@ part is Newton's law for the centre and its normal part would require ṅ × ċ 
 false; the variant is therefore implemented for rolling balls only.
 
 Everything here is plain numpy, vectorised over a leading batch axis, and integrated with
-`scipy.integrate.solve_ivp` (DOP853). A right-hand side costs about 0.2 ms whether for one
+`scipy.integrate.solve_ivp` (DOP853). A right-hand side costs about the same whether for one
 ball or a few hundred stacked ones, so this serves single comparison runs (`simulate_paper`)
 and small stacked sweeps (`feasible_paper`), not the product's sweeps.
 """

@@ -16,6 +16,7 @@ from .simulated import DEFAULT_LEVEL, SimulatedRig
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m saddle_env.rig``."""
     p = argparse.ArgumentParser(
         prog="python -m saddle_env.rig",
         description="Run a controller on a simulated rig (a level's physics in wall-clock "
@@ -54,6 +55,7 @@ def _fmt(stats: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
     args = build_parser().parse_args(argv)
     if args.voltage is not None and not math.isfinite(args.voltage):
         raise SystemExit(f"--voltage must be a finite number of volts, got {args.voltage}")

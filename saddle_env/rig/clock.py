@@ -14,23 +14,28 @@ from typing import Protocol, runtime_checkable
 class Clock(Protocol):
     """What the loop needs of a clock: the time [s] and a sleep until a time on it."""
 
-    def now(self) -> float: ...
+    def now(self) -> float:
+        """The time [s]."""
 
-    def sleep_until(self, t: float) -> None: ...
+    def sleep_until(self, t: float) -> None:
+        """Return at the time ``t`` [s] (at once if it has passed)."""
 
 
 class MonotonicClock:
     """Wall-clock time from `time.monotonic` (never jumps backwards)."""
 
     def now(self) -> float:
+        """The time [s]."""
         return time.monotonic()
 
     def sleep_until(self, t: float) -> None:
+        """Sleep until the time ``t`` [s]."""
         wait = t - time.monotonic()
         if wait > 0:
             time.sleep(wait)
 
     def sleep(self, seconds: float) -> None:
+        """Sleep ``seconds`` [s]."""
         time.sleep(max(0.0, seconds))
 
 
@@ -46,14 +51,17 @@ class VirtualClock:
         self._lock = threading.Lock()
 
     def now(self) -> float:
+        """The time [s]."""
         with self._lock:
             return self._now
 
     def sleep_until(self, t: float) -> None:
+        """Move the time to ``t`` [s], at once (never backwards)."""
         with self._lock:
             self._now = max(self._now, float(t))
 
     def sleep(self, seconds: float) -> None:
+        """Move the time on by ``seconds`` [s], at once."""
         with self._lock:
             self._now += max(0.0, float(seconds))
 

@@ -25,12 +25,20 @@ from typing import NamedTuple, Protocol, runtime_checkable
 class Frame(NamedTuple):
     """One camera frame with the readings of the same moment.
 
-    ``t`` [s]: when the picture was taken, on the loop's clock (a frame read now shows the
-    ball at ``t``, the camera's latency ago); ``x``, ``y`` [m]: the ball's centre seen from
-    above in the laboratory frame, origin on the saddle's axis (NaN: tracking lost the ball);
-    ``omega`` [rad/s]: the tachometer; ``theta`` [rad]: the saddle's angle from an encoder,
-    or None without one (the loop needs it for levels that observe in the rotating frame or
-    observe the angle, as the Lab level does)."""
+    Parameters
+    ----------
+    t : float
+        When the picture was taken [s], on the loop's clock (a frame read now shows the ball
+        at ``t``, the camera's latency ago).
+    x, y : float
+        The ball's centre [m] seen from above in the laboratory frame, origin on the saddle's
+        axis (NaN: tracking lost the ball).
+    omega : float
+        The tachometer's speed [rad/s].
+    theta : float or None
+        The saddle's angle [rad] from an encoder, or None without one (the loop needs it for
+        levels that observe in the rotating frame or observe the angle, as the Lab level does).
+    """
 
     t: float
     x: float

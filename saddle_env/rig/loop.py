@@ -71,20 +71,42 @@ def run(rig: Rig, controller: Any, seconds: float, period: float | None = None, 
 
     Parameters
     ----------
-    rig : a `Rig` (`SimulatedRig`, or your camera and motor driver: docs/how-to/rig.md).
-    controller : ``act(observation)`` (`saddle_env.deploy.Controller`), SB3's ``predict``
+    rig
+        A `Rig` (`SimulatedRig`, or your camera and motor driver: docs/how-to/rig.md).
+    controller
+        ``act(observation)`` (`saddle_env.deploy.Controller`), SB3's ``predict``
         (``mpc`` from `agents.control.mpc`, an SB3 model) or a callable; see
         `saddle_env.rig.observe.as_policy`. It sees the level's observation.
-    seconds : the run's length on the loop's clock, (0, 86400].
-    period : the control period [s]; default the level's ``control_period`` (20 ms).
-    config : the level the controller was made for: an id or an `EnvConfig` in voltage mode
+    seconds
+        The run's length on the loop's clock, (0, 86400].
+    period
+        The control period [s]; default the level's ``control_period`` (20 ms).
+    config
+        The level the controller was made for: an id or an `EnvConfig` in voltage mode
         (default the rig's ``config`` attribute, else the Lab level).
-    log_dir : where the tracks, periods.tsv and summary.json go (None: nothing written).
-    releases : stop after this many releases (default: as many as fit in ``seconds``).
-    lost_after : seconds of frames without the ball that end a release.
-    clock : the loop's clock (default the rig's ``clock`` attribute, else `time.monotonic`).
-    progress : called with a line of text at the end of each release and every few seconds
+    log_dir
+        Where the tracks, periods.tsv and summary.json go (None: nothing written).
+    releases
+        Stop after this many releases (default: as many as fit in ``seconds``).
+    lost_after
+        Seconds of frames without the ball that end a release.
+    clock
+        The loop's clock (default the rig's ``clock`` attribute, else `time.monotonic`).
+    progress
+        Called with a line of text at the end of each release and every few seconds
         (e.g. ``print``).
+
+    Returns
+    -------
+    dict
+        The run's summary (as ``summary.json`` holds it): its settings, the releases and
+        the deadlines missed.
+
+    Raises
+    ------
+    ValueError
+        If ``seconds``, ``releases`` or ``lost_after`` is out of range, or the level is not
+        in voltage mode.
     """
     cfg = _resolve_config(rig, config, period)
     T = cfg.control_period

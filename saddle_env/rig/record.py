@@ -86,6 +86,7 @@ class RunRecorder:
 
     # -- during a release ----------------------------------------------------------------
     def start_release(self, t: float) -> None:
+        """Open a new release of the ball at time ``t``."""
         self._release = {"index": len(self.releases) + 1, "start": t, "end": None,
                          "seconds": None, "periods": 0, "misses": 0, "skipped": 0,
                          "frames": 0, "cause": None, "file": None}
@@ -99,12 +100,14 @@ class RunRecorder:
             self._frames.append(frame)
 
     def wrote(self, t: float, voltage: float) -> None:
+        """Record a write of ``voltage`` to the motor at time ``t``."""
         self.writes_t.append(t)
         self.writes_v.append(voltage)
 
     def period_done(self, k: int, start: float, woke: float, compute: float | None,
                     written: float | None, missed: bool, voltage: float | None,
                     frame_age: float | None) -> None:
+        """Record control period ``k``: its timings, whether it missed its deadline, what it wrote."""
         rel = self._release
         assert rel is not None
         self.periods += 1
@@ -199,6 +202,7 @@ class RunRecorder:
         return False
 
     def summary(self) -> dict[str, Any]:
+        """The run so far: its settings, the releases and the deadlines missed."""
         releases = list(self.releases)
         if self._release is not None:
             releases.append(dict(self._release, cause="running"))
@@ -220,6 +224,7 @@ class RunRecorder:
         }
 
     def write_summary(self) -> None:
+        """Write `summary` to ``summary.json`` in the log folder (if there is one)."""
         if self.dir is not None:
             write_text_atomically(self.dir / "summary.json",
                                   json.dumps(self.summary(), indent=1, allow_nan=False) + "\n")
@@ -232,6 +237,7 @@ class RunRecorder:
         self.write_summary()
 
     def finish(self) -> None:
+        """Mark the run complete and write the summary."""
         self.complete = True
         self.write_summary()
 

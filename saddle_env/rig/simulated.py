@@ -46,16 +46,22 @@ class SimulatedRig:
 
     Parameters
     ----------
-    level : a registered level id in ``action_mode="voltage"`` (default the Lab level), or an
+    level
+        A registered level id in ``action_mode="voltage"`` (default the Lab level), or an
         `EnvConfig` with that mode.
-    frame_rate : the camera's frames per second (default 200; one physics step each).
-    seed : seeds the releases (the first is ``env.reset(seed=seed)``: the same ball, start
+    frame_rate
+        The camera's frames per second (default 200; one physics step each).
+    seed
+        Seeds the releases (the first is ``env.reset(seed=seed)``: the same ball, start
         and speed as the environment's episode of that seed).
-    clock : the clock frames are timed on (default `MonotonicClock`; a `VirtualClock` for
+    clock
+        The clock frames are timed on (default `MonotonicClock`; a `VirtualClock` for
         tests).
-    threaded : run the physics in a thread of its own (default). Without it the physics
+    threaded
+        Run the physics in a thread of its own (default). Without it the physics
         advances on `read` and `write` only, the same frames at the same times.
-    **env_kwargs : options on top of the level's (e.g. ``air_force=0``).
+    **env_kwargs
+        Options on top of the level's (e.g. ``air_force=0``).
     """
 
     def __init__(self, level: str | EnvConfig = DEFAULT_LEVEL, *, frame_rate: float = 200.0,

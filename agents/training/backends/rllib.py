@@ -103,6 +103,7 @@ class RunnerVectorEnv(SaddleTrapVectorEnv):
         self.base_seed = int(base_seed)
 
     def reset(self, *, seed=None, options=None):
+        """Reset, with each env runner's seed spread so that no two runners share episodes."""
         if isinstance(seed, (int, np.integer)):
             runner = int(seed) - self.base_seed
             seed = self.base_seed + runner * self.num_envs
@@ -337,6 +338,7 @@ class RunLog:
             self.writer = None
 
     def add(self, row: dict[str, Any]) -> None:
+        """Append one iteration's ``row`` to progress.csv and, if TensorBoard is installed, its scalars."""
         import csv
 
         new = not self.path.is_file()
@@ -353,6 +355,7 @@ class RunLog:
             self.writer.flush()
 
     def close(self) -> None:
+        """Close the TensorBoard writer."""
         if self.writer is not None:
             self.writer.close()
 

@@ -64,6 +64,13 @@ RESUME_NEEDS_TRUST = False
 
 
 def algo_class(name: str):
+    """The SB3 algorithm class named ``name`` (ppo, sac, td3, a2c).
+
+    Raises
+    ------
+    ValueError
+        If ``name`` is none of these.
+    """
     from stable_baselines3 import A2C, PPO, SAC, TD3
 
     classes = {"ppo": PPO, "sac": SAC, "td3": TD3, "a2c": A2C}
@@ -138,23 +145,119 @@ class Sb3Learner:
     resume_needs_trust = RESUME_NEEDS_TRUST
 
     def new_model(self, hyper: dict[str, Any], env, settings: TrainSettings):
+        """Make the untrained model.
+
+        Parameters
+        ----------
+        hyper : dict
+            The run's hyperparameters (the recipe's YAML entry).
+        env : VecEnv
+            The (wrapped) training environment.
+        settings : TrainSettings
+            The run's resolved settings (algorithm, seed, device).
+
+        Returns
+        -------
+        BaseAlgorithm
+            The model, ready to learn.
+        """
         return _new_model(algo_class(settings.algo), hyper, env, settings)
 
     def warm_start(self, model, config, hyper: dict[str, Any], steps: int, seed: int
                    ) -> dict[str, Any]:
+        """Apply the recipe's warm start to the new ``model`` before training.
+
+        Parameters
+        ----------
+        model : BaseAlgorithm
+            The model that `new_model` made.
+        config : EnvConfig
+            The training level's configuration.
+        hyper : dict
+            The run's hyperparameters; ``hyper["warm_start"]`` names the warm start.
+        steps : int
+            The episode length, in env steps.
+        seed : int
+            The seed of the warm start's episodes.
+
+        Returns
+        -------
+        dict
+            What was done, for the run folder.
+        """
         from ..warm_start import warm_start
 
         return warm_start(model, config, hyper["warm_start"], steps, seed, hyper.get("imitation"))
 
     def save(self, model, path: Path, settings: TrainSettings,
              extra: dict[str, Any] | None = None) -> Path:
+        """Save ``model`` as a model file that evaluation loads.
+
+        Parameters
+        ----------
+        model : BaseAlgorithm
+            The model.
+        path : Path
+            The model file (``.zip``).
+        settings : TrainSettings
+            The run's settings, written to the sidecar.
+        extra : dict, optional
+            More entries for the sidecar.
+
+        Returns
+        -------
+        Path
+            The file written.
+        """
         return save_model(model, path, settings, extra)
 
     def checkpoint(self, model, folder: Path, tag: str, settings: TrainSettings) -> Path:
+        """Save a checkpoint that `resume` can continue from.
+
+        Parameters
+        ----------
+        model : BaseAlgorithm
+            The model.
+        folder : Path
+            The run's checkpoint folder.
+        tag : str
+            The start of the file name (``<tag>_<steps>_steps.zip``).
+        settings : TrainSettings
+            The run's settings, written to the sidecar.
+
+        Returns
+        -------
+        Path
+            The checkpoint's model file.
+        """
         return _save_checkpoint(model, folder, tag, settings)
 
     def resume(self, checkpoint: Path, env, hyper: dict[str, Any], norm_kw, frame_stack: int,
                settings: TrainSettings, trust: bool):
+        """Load ``checkpoint`` to continue training on ``env``.
+
+        Parameters
+        ----------
+        checkpoint : Path
+            A model file that `checkpoint` wrote.
+        env : VecEnv
+            The training environment, before the run's wrappers.
+        hyper : dict
+            The run's hyperparameters (the algorithm is rebuilt from them).
+        norm_kw : dict or None
+            The observation normaliser's options, None if observations are not normalised.
+        frame_stack : int
+            Observations stacked per step.
+        settings : TrainSettings
+            The run's settings.
+        trust : bool
+            Whether pickled files (older runs') may be loaded.
+
+        Returns
+        -------
+        BaseAlgorithm
+            The model, with its weights, counters, statistics and replay buffer restored.
+        """
         return _resume(algo_class(settings.algo), checkpoint, env, hyper, norm_kw, frame_stack,
                        settings, trust)
 

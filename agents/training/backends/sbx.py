@@ -1,6 +1,6 @@
 """The SBX back end of `agents.training.trainer`: PPO from SBX (``sbx-rl``, Stable-Baselines3's API
-on JAX), which on the level recipes takes about twice the steps per second of SB3's PPO on
-the 2-core machine and learns what it learns (docs/training_profile.md, "SBX").
+on JAX), which on the level recipes takes more steps per second than SB3's PPO and learns
+what it learns (the measurements: docs/training_profile.md, "SBX").
 
 Only the learner differs from the SB3 back end: the environments, the recipe's keys, the
 callbacks, model selection, checkpoints on a schedule and on Ctrl-C/SIGTERM are
@@ -19,9 +19,9 @@ back end writes, with one addition:
   imitation of ``mpc``) and are copied into the flax network.
 
 XLA's multithreaded Eigen is switched off (``XLA_FLAGS``, unless already set) before JAX is
-first imported: on these 128-wide layers it was slower than one thread (8,600 against
-12,000 steps/s, docs/training_profile.md). JAX still runs a dispatch thread beside the
-process's main one, so SBX uses about 1.4 cores.
+first imported: on these 128-wide layers it was slower than one thread
+(docs/training_profile.md). JAX still runs a dispatch thread beside the process's main
+one, so SBX uses more than one core.
 """
 
 from __future__ import annotations
@@ -255,6 +255,13 @@ class SbxLearner(Sb3Learner):
         self.twin = None
 
     def new_model(self, hyper: dict[str, Any], env, settings: TrainSettings):
+        """Make the untrained SBX PPO model and its SB3 twin (see `Sb3Learner.new_model`).
+
+        Raises
+        ------
+        ValueError
+            If the algorithm is not PPO.
+        """
         import stable_baselines3
         from sbx import PPO
 
@@ -272,6 +279,7 @@ class SbxLearner(Sb3Learner):
 
     def warm_start(self, model, config, hyper: dict[str, Any], steps: int, seed: int
                    ) -> dict[str, Any]:
+        """Warm-start through the SB3 twin, then copy its weights back (see `Sb3Learner.warm_start`)."""
         copy_to_twin(model, self.twin)    # the twin starts from the flax initialisation
         done = super().warm_start(self.twin, config, hyper, steps, seed)
         copy_from_twin(self.twin, model)
@@ -279,16 +287,25 @@ class SbxLearner(Sb3Learner):
 
     def save(self, model, path: Path, settings: TrainSettings,
              extra: dict[str, Any] | None = None) -> Path:
+        """Save the SB3 twin, holding ``model``'s weights (see `Sb3Learner.save`)."""
         copy_to_twin(model, self.twin)
         return save_model(self.twin, path, settings, extra)
 
     def checkpoint(self, model, folder: Path, tag: str, settings: TrainSettings) -> Path:
+        """Save the twin as a checkpoint and the SBX learner's state beside it."""
         path = self.save(model, folder / f"{tag}_{model.num_timesteps}_steps.zip", settings)
         save_learner_state(model, path.with_suffix(STATE_SUFFIX))
         return path
 
     def resume(self, checkpoint: Path, env, hyper: dict[str, Any], norm_kw, frame_stack: int,
                settings: TrainSettings, trust: bool):
+        """Load ``checkpoint`` and the SBX learner's state beside it (see `Sb3Learner.resume`).
+
+        Raises
+        ------
+        ValueError
+            If the checkpoint has no SBX learner state beside it.
+        """
         state = checkpoint.with_suffix(STATE_SUFFIX)
         if not state.is_file():
             raise ValueError(f"--resume: {checkpoint} has no SBX learner state beside it "
