@@ -4,14 +4,17 @@
 A figure has a name, a value, its unit, the date and machine of the measurement and the
 command that remakes it. Its value is either typed into the store (``value:``), read from a
 results file a tool wrote (``source:`` a JSON file of the repository, ``key:`` a dotted path
-into it, ``combine: sum`` to add up a mapping's values, ``scale:`` a factor such as
-1/3600, or ``derive:`` one of ``DERIVED``'s computations over the file's rows), or one
-of the leaderboard's results, which are figures without a store entry:
+into it, list positions included, ``combine: sum`` to add up a mapping's values,
+``over:`` a second key whose value divides the first, ``scale:`` a factor such as 1/3600,
+or ``derive:`` one of ``DERIVED``'s computations over the file's rows), or one of the
+leaderboard's results, which are figures without a store entry:
 ``lb.LEVEL.POLICY`` is the mean trapping time [95 % interval] of a policy on a level
 (``LEVEL`` is the id without ``SaddleTrap-`` and ``-v0``, ``default`` for ``SaddleTrap-v0``;
 ``POLICY`` a key of ``docs/leaderboard.json``, ``shipped`` for the level's shipped agent),
-``lb.LEVEL.POLICY.kept`` the percentage of balls kept 10 s, ``lb.LEVEL.best-const.omega``
-the best constant speed in rad/s, ``lb.date`` the leaderboard's date.
+``lb.LEVEL.POLICY.kept`` the percentage of balls kept 10 s (``.detach``: detached),
+``lb.LEVEL.best-const.omega`` the best constant speed in rad/s,
+``lb.LEVEL.shipped.margin`` the shipped agent's mean less best-const's upper bound [s],
+``lb.date`` the leaderboard's date.
 
 A text names a figure with a marker pair around its rendered copy, which reads right on
 GitHub as well as on the site::
@@ -20,7 +23,8 @@ GitHub as well as on the site::
 
 ``<!-- fig NAME SPEC -->`` renders with a format spec of Python's ``format`` (``.0f``,
 ``,.0f``), which may round the stored value; ``mean`` before the spec keeps an interval's
-mean alone. The docs build (docs/hooks.py) replaces each pair by the current value, and
+mean alone; ``<!-- fig NAME date -->`` renders the date of the figure's measurement. The
+docs build (docs/hooks.py) replaces each pair by the current value, and
 
     python -m agents.figures --write     # rewrite README.md and docs/ in place
     python -m agents.figures --check     # exit 1 naming each stale file
@@ -79,12 +83,19 @@ def _leaderboard_figures(board: dict[str, Any]) -> dict[str, dict[str, Any]]:
             time = policy["trapping_time"]
             figures[name] = {"value": {k: time[k] for k in ("mean", "low", "high")},
                              "unit": "s", "format": ".2f", **common}
-            kept = policy["kept"]
-            figures[name + ".kept"] = {"value": {k: 100 * kept[k] for k in ("mean", "low", "high")},
-                                       "unit": "%", "format": ".0f", **common}
+            for share in ("kept", "detach"):
+                if share in policy:
+                    figures[f"{name}.{share}"] = {
+                        "value": {k: 100 * policy[share][k] for k in ("mean", "low", "high")},
+                        "unit": "%", "format": ".0f", **common}
             if "omega" in policy:
                 figures[name + ".omega"] = {"value": policy["omega"], "unit": "rad/s",
                                             "format": "g", **common}
+        shipped, best = figures.get(f"lb.{short}.shipped"), figures.get(f"lb.{short}.best-const")
+        if shipped and best:   # how far the shipped agent's mean lies above best-const's interval
+            figures[f"lb.{short}.shipped.margin"] = {
+                "value": shipped["value"]["mean"] - best["value"]["high"], "unit": "s",
+                "format": ".1f", **common}
     return figures
 
 
@@ -96,10 +107,26 @@ def _variant(rows: list[dict[str, Any]], variant: str) -> list[dict[str, Any]]:
     return [r for r in rows if r["variant"] == variant]
 
 
+def _least_and_most(values: Any) -> list[float]:
+    values = list(values)
+    return [min(values), max(values)]
+
+
+def best_const_voltage(board: dict[str, Any], env_id: str = "SaddleTrap-Lab-v0") -> float:
+    """The voltage that holds the saddle at a voltage-mode level's best constant speed on the
+    leaderboard: that speed over the level's steady motor gain [rad/s per V]."""
+    from saddle_env.envs import level_config  # only this figure needs a level's motor
+
+    omega = next(p["omega"] for p in board["levels"][env_id]["policies"]
+                 if p["key"] == "best-const")
+    return float(omega) / level_config(env_id).motor_gain
+
+
 # Figures computed from a results file's rows (``derive:`` in the store): the real-saddle
 # check's held-out predictions (docs/figures/lifetimes_validation.json, one row per series
-# and model variant).
+# and model variant), and the Lab level's best constant as a voltage (docs/leaderboard.json).
 DERIVED: dict[str, Any] = {
+    "lab-best-const-voltage": best_const_voltage,
     # the calibrated model's worst onset on a steel series, |predicted / lab - 1| in %
     "lifetimes-onset-error-steel": lambda rows: max(
         100 * abs(r["onset_rps"] / r["lab_onset_rps"] - 1)
@@ -113,15 +140,30 @@ DERIVED: dict[str, Any] = {
         r["median_abs_log_ratio"] for r in _variant(rows, "calibrated"))),
     "lifetimes-rigid-median-factor": lambda rows: math.exp(max(
         r["median_abs_log_ratio"] for r in _variant(rows, "rigid ball"))),
+    # the same worst error as a log ratio, and the rigid ball's best series and its count > 2
+    "lifetimes-median-log": lambda rows: max(
+        r["median_abs_log_ratio"] for r in _variant(rows, "calibrated")),
+    "lifetimes-rigid-median-factor-least": lambda rows: math.exp(min(
+        r["median_abs_log_ratio"] for r in _variant(rows, "rigid ball"))),
+    "lifetimes-rigid-series-above-2": lambda rows: sum(
+        math.exp(r["median_abs_log_ratio"]) > 2 for r in _variant(rows, "rigid ball")),
+    # how early the calibrated model's onset comes for the 19 mm steel balls, least and most, %
+    "lifetimes-onset-early-19mm": lambda rows: _least_and_most(
+        100 * (1 - r["onset_rps"] / r["lab_onset_rps"])
+        for r in _variant(rows, "calibrated") if _steel(r) and "19 mm" in r["series"]),
 }
 
 
 def _lookup(path: Path, key: str) -> Any:
+    """The value at ``key``, a dotted path of mapping keys and list positions (``paths.0.x``)."""
     value: Any = json.loads(path.read_text())
     for part in key.split("."):
-        if not isinstance(value, dict) or part not in value:
+        if isinstance(value, list) and part.isdigit() and int(part) < len(value):
+            value = value[int(part)]
+        elif isinstance(value, dict) and part in value:
+            value = value[part]
+        else:
             raise FigureError(f"{path.relative_to(REPO_ROOT)} has no key {key!r}")
-        value = value[part]
     return value
 
 
@@ -150,6 +192,8 @@ def load_store(store: Path = STORE, leaderboard: Path = LEADERBOARD) -> dict[str
             entry["value"] = _lookup(REPO_ROOT / entry["source"], entry["key"])
             if entry.get("combine") == "sum":
                 entry["value"] = sum(entry["value"].values())
+            if "over" in entry:   # a ratio of two values of the same file
+                entry["value"] /= _lookup(REPO_ROOT / entry["source"], entry["over"])
             entry["value"] *= entry.get("scale", 1)
         if name in figures:
             raise FigureError(f"{store.name}: {name!r} is a leaderboard figure already")
@@ -168,8 +212,11 @@ def figures() -> dict[str, dict[str, Any]]:
 
 
 def format_figure(figure: dict[str, Any], opts: Sequence[str] = ()) -> str:
-    """A figure as text: a number with the spec (the marker's or the figure's ``format``), an
-    interval as ``mean [low, high]``, a pair as ``low–high``, anything else as it is."""
+    """A figure as text: a number with the spec (the marker's or the figure's ``format``; a
+    signed spec such as ``+.2f`` writes a negative value with the minus sign), an
+    interval as ``mean [low, high]``, a mean with its standard error as ``mean ± se``, a
+    pair as ``low–high``, a longer list (one value per seed, say) as ``a, b, c``, anything
+    else as it is."""
     opts = list(opts)
     mean_only = "mean" in opts
     opts = [o for o in opts if o != "mean"]
@@ -179,19 +226,30 @@ def format_figure(figure: dict[str, Any], opts: Sequence[str] = ()) -> str:
     value = figure["value"]
 
     def number(x: Any) -> str:
-        return format(x, spec) if isinstance(x, (int, float)) else str(x)
+        if not isinstance(x, (int, float)):
+            return str(x)
+        # 1.9e-8, as the texts write it, not Python's 1.9e-08
+        text = re.sub(r"e([+-])0(\d)$", r"e\1\2", format(x, spec))
+        # a signed spec (+.2f) writes a difference: with the minus sign, as the texts do
+        return "\u2212" + text[1:] if spec.startswith("+") and text.startswith("-") else text
 
+    if isinstance(value, dict) and "se" in value:   # a mean and its standard error
+        return number(value["mean"]) if mean_only else \
+            f"{number(value['mean'])} ± {format(value['se'], spec.lstrip('+'))}"
     if isinstance(value, dict):
         if mean_only:
             return number(value["mean"])
         return f"{number(value['mean'])} [{number(value['low'])}, {number(value['high'])}]"
     if isinstance(value, list) and len(value) == 2:
         return f"{number(value[0])}–{number(value[1])}"
+    if isinstance(value, list):
+        return ", ".join(number(x) for x in value)
     return number(value)
 
 
 def render_figure(name: str, opts: str = "") -> str:
-    """The figure ``name`` of the store, formatted with ``opts``.
+    """The figure ``name`` of the store, formatted with ``opts`` (`format_figure`); ``date``
+    alone gives the date of its measurement, so that a text dates a figure without retyping it.
 
     Raises
     ------
@@ -201,6 +259,8 @@ def render_figure(name: str, opts: str = "") -> str:
     store = figures()
     if name not in store:
         raise FigureError(f"unknown figure {name!r}: add it to {STORE.relative_to(REPO_ROOT)}")
+    if opts.split() == ["date"]:
+        return str(store[name]["date"])
     return format_figure(store[name], opts.split())
 
 
@@ -218,8 +278,10 @@ def render(text: str, keep_markers: bool = True) -> str:
 
 
 def rendered_files() -> list[Path]:
-    """The files that may hold figures: the README and every page of docs/."""
-    return [REPO_ROOT / "README.md", *sorted((REPO_ROOT / "docs").rglob("*.md"))]
+    """The files that may hold figures: the README, CONTRIBUTING (a page of the site too) and
+    every page of docs/."""
+    return [REPO_ROOT / "README.md", REPO_ROOT / "CONTRIBUTING.md",
+            *sorted((REPO_ROOT / "docs").rglob("*.md"))]
 
 
 def stale_files() -> list[Path]:

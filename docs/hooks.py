@@ -475,5 +475,6 @@ def on_page_markdown(markdown, page, config, files):
 
     if page.file.src_uri.startswith("notes/"):
         page.meta.setdefault("search", {"boost": NOTES_SEARCH_BOOST})
-    markdown = figures.render(markdown, keep_markers=False)
-    return expand(markdown, Path(page.file.src_uri).parent.as_posix().strip("."))
+    # after the includes: CONTRIBUTING.md states figures too
+    markdown = expand(markdown, Path(page.file.src_uri).parent.as_posix().strip("."))
+    return figures.render(markdown, keep_markers=False)

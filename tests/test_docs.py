@@ -106,7 +106,7 @@ _OUTPUT = re.compile(r'\s*```text title="Output"\n(.*?)```', flags=re.DOTALL)
 
 def _expected_outputs(page: Path) -> dict[int, str]:
     """{k: the output shown for the page's k-th python block} for the blocks that show one."""
-    text = page.read_text()
+    text = _page_text(page)
     found = {}
     for k, m in enumerate(re.finditer(r"```python\n(.*?)```", text, flags=re.DOTALL)):
         shown = _OUTPUT.match(text, m.end())
@@ -115,9 +115,17 @@ def _expected_outputs(page: Path) -> dict[int, str]:
     return found
 
 
+def _page_text(page: Path) -> str:
+    """The page as the site shows it as far as figures go: a block may state a figure of the
+    store by its markers (docs/figures/figures.yml), which the site replaces by the value."""
+    from agents import figures
+
+    return figures.render(page.read_text(), keep_markers=False)
+
+
 def _blocks(page: Path, lang: str) -> list[tuple[str, tuple[str, bool] | None]]:
     """The page's ```lang blocks, each with its skip marker (None: none)."""
-    text = page.read_text()
+    text = _page_text(page)
     return [(m.group(1), _skip_reason(text, m.start()))
             for m in re.finditer(rf"```{lang}\n(.*?)```", text, flags=re.DOTALL)]
 

@@ -51,6 +51,9 @@ def test_rounding_only_formats_the_stored_value():
     assert figures.format_figure(figure, [".2f"]) == "9.35 [9.24, 9.45]"
     assert figures.format_figure(figure, ["mean", ".1f"]) == "9.3"
     assert figures.format_figure({"value": [6744, 6799]}, [",d"]) == "6,744–6,799"
+    assert figures.format_figure({"value": 1.9e-8}, [".1e"]) == "1.9e-8"   # as texts write it
+    assert figures.format_figure({"value": -0.18}, ["+.2f"]) == "\u22120.18"    # a difference
+    assert figures.format_figure({"value": {"mean": 0.02, "se": 0.09}}, ["+.2f"]) == "+0.02 ± 0.09"
 
 
 def test_leaderboard_figures_match_the_leaderboard_page():
@@ -132,3 +135,49 @@ def test_readme_tables_take_every_measured_cell_from_the_store(heading, columns)
         for cell in cells[columns]:
             typed = TYPED.search(figures.MARKER.sub("", cell))
             assert not typed, f"README {heading!r}: {cell.strip()!r} types a figure by hand"
+
+
+def test_a_text_dates_a_figure_from_the_store():
+    text = "<!-- fig main-job-seconds date -->1999-01-01<!-- /fig -->"
+    assert figures.render(text, keep_markers=False) == figures.figures()["main-job-seconds"]["date"]
+
+
+def test_lab_best_constant_voltage_is_the_leaderboard_speed_over_the_motor_gain():
+    """The rig's how-to and tests/test_rig_loop.py hold the saddle at this voltage: the
+    leaderboard's best constant speed on the Lab level, not a speed typed beside it."""
+    from saddle_env.envs import level_config
+
+    omega = figures.figures()["lb.Lab.best-const.omega"]["value"]
+    volts = figures.figures()["lab-best-const-voltage"]["value"]
+    assert volts * level_config("SaddleTrap-Lab-v0").motor_gain == pytest.approx(omega)
+    rig = (figures.REPO_ROOT / "docs" / "how-to" / "rig.md").read_text()
+    assert "constant_voltage(rig.config, <!-- fig lab-best-const-voltage -->" in rig
+
+
+def test_a_ratio_and_a_list_position_of_a_results_file(tmp_path, monkeypatch):
+    results = tmp_path / "r.json"
+    results.write_text('{"paths": [{"x": 6.0}, {"x": 2.0}]}')
+    store = tmp_path / "figures.yml"
+    store.write_text("ratio:\n  source: r.json\n  key: paths.0.x\n  over: paths.1.x\n"
+                     "  unit: x\n  date: 2026-01-01\n  machine: m\n  command: c\n"
+                     "missing:\n  source: r.json\n  key: paths.2.x\n"
+                     "  unit: x\n  date: 2026-01-01\n  machine: m\n  command: c\n")
+    monkeypatch.setattr(figures, "REPO_ROOT", tmp_path)
+    with pytest.raises(figures.FigureError, match="has no key 'paths.2.x'"):
+        figures.load_store(store)
+    store.write_text(store.read_text().split("missing:")[0])
+    assert figures.load_store(store)["ratio"]["value"] == 3.0
+
+
+def test_one_value_per_seed_reads_as_a_list():
+    assert figures.format_figure({"value": [150, 85, 66]}, ["d"]) == "150, 85, 66"
+
+
+def test_readme_headline_dates_come_from_the_store():
+    """The 'measured by' column dates each figure through a date marker, so a re-measurement
+    moves the date with the value."""
+    readme = (figures.REPO_ROOT / "README.md").read_text()
+    for cells in _table(readme, "## Headline figures"):
+        for cell in cells[1:]:
+            typed = re.search(r"\b20\d\d-\d\d-\d\d\b", figures.MARKER.sub("", cell))
+            assert not typed, f"README headline cell {cell.strip()!r} types a date by hand"

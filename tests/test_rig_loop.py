@@ -12,6 +12,7 @@ import time
 import numpy as np
 import pytest
 
+from agents import figures
 from saddle_env.calibrate import read_track, read_tracks
 from saddle_env.envs import SaddleTrapEnv, level_config
 from saddle_env.rig import (
@@ -27,7 +28,9 @@ from saddle_env.rig import (
 
 LAB = "SaddleTrap-Lab-v0"
 T = 0.02                      # the Lab level's control period
-STEADY = 14.75 / 1.875        # [V] the best constant voltage's (docs/levels.md)
+# [V] the voltage of the Lab level's best constant speed on the leaderboard, the figure that
+# docs/how-to/rig.md states (docs/leaderboard.json through the figure store)
+STEADY = figures.figures()["lab-best-const-voltage"]["value"]
 QUIET = dict(air_force=0.0)   # no draught: a constant voltage keeps the ball
 
 
