@@ -19,6 +19,11 @@ A page asks for a generated section with an HTML comment on a line of its own:
 * ``<!-- generated: public-api -->``: every name of ``saddle_env.__all__``: its kind
   (function, class, constant), its docstring's first line or its value, and for a function
   or class a link to its entry below on the API page.
+* ``<!-- generated: lifetimes-calibration -->`` and ``lifetimes-validation``: the real-saddle
+  calibration and its held-out check, from the files the calibration ships.
+* ``<!-- generated: bench-rolling -->`` and ``bench-targets``: the work-precision benchmark's
+  table of settings and of targets, from its shipped run (``docs/figures/bench_results.csv``,
+  ``bench_summary.json``; ``saddle_env.bench.tables``).
 
 A measured figure in a page's prose is a marker pair, ``<!-- fig NAME -->copy<!-- /fig -->``,
 which the hook replaces by the figure's current value from the figure store
@@ -444,6 +449,8 @@ def generate(what: str, arg: str | None, page_dir: str = "") -> str:
         return level_summary_markdown(arg)
     if what in ("lifetimes-calibration", "lifetimes-validation"):
         return lifetimes_markdown(what)
+    if what in ("bench-rolling", "bench-targets"):
+        return bench_markdown(what)
     raise RuntimeError(f"unknown generated section {what!r}")
 
 
@@ -460,6 +467,20 @@ def lifetimes_markdown(what: str) -> str:
         return report.calibration_markdown(record)
     rows = json.loads((ROOT / "docs" / "figures" / "lifetimes_validation.json").read_text())
     return report.validation_markdown(rows)
+
+
+def bench_markdown(what: str) -> str:
+    """The accuracy page's tables, from the shipped run of the work-precision benchmark
+    (docs/figures/bench_results.csv and bench_summary.json)."""
+    import json
+
+    from saddle_env.bench import report, tables
+
+    if what == "bench-rolling":
+        return tables.rolling_markdown(report.read_rows(ROOT / "docs" / "figures"
+                                                        / "bench_results.csv"))
+    summary = json.loads((ROOT / "docs" / "figures" / "bench_summary.json").read_text())
+    return tables.targets_markdown(summary)
 
 
 def expand(markdown: str, page_dir: str = "") -> str:

@@ -866,3 +866,19 @@ def test_documented_commands_run(page, k, block, tmp_path, monkeypatch, capsys):
         code = _main(tool)(small)
         assert code in (0, None), f"{page}: {' '.join(argv)} exited with {code}"
     capsys.readouterr()
+
+
+def test_the_benchmark_tables_come_from_its_shipped_run():
+    """The accuracy page's tables are rendered from the benchmark's results, so a changed
+    row of the CSV changes the page (no figure typed by hand)."""
+    from saddle_env.bench import report, tables
+
+    rows = report.read_rows(DOCS / "figures" / "bench_results.csv")
+    page = HOOKS.expand((DOCS / "accuracy.md").read_text())
+    assert tables.rolling_markdown(rows) in page
+    default = tables.select(rows, {"solver": "saddle_env", "label": "dop853 rtol",
+                                   "rtol": 1e-10})[0]
+    changed = [dict(r, us_per_sim_s=12345.0) if r is default else r for r in rows]
+    assert "| 12\u202f345 |" in tables.rolling_markdown(changed)
+    with pytest.raises(LookupError, match="no run"):
+        tables.select(rows, {"label": "no such setting"})
