@@ -24,7 +24,8 @@ from .saddle_trap import action_space, check_actions, observation_space
 
 
 class SaddleTrapSB3VecEnv(VecEnv):
-    """``num_envs`` SaddleTrap balls as an SB3 ``VecEnv``; options as `SaddleTrapEnv`.
+    """``num_envs`` SaddleTrap balls as an SB3 ``VecEnv``; options as `SaddleTrapEnv`, or
+    ``config``: an `EnvConfig` already checked (its options are not checked again).
 
     Seeding follows SB3: ``seed(s)`` then ``reset()`` seeds ball i with ``s + i``.
 
@@ -39,8 +40,10 @@ class SaddleTrapSB3VecEnv(VecEnv):
     """
 
     def __init__(self, num_envs: int = 1, max_episode_steps: int | None = DEFAULT_EPISODE_STEPS,
-                 **kwargs: Any):
-        self.config = EnvConfig.from_kwargs(**kwargs)
+                 *, config: EnvConfig | None = None, **kwargs: Any):
+        if config is not None and kwargs:
+            raise ValueError(f"give config or the options {sorted(kwargs)}, not both")
+        self.config = EnvConfig.from_kwargs(**kwargs) if config is None else config
         self.engine = TrapEngine(self.config, num_envs)
         super().__init__(self.engine.n, observation_space(self.config), action_space())
         self.max_episode_steps = max_episode_steps
