@@ -24,8 +24,7 @@ from .saddle_trap import action_space, check_actions, observation_space
 
 
 class SaddleTrapSB3VecEnv(VecEnv):
-    """``num_envs`` SaddleTrap balls as an SB3 ``VecEnv``; options as `SaddleTrapEnv`, or
-    ``config``: an `EnvConfig` already checked (its options are not checked again).
+    """``num_envs`` SaddleTrap balls as an SB3 ``VecEnv``; options as `SaddleTrapEnv`.
 
     Seeding follows SB3: ``seed(s)`` then ``reset()`` seeds ball i with ``s + i``.
 
@@ -35,8 +34,16 @@ class SaddleTrapSB3VecEnv(VecEnv):
         The number of balls.
     max_episode_steps : int or None
         The episode length in control steps (None: no limit).
+    config : EnvConfig or None
+        An `EnvConfig` already checked, used as given (its options are not checked again);
+        not together with ``**kwargs``.
     **kwargs
         `EnvConfig` options, as for ``gym.make``.
+
+    Raises
+    ------
+    ValueError
+        If an option is invalid, or both ``config`` and options are given.
     """
 
     def __init__(self, num_envs: int = 1, max_episode_steps: int | None = DEFAULT_EPISODE_STEPS,

@@ -91,8 +91,20 @@ def check_dependencies(progress_bar: bool) -> None:
 # environments
 # ---------------------------------------------------------------------------------------
 def make_vec_env(n_envs: int, seed: int, config: EnvConfig, max_episode_steps: int):
-    """The batch environment for SB3 on ``config`` (a level's, `agents.cli_args.resolve_env`:
-    checked once, there), with episode statistics (VecMonitor)."""
+    """The batch environment for SB3, with episode statistics (VecMonitor).
+
+    Parameters
+    ----------
+    n_envs : int
+        The number of balls.
+    seed : int
+        Ball i's first episode is seeded ``seed + i``.
+    config : EnvConfig
+        A level's config with its options on top (`agents.cli_args.resolve_env`), checked
+        there: the environment uses it as given.
+    max_episode_steps : int
+        The episode length in control steps.
+    """
     from stable_baselines3.common.vec_env import VecMonitor
 
     from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
