@@ -17,15 +17,10 @@ ROOT = Path(__file__).resolve().parents[1]
 # site's hooks, CI's wheel check).
 SOURCES = ("saddle_env", "agents", "train.py", "setup.py", "docs/hooks.py", ".ci")
 MAX_LINES = 100
-# Functions being changed on other branches of issue 51, split when those are merged (the
-# lead removes each entry then). An entry matches a measured name that ends with it.
-PENDING_SPLIT = {
-    # item 2 (the integrator) splits it
-    "saddle_env/integrators.py::integrate_h",
-    # item 1 (layers) moves saddle_env/compilation/aot_build.py and rewrites its imports:
-    # split after that merge, by path suffix so the entry survives the move
-    "aot_build.py::_build_one",
-}
+# Functions being split on other branches of issue 51 (item 2, the integrator): the lead
+# removes each entry when that branch is merged. An entry matches a measured name that ends
+# with it.
+PENDING_SPLIT = {"saddle_env/integrators.py::integrate_h"}
 
 
 def _pending(name: str) -> bool:
