@@ -17,7 +17,32 @@ them. One package per job; each imports only from the ones before it:
 with a message naming its new place.
 """
 
-from saddle_env import _moved
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
+
+def _moved_names() -> ModuleType:
+    """`saddle_env._moved` (standard library only), loaded from its file without running
+    ``saddle_env/__init__``, which loads numba and the simulator: so ``import agents.seeds``
+    stays cheap. Registered under its own name, so ``import saddle_env`` later reuses it."""
+    name = "saddle_env._moved"
+    if name in sys.modules:
+        return sys.modules[name]
+    package = importlib.util.find_spec("saddle_env")   # finds the package without importing it
+    if package is None or not package.submodule_search_locations:
+        raise ModuleNotFoundError("agents needs the saddle_env package", name="saddle_env")
+    spec = importlib.util.spec_from_file_location(
+        name, Path(package.submodule_search_locations[0]) / "_moved.py")
+    assert spec is not None and spec.loader is not None  # a .py file path always has both
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+_moved = _moved_names()
 
 # The old names under the name this package was imported by: `agents` in a source checkout,
 # `saddle_agents` when installed (pyproject.toml says why).

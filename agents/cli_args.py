@@ -147,14 +147,12 @@ def saved_settings(cls: type, config: Path, total_timesteps: int | None = None,
     saved = json.loads(Path(config).read_text())
     saved.pop("hyperparams_used", None)
     known = {f.name for f in fields(cls)}
-    settings = cls(**{k: v for k, v in saved.items() if k in known})
+    values = {k: v for k, v in saved.items() if k in known}
     if total_timesteps:
-        settings.total_timesteps = total_timesteps
-    for key, value in overrides.items():
-        if value is not None:
-            setattr(settings, key, value)
-    settings.progress_bar = progress_bar
-    return settings
+        values["total_timesteps"] = total_timesteps
+    values.update({key: value for key, value in overrides.items() if value is not None})
+    values["progress_bar"] = progress_bar
+    return cls(**values)
 
 
 def parse_address(address: str) -> tuple[str, int] | None:

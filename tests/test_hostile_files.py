@@ -284,8 +284,8 @@ def _run_folder(tmp_path, algo="sac"):
     hyper_file.write_text("SaddleTrap-v0:\n  n_envs: 2\n  learning_starts: 10\n"
                           "  buffer_size: 200\n  policy_kwargs: \"dict(net_arch=[8, 8])\"\n")
     settings = TrainSettings(algo=algo, env_id="SaddleTrap-v0", hyperparams=str(hyper_file),
-                             log_dir=str(tmp_path), run_name="run").validate()
-    settings.hyperparams_used = load_hyperparams(algo, "SaddleTrap-v0", hyper_file)
+                             log_dir=str(tmp_path), run_name="run").validate().with_recipe(
+                                 load_hyperparams(algo, "SaddleTrap-v0", hyper_file))
     run = tmp_path / "run"
     run.mkdir()
     (run / "config.json").write_text(json.dumps(asdict(settings), default=list))

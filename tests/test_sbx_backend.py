@@ -27,7 +27,7 @@ def _learner(seed=0, hyper=SMALL):
     from agents.training.backends.sb3 import make_vec_env, wrap_env
 
     settings = TrainSettings(backend="sbx", env_id="SaddleTrap-v0", seed=seed).validate()
-    env = wrap_env(make_vec_env(4, seed, {}, 50, "SaddleTrap-v0"), {}, 1)
+    env = wrap_env(make_vec_env(4, seed, settings.environment()[1], 50), {}, 1)
     learner = sbx_backend.SbxLearner()
     return learner, learner.new_model(dict(hyper), env, settings), settings
 

@@ -53,8 +53,7 @@ def _remade(remake: str, hyper: dict):
 
     from train import build_parser, settings_from_args
     settings = settings_from_args(build_parser().parse_args(shlex.split(remake)[2:]))
-    settings.take_recipe(hyper)
-    return settings
+    return settings.with_recipe(hyper)
 
 
 def test_the_remake_gives_the_back_end_and_every_setting_the_recipe_would_not(tmp_path):
@@ -126,7 +125,7 @@ def test_each_shipped_agent_names_the_recipe_it_was_trained_with():
         entry = load_hyperparams(side["algo"], settings.recipe_of or settings.env_id,
                                  file or getattr(backend(settings), "RECIPES", None))
         assert entry == side["hyperparams"], path.name
-        settings.take_recipe(entry)
+        settings = settings.with_recipe(entry)
         # the budget it names, rounded up to whole rollouts (PPO stops after a rollout)
         rollout = settings.n_envs * entry.get("n_steps", 2048)
         assert 0 <= side["total_timesteps"] - settings.total_timesteps < rollout, path.name

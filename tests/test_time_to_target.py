@@ -92,9 +92,9 @@ def test_distance_shaping_changes_training_rewards_only():
     from saddle_env.envs import EnvConfig
 
     config = EnvConfig()
-    plain = make_vec_env(3, 0, {}, 5, "SaddleTrap-v0")
-    shaped = shape(make_vec_env(3, 0, {}, 5, "SaddleTrap-v0"), {"distance": 2.0}, config)
-    passing = shape(make_vec_env(3, 0, {}, 5, "SaddleTrap-v0"), {"distance": 2.0}, config,
+    plain = make_vec_env(3, 0, config, 5)
+    shaped = shape(make_vec_env(3, 0, config, 5), {"distance": 2.0}, config)
+    passing = shape(make_vec_env(3, 0, config, 5), {"distance": 2.0}, config,
                     training=False)
     assert shape(plain, None, config) is plain
     for env in (plain, shaped, passing):

@@ -290,14 +290,12 @@ def test_a_recipe_sets_the_model_selection_and_the_command_line_wins():
     from agents.training.runs import DEFAULT_EVAL_EPISODES, TrainSettings
 
     recipe = {"n_envs": 256, "n_timesteps": 6e6, "eval_freq": 499200, "eval_episodes": 256}
-    settings = TrainSettings(backend="sbx")
-    settings.take_recipe(recipe)
+    settings = TrainSettings(backend="sbx").validate().with_recipe(recipe)
     assert (settings.eval_freq, settings.eval_episodes) == (499_200, 256)
-    settings = TrainSettings(backend="sbx", eval_freq=1000, eval_episodes=8)
-    settings.take_recipe(recipe)
+    settings = TrainSettings(backend="sbx", eval_freq=1000, eval_episodes=8).validate(
+        ).with_recipe(recipe)
     assert (settings.eval_freq, settings.eval_episodes) == (1000, 8)
-    settings = TrainSettings(backend="sbx")
-    settings.take_recipe({"n_timesteps": 6e6})
+    settings = TrainSettings(backend="sbx").validate().with_recipe({"n_timesteps": 6e6})
     assert (settings.eval_freq, settings.eval_episodes) == (300_000, DEFAULT_EVAL_EPISODES)
     assert {"eval_freq", "eval_episodes"} <= ZOO_ONLY_KEYS
 

@@ -297,9 +297,10 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit status."""
-    parser = build_parser()
+def _checked_args(parser: argparse.ArgumentParser, argv: Sequence[str] | None
+                  ) -> tuple[argparse.Namespace, Any, list[str]]:
+    """The arguments, the policy keywords and the level ids, each checked before an hour
+    of baselines (exit 2 on a bad one)."""
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
@@ -318,6 +319,73 @@ def main(argv: Sequence[str] | None = None) -> int:
             get_level(lid)
         except ValueError as exc:
             parser.error(f"--levels: {exc}")
+    return args, policy_kwargs, ids
+
+
+def _resume(json_path: Path, args: argparse.Namespace, results: dict[str, Any]
+            ) -> dict[str, dict[str, Any]]:
+    """With ``--resume``, the rows of an earlier board of the same episodes and seed
+    (level -> policy key -> (row, episodes)), its levels copied into ``results``."""
+    done: dict[str, dict[str, Any]] = {}
+    if args.resume and json_path.is_file():
+        old = json.loads(json_path.read_text())
+        if old.get("episodes") == args.episodes and old.get("seed") == args.seed:
+            for lid, table in old.get("levels", {}).items():
+                eps = old.get("episode_results", {}).get(lid, {})
+                done[lid] = {row["key"]: (row, eps[row["key"]]) for row in table["policies"]
+                             if row.get("key") in eps}
+                # Kept as they were until this run reaches the level again; a level this
+                # run does not evaluate (``--levels`` names others) stays on the board.
+                results["levels"][lid] = table
+                results["episode_results"][lid] = eps
+    return done
+
+
+def _evaluate_level(lid: str, args: argparse.Namespace, policy_kwargs: Any,
+                    done: dict[str, dict[str, Any]], results: dict[str, Any], json_path: Path,
+                    term: Any) -> int:
+    """Every listed policy on level ``lid`` (a resumed row is reused), the board saved after
+    each; returns how many were evaluated."""
+    level = get_level(lid)
+    table = {"env_id": lid, "episodes": args.episodes, "seed": args.seed,
+             "episode_length_s": round(level.max_episode_steps
+                                       * level.config().control_period, 9),
+             "policies": []}
+    # Only the rows this run lists: a retrained agent's old file (another key) and
+    # a policy no longer ranked leave with their episodes.
+    episodes: dict[str, Any] = {}
+    results["episode_results"][lid] = episodes
+    results["levels"][lid] = table
+    computed = 0
+    for spec in policy_specs(lid, Path(args.models), args.policy):
+        key = policy_key(spec)
+        term.raise_if_lost()
+        if key in done.get(lid, {}):
+            row, eps = done[lid][key]
+        else:
+            print(f"{lid}: {spec}, {args.episodes} episodes", file=sys.stderr, flush=True)
+            try:
+                row, res = evaluate_policy(lid, spec, args.episodes, args.seed,
+                                           progress=not args.no_progress,
+                                           trust=args.trust_model,
+                                           policy_kwargs=policy_kwargs)
+            except ValueError as exc:   # one bad submission does not stop the board
+                print(f"{lid}: skipped {spec}: {exc}", file=sys.stderr, flush=True)
+                continue
+            row = {**row, "policy": shown_spec(spec), "key": key}
+            eps = {"time": np.round(np.asarray(res["time"], float), 6).tolist(),
+                   "kept": np.asarray(res["kept"], bool).tolist()}
+            computed += 1
+        table["policies"].append(row)
+        episodes[key] = eps
+        # as it comes, whole: a stop mid-write keeps the previous file for --resume
+        write_text_atomically(json_path, json.dumps(results, indent=1) + "\n")
+    return computed
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
+    args, policy_kwargs, ids = _checked_args(build_parser(), argv)
     out = Path(args.out)
     if args.levels_doc:
         out.mkdir(parents=True, exist_ok=True)
@@ -333,18 +401,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                "date": time.strftime("%Y-%m-%d"),
                                "machine": f"{platform.machine()}, {_cores()} cores",
                                "levels": {}, "episode_results": {}}
-    done: dict[str, dict[str, Any]] = {}   # level -> policy key -> (row, episodes)
-    if args.resume and json_path.is_file():
-        old = json.loads(json_path.read_text())
-        if old.get("episodes") == args.episodes and old.get("seed") == args.seed:
-            for lid, table in old.get("levels", {}).items():
-                eps = old.get("episode_results", {}).get(lid, {})
-                done[lid] = {row["key"]: (row, eps[row["key"]]) for row in table["policies"]
-                             if row.get("key") in eps}
-                # Kept as they were until this run reaches the level again; a level this
-                # run does not evaluate (``--levels`` names others) stays on the board.
-                results["levels"][lid] = table
-                results["episode_results"][lid] = eps
+    done = _resume(json_path, args, results)
     # The board lists its levels in the registry's order, whichever were updated.
     results["order"] = [level.id for level in LEVELS
                         if level.id in ids or level.id in results["levels"]]
@@ -361,41 +418,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         # SIGTERM finishes like Ctrl-C, keeping what finished
         with sigterm_interrupts() as term:
             for lid in ids:
-                level = get_level(lid)
-                table = {"env_id": lid, "episodes": args.episodes, "seed": args.seed,
-                         "episode_length_s": round(level.max_episode_steps
-                                                   * level.config().control_period, 9),
-                         "policies": []}
-                # Only the rows this run lists: a retrained agent's old file (another key) and
-                # a policy no longer ranked leave with their episodes.
-                episodes: dict[str, Any] = {}
-                results["episode_results"][lid] = episodes
-                results["levels"][lid] = table
-                for spec in policy_specs(lid, Path(args.models), args.policy):
-                    key = policy_key(spec)
-                    term.raise_if_lost()
-                    if key in done.get(lid, {}):
-                        row, eps = done[lid][key]
-                    else:
-                        print(f"{lid}: {spec}, {args.episodes} episodes", file=sys.stderr, flush=True)
-                        try:
-                            row, res = evaluate_policy(lid, spec, args.episodes, args.seed,
-                                                       progress=not args.no_progress,
-                                                       trust=args.trust_model,
-                                                       policy_kwargs=policy_kwargs)
-                        except ValueError as exc:   # one bad submission does not stop the board
-                            print(f"{lid}: skipped {spec}: {exc}", file=sys.stderr, flush=True)
-                            continue
-                        row = {**row, "policy": shown_spec(spec), "key": key}
-                        eps = {"time": np.round(np.asarray(res["time"], float), 6).tolist(),
-                               "kept": np.asarray(res["kept"], bool).tolist()}
-                        computed += 1
-                    table["policies"].append(row)
-                    episodes[key] = eps
-                    # as it comes, whole: a stop mid-write keeps the previous file for --resume
-                    write_text_atomically(json_path, json.dumps(results, indent=1) + "\n")
+                computed += _evaluate_level(lid, args, policy_kwargs, done, results, json_path,
+                                            term)
+                table = results["levels"][lid]
                 fig = figs / f"leaderboard_{lid}.png"
-                survival_plot(lid, {row["policy"]: episodes[row["key"]] for row in table["policies"]},
+                survival_plot(lid, {row["policy"]: results["episode_results"][lid][row["key"]]
+                                    for row in table["policies"]},
                               table["episode_length_s"], fig)
                 figures[lid] = f"figures/{fig.name}"
                 write_markdown(results, out / "leaderboard.md", figures, command)

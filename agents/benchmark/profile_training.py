@@ -260,7 +260,7 @@ def profile_imitation(env_id: str, rounds: int, episodes: int, epochs: int = 10,
     torch.set_num_threads(1)
     level, config = resolve_env(env_id, {})
     hyper = load_hyperparams("ppo", env_id)
-    env = make_vec_env(4, seed, {}, level.max_episode_steps, env_id)
+    env = make_vec_env(4, seed, config, level.max_episode_steps)
     model = PPO("MlpPolicy", env, seed=seed, device="cpu", gamma=hyper.get("gamma", 0.99),
                 policy_kwargs=parse_policy_kwargs(hyper.get("policy_kwargs")))
     ModelPredictiveController(config)          # best-const cache / numba compile, untimed

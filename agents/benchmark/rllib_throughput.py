@@ -75,12 +75,13 @@ def sb3_rates(n_envs: int, seconds: float) -> dict:
     import torch
     from stable_baselines3 import PPO
 
+    from ..cli_args import resolve_env
     from ..training.backends.sb3 import make_vec_env
     from ..training.recipes import load_hyperparams, parse_policy_kwargs
 
     torch.set_num_threads(1)
     hyper = load_hyperparams("ppo", ENV_ID)
-    env = make_vec_env(n_envs, 0, {}, 500, ENV_ID)
+    env = make_vec_env(n_envs, 0, resolve_env(ENV_ID)[1], 500)
     kwargs = {k: hyper[k] for k in ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda",
                                     "learning_rate", "clip_range", "ent_coef")}
     model = PPO("MlpPolicy", env, seed=0, device="cpu", verbose=0,
@@ -136,7 +137,7 @@ def rllib_rates(runners: int, n_envs: int, seconds: float, mode: str = "vector_e
 
     hyper = load_hyperparams("ppo", ENV_ID)
     settings = TrainSettings(backend="rllib", env_id=ENV_ID, num_env_runners=runners,
-                             n_envs=n_envs).validate()
+                             n_envs=n_envs).validate().with_recipe(hyper)
     config = rb.build_config(settings, hyper)
     if mode != "vector_entry_point":
         config = config.env_runners(gym_env_vectorize_mode=mode)

@@ -203,7 +203,7 @@ def run_cell(level_id: str, algo_name: str, seed: int, *, budget: int | None = N
                                                                     Path(work), torch_threads)
     else:
         cls = getattr(importlib.import_module(algo.library), algo.cls)
-        env = make_vec_env(algo.n_envs, seed, {}, level.max_episode_steps, level.id)
+        env = make_vec_env(algo.n_envs, seed, level.config(), level.max_episode_steps)
         model = cls(algo.policy, env, seed=seed, device="cpu", verbose=0, **algo.kwargs)
         model.learn(steps)
         env.close()

@@ -58,14 +58,13 @@ def run_rows(run_dir: Path, episodes: int) -> list[dict[str, Any]]:
 
     from ..control.rollout import episode_set
     from ..training import selection
-    from ..training.runs import settings_for_resume
+    from ..training.runs import recorded_settings
 
     record = json.loads((run_dir / selection.SELECTION_JSON).read_text())
     path = {int(c["steps"]): run_dir / "candidates" / f"snapshot_{c['steps']}_steps.zip"
             for c in record["candidates"]}
-    settings = settings_for_resume(next(iter(path.values())))
+    settings = recorded_settings(next(iter(path.values())))
     _, config = settings.environment()
-    assert settings.max_episode_steps is not None
     unseen_set = episode_set(config, COMPARE_SEED, episodes, settings.max_episode_steps)
     by_steps = {int(c["steps"]): c for c in record["candidates"]}
     fresh, reported = selection.fresh_set(settings), selection.report_set(settings)

@@ -76,8 +76,8 @@ def remake_command(env_id: str, seed: int, config: dict[str, Any]) -> str:
         words += ["--env-kwargs", json.dumps(config["env_kwargs"], sort_keys=True)]
     plain = TrainSettings(algo=config.get("algo", default.algo),
                           backend=config.get("backend", default.backend),
-                          env_id=env_id, seed=seed).validate()
-    plain.take_recipe(config.get("hyperparams_used") or {})
+                          env_id=env_id, seed=seed).validate().with_recipe(
+                              config.get("hyperparams_used") or {})
     for name in _REMADE_SETTINGS:
         if config.get(name) is not None and config[name] != getattr(plain, name):
             words += [f"--{name.replace('_', '-')}", str(config[name])]

@@ -109,9 +109,7 @@ def run(env_id: str, seeds: list[int], hyperparams: str | None, out: Path,
     if eval_episodes is None:   # the recipe's, as training will take it
         probe = TrainSettings(algo=algo, backend=backend, env_id=env_id,
                               hyperparams=hyperparams, recipe_of=recipe_of).validate()
-        probe.take_recipe(recipe(probe))
-        assert probe.eval_episodes is not None  # take_recipe filled it
-        eval_episodes = probe.eval_episodes
+        eval_episodes = probe.with_recipe(recipe(probe)).eval_episodes
     log(f"targets: best-const and mpc on {eval_episodes} validation episodes "
         f"(seeds from {VALIDATION_SEED:,}) ...")
     ref = references(env_id, eval_episodes, VALIDATION_SEED, max_episode_steps)
@@ -188,7 +186,7 @@ def shorter_budgets(run_dirs: list[Path], budgets: Sequence[float], label: str,
     would add at its very end. The network is the run's checkpoint at that evaluation: the
     checkpoint period must divide the evaluation period (ValueError otherwise)."""
     from ..training.run_report import read_wall_rows
-    from ..training.runs import settings_for_resume
+    from ..training.runs import recorded_settings
     from ..training.selection import TOP, fresh_set, score
 
     picks = {}
@@ -213,7 +211,7 @@ def shorter_budgets(run_dirs: list[Path], budgets: Sequence[float], label: str,
                                      f"--eval-freq)")
             steps = int(ranked[0]["timesteps"])
             if reselect and len(models) > 1:
-                settings = settings_for_resume(models[steps])
+                settings = recorded_settings(models[steps])
                 episodes = fresh_set(settings)
                 steps = max(models, key=lambda k: (score(models[k], settings, episodes)
                                                    ["mean_return"], k))

@@ -591,7 +591,7 @@ class ModelPredictiveController(Controller):
         plan starts there; delay-blind, it starts from the estimate as if it were now.
         ``state[:, 0]`` counts the observations of the episode before this one."""
         c = self.config
-        T, L, d, nR, H = c.control_period, c.rim_radius, self._d, len(self.radii), self._history
+        T, L, d, H = c.control_period, c.rim_radius, self._d, self._history
         n = len(raw)
         count = state[:, 0].copy()
         has = count > 0
@@ -603,64 +603,96 @@ class ModelPredictiveController(Controller):
         vel = None if self._camera else raw[:, 2:4] * VELOCITY_SCALE
         new = state.copy()
         pseudo = np.zeros((n, 5))
-        # A new episode: the ball as placed (at rest in the laboratory unless the config
-        # starts it at rest on the saddle), the tachometer's speed.
         fresh = np.flatnonzero(~has)
         if len(fresh):
-            w = w_meas[fresh]
-            if vel is not None:
-                v = vel[fresh]
-            elif c.init_start == "lab-rest":
-                v = np.column_stack([w * pos[fresh, 1], -w * pos[fresh, 0]])
-            else:
-                v = np.zeros((len(fresh), 2))
-            pseudo[fresh] = np.column_stack([pos[fresh] / L, v / VELOCITY_SCALE,
-                                             w / c.omega_max])
+            pseudo[fresh] = self._placed(pos[fresh], None if vel is None else vel[fresh],
+                                         w_meas[fresh])
             new[fresh, 2 + d:self._hist_at] = 0.0
         radius = np.full(n, self.nominal)
         rows = np.flatnonzero(has)
         if len(rows):
-            m = len(rows)
-            prev = state[rows, 1:1 + d]
-            t0 = np.maximum(start[rows], -T - self._obs_delay)
-            t1 = np.maximum(start[rows], -self._obs_delay)
-            decay = math.exp(-T / self.id_time)
-            cands = np.zeros((nR, m, 4))   # per radius: the corrected centre and velocity
-            scores = np.zeros((nR, m))
-            w_pred = None
-            for j in range(nR):
-                o = self._block(j)
-                f0, spin0 = state[rows, o:o + 2], state[rows, o + 3]
-                Yp, wp = self.states(prev, j, spin0)
-                Ypred, w_pred, turned = self._carry(
-                    Yp, np.full(m, j), wp, f0 if self.estimate_force else np.zeros((m, 2)),
-                    history[rows], t0, t1)
-                cs = np.empty((m, 4))
-                _centre_states(self._model, self._P[j], Ypred, cs)
-                vp, spin1 = np.empty((m, 2)), np.empty(m)
-                _centre_velocities(self._model, self._P[j], Ypred, vp, spin1)
-                err = pos[rows] - cs[:, :2]
-                if vel is None:
-                    v = cs[:, 2:] + self.velocity_gain * err / T
-                    centre = cs[:, :2] + self.position_gain * err
-                else:
-                    v, centre = vel[rows], pos[rows]
-                dv = v - cs[:, 2:]
-                f1 = _rotate(f0, -turned)
-                if self.estimate_force:
-                    f1 = f1 + self.observer_gain * (1.0 + self._alpha) * dv / T
-                scores[j] = decay * state[rows, o + 2] + np.sum((err / T) ** 2, 1)
-                new[rows, o:o + 2] = f1
-                new[rows, o + 2] = scores[j]
-                new[rows, o + 3] = spin1
-                cands[j] = np.column_stack([centre, v])
-            best = np.argmin(scores, axis=0)
-            radius[rows] = best
-            pick = cands[best, np.arange(m)]
-            assert w_pred is not None  # set by the loop over the nR >= 1 radii
-            w_est = w_pred + self.speed_gain * (w_meas[rows] - w_pred)
-            pseudo[rows] = np.column_stack([pick[:, :2] / L, pick[:, 2:] / VELOCITY_SCALE,
-                                            w_est / c.omega_max])
+            radius[rows], pseudo[rows] = self._corrected(
+                state[rows], pos[rows], None if vel is None else vel[rows], w_meas[rows],
+                start[rows], history[rows], new, rows)
+        act = self._act_on_estimates(new, pseudo, radius, history, start)
+        new[:, 0] = count + 1
+        new[:, 1:1 + d] = pseudo
+        new[:, 1 + d] = act
+        hist = new[:, self._hist_at:self._hist_at + H]
+        hist[:, 1:] = history[:, :-1]
+        hist[:, 0] = act
+        return act, new
+
+    def _placed(self, pos: np.ndarray, vel: np.ndarray | None, w: np.ndarray) -> np.ndarray:
+        """The scaled estimate (x, y, vx, vy, Ω) of balls in a new episode: the ball as placed
+        (at rest in the laboratory unless the config starts it at rest on the saddle), the
+        tachometer's speed."""
+        c = self.config
+        if vel is not None:
+            v = vel
+        elif c.init_start == "lab-rest":
+            v = np.column_stack([w * pos[:, 1], -w * pos[:, 0]])
+        else:
+            v = np.zeros((len(pos), 2))
+        return np.column_stack([pos / c.rim_radius, v / VELOCITY_SCALE, w / c.omega_max])
+
+    def _corrected(self, state: np.ndarray, pos: np.ndarray, vel: np.ndarray | None,
+                   w_meas: np.ndarray, start: np.ndarray, history: np.ndarray,
+                   new: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Balls ``rows`` that were observed before (``state`` and the rest are their rows):
+        each candidate radius's last estimate carried one period forward and corrected by
+        the observation, its force, fit score and spin stored in ``new``; returns the
+        best-fitting radius and its scaled estimate (x, y, vx, vy, Ω)."""
+        c = self.config
+        T, L, d, nR = c.control_period, c.rim_radius, self._d, len(self.radii)
+        m = len(rows)
+        prev = state[:, 1:1 + d]
+        t0 = np.maximum(start, -T - self._obs_delay)
+        t1 = np.maximum(start, -self._obs_delay)
+        decay = math.exp(-T / self.id_time)
+        cands = np.zeros((nR, m, 4))   # per radius: the corrected centre and velocity
+        scores = np.zeros((nR, m))
+        w_pred = np.zeros(m)
+        for j in range(nR):
+            o = self._block(j)
+            f0, spin0 = state[:, o:o + 2], state[:, o + 3]
+            Yp, wp = self.states(prev, j, spin0)
+            Ypred, w_pred, turned = self._carry(
+                Yp, np.full(m, j), wp, f0 if self.estimate_force else np.zeros((m, 2)),
+                history, t0, t1)
+            cs = np.empty((m, 4))
+            _centre_states(self._model, self._P[j], Ypred, cs)
+            vp, spin1 = np.empty((m, 2)), np.empty(m)
+            _centre_velocities(self._model, self._P[j], Ypred, vp, spin1)
+            err = pos - cs[:, :2]
+            if vel is None:
+                v = cs[:, 2:] + self.velocity_gain * err / T
+                centre = cs[:, :2] + self.position_gain * err
+            else:
+                v, centre = vel, pos
+            dv = v - cs[:, 2:]
+            f1 = _rotate(f0, -turned)
+            if self.estimate_force:
+                f1 = f1 + self.observer_gain * (1.0 + self._alpha) * dv / T
+            scores[j] = decay * state[:, o + 2] + np.sum((err / T) ** 2, 1)
+            new[rows, o:o + 2] = f1
+            new[rows, o + 2] = scores[j]
+            new[rows, o + 3] = spin1
+            cands[j] = np.column_stack([centre, v])
+        best = np.argmin(scores, axis=0)
+        pick = cands[best, np.arange(m)]
+        # w_pred: the speed predicted with the last radius
+        w_est = w_pred + self.speed_gain * (w_meas - w_pred)
+        return best, np.column_stack([pick[:, :2] / L, pick[:, 2:] / VELOCITY_SCALE,
+                                      w_est / c.omega_max])
+
+    def _act_on_estimates(self, new: np.ndarray, pseudo: np.ndarray, radius: np.ndarray,
+                          history: np.ndarray, start: np.ndarray) -> np.ndarray:
+        """The actions from the estimates: carried through the delays (``delay_aware``) to
+        when the coming command takes effect, then planned near the stable band, else the
+        speed action toward the radius's reference speed."""
+        c, d, nR = self.config, self._d, len(self.radii)
+        n = len(pseudo)
         blocks = new[:, 2 + d:self._hist_at].reshape(n, nR, 4)
         mine = blocks[np.arange(n), radius]
         force = mine[:, :2].copy() if self.estimate_force else np.zeros((n, 2))
@@ -682,14 +714,7 @@ class ModelPredictiveController(Controller):
                                     force[near] if self.estimate_force else None, radius[near])
             plan["command"] = omega[near]
             act[near] = self.choose(plan)
-        act = np.clip(act, -1.0, 1.0).astype(np.float32).astype(np.float64)
-        new[:, 0] = count + 1
-        new[:, 1:1 + d] = pseudo
-        new[:, 1 + d] = act
-        hist = new[:, self._hist_at:self._hist_at + H]
-        hist[:, 1:] = history[:, :-1]
-        hist[:, 0] = act
-        return act, new
+        return np.clip(act, -1.0, 1.0).astype(np.float32).astype(np.float64)
 
     def executed(self, state: np.ndarray, actions: Any) -> np.ndarray:
         """``state`` (from `predict`) told that the environment received ``actions`` (n,)

@@ -15,6 +15,7 @@ import json
 import math
 import sys
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -55,6 +56,92 @@ def same_episodes(a: dict[str, Any] | None, b: dict[str, Any] | None, what: str)
                          + ", ".join(f"{k} {a.get(k)!r} against {b.get(k)!r}" for k in differ))
 
 
+def _chunks(seeds: np.ndarray, row_independent: bool) -> list[np.ndarray]:
+    """The batches the episodes run in: all at once, or CHUNK at a time with the last one
+    padded with extra seeds (a policy then always sees the same batch shape)."""
+    if row_independent:
+        return [seeds]
+    pad = (-len(seeds)) % CHUNK
+    padded = np.concatenate([seeds, seeds.max() + 1 + np.arange(pad)]) if pad else seeds
+    return [padded[i:i + CHUNK] for i in range(0, len(padded), CHUNK)]
+
+
+def _progress_bar(progress: bool | str, total: int) -> Any:
+    """A tqdm bar over ``total`` steps on stderr, or None (no progress asked, or no tqdm)."""
+    if not progress:
+        return None
+    try:
+        from tqdm.auto import tqdm
+    except ImportError:  # the bar is a nicety; the command lines say how to get it
+        return None
+    return tqdm(total=total, unit="step", file=sys.stderr,
+                desc=progress if isinstance(progress, str) else None, leave=False,
+                mininterval=0.5)
+
+
+@dataclass
+class _Traces:
+    """Ω and r at every step end of the first ``record`` episodes (NaN after the end)."""
+
+    omega: np.ndarray   # (record, steps + 1)
+    r: np.ndarray       # (record, steps + 1)
+
+
+def _run_chunk(config: EnvConfig, act: Actor, chunk: np.ndarray, start: int, keep: int,
+               max_episode_steps: int, traces: _Traces, bar: Any) -> dict[str, np.ndarray]:
+    """One batch of episodes (episode ``start + j`` is row j; the first ``keep`` rows are
+    real episodes): its per-row sums, filling the traces of the recorded rows."""
+    from saddle_env.envs.vector import SaddleTrapVectorEnv
+
+    m, dt = len(chunk), config.control_period
+    env = SaddleTrapVectorEnv(num_envs=m, max_episode_steps=max_episode_steps,
+                              **config.as_dict())
+    obs, info = env.reset(seed=[int(s) for s in chunk])
+    if hasattr(act, "start"):
+        act.start(m)
+    if hasattr(act, "attach"):    # actors that plan on the environment itself (clairvoyant)
+        act.attach(env, max_episode_steps)
+    alive = np.ones(m, dtype=bool)
+    t_trap, r_sum, a_sum, ret = np.zeros(m), np.zeros(m), np.zeros(m), np.zeros(m)
+    steps = np.zeros(m, dtype=np.int64)
+    min_n = np.asarray(info["N_over_mg"], dtype=float).copy()
+    cause = np.full(m, "kept", dtype=object)
+    rec = [j for j in range(m) if start + j < len(traces.omega)]
+    for j in rec:
+        traces.omega[start + j, 0] = info["omega"][j]
+        traces.r[start + j, 0] = math.hypot(*env.engine.Y[j, :2])
+    actions = np.zeros((m, 1), dtype=np.float32)
+    for step in range(max_episode_steps):
+        idx = np.flatnonzero(alive)
+        a = np.asarray(act(obs, idx), dtype=np.float32).reshape(len(idx))
+        actions[:] = 0.0
+        actions[idx, 0] = a
+        obs, rew, term, trunc, info = env.step(actions)
+        r = np.hypot(env.engine.Y[:, 0], env.engine.Y[:, 1])
+        t_trap[idx] += info["trapped_fraction"][idx] * dt
+        r_sum[idx] += r[idx]
+        a_sum[idx] += np.clip(a.astype(np.float64), -1, 1) ** 2
+        ret[idx] += rew[idx]
+        steps[idx] += 1
+        min_n[idx] = np.minimum(min_n[idx], info["N_over_mg"][idx])
+        for j in rec:
+            if alive[j]:
+                traces.omega[start + j, step + 1] = info["omega"][j]
+                traces.r[start + j, step + 1] = r[j]
+        for i in np.flatnonzero(term & alive):
+            cause[i] = info["cause"][i]
+        alive &= ~(term | trunc)
+        if bar is not None:
+            bar.update(1)
+        if not alive[:keep].any():
+            if bar is not None:
+                bar.update(max_episode_steps - step - 1)
+            break
+    env.close()
+    return {"time": t_trap, "r_sum": r_sum, "a_sum": a_sum, "return": ret, "steps": steps,
+            "min_normal": min_n, "cause": cause}
+
+
 def run_episodes(config: EnvConfig, act: Actor, seeds: Sequence[int] | np.ndarray, *,
                  max_episode_steps: int = DEFAULT_EPISODE_STEPS, row_independent: bool = True,
                  record: int = 0, progress: bool | str = False) -> dict[str, np.ndarray]:
@@ -70,94 +157,33 @@ def run_episodes(config: EnvConfig, act: Actor, seeds: Sequence[int] | np.ndarra
     for the first ``record`` episodes ``trace_omega``, ``trace_r`` ((record, steps + 1),
     NaN after the end) and ``trace_t``.
     """
-    from saddle_env.envs.vector import SaddleTrapVectorEnv
-
     seeds = np.asarray(seeds, dtype=np.int64)
     n = len(seeds)
-    if row_independent:
-        chunks = [seeds]
-    else:
-        pad = (-n) % CHUNK
-        padded = np.concatenate([seeds, seeds.max() + 1 + np.arange(pad)]) if pad else seeds
-        chunks = [padded[i:i + CHUNK] for i in range(0, len(padded), CHUNK)]
-    dt = config.control_period
+    chunks = _chunks(seeds, row_independent)
     out: dict[str, np.ndarray] = {"time": np.zeros(n), "kept": np.zeros(n, dtype=bool),
            "cause": np.full(n, "kept", dtype=object), "mean_r": np.zeros(n),
            "effort": np.zeros(n), "return": np.zeros(n), "min_normal": np.full(n, np.inf)}
     record = min(record, n)
-    trace_omega = np.full((record, max_episode_steps + 1), np.nan)
-    trace_r = np.full((record, max_episode_steps + 1), np.nan)
-    bar = None
-    if progress:
-        try:
-            from tqdm.auto import tqdm
-        except ImportError:  # the bar is a nicety; the command lines say how to get it
-            tqdm = None
-    if progress and tqdm is not None:
-        bar = tqdm(total=len(chunks) * max_episode_steps, unit="step", file=sys.stderr,
-                   desc=progress if isinstance(progress, str) else None, leave=False,
-                   mininterval=0.5)
-    kw = config.as_dict()
+    traces = _Traces(np.full((record, max_episode_steps + 1), np.nan),
+                     np.full((record, max_episode_steps + 1), np.nan))
+    bar = _progress_bar(progress, len(chunks) * max_episode_steps)
     start = 0
     for chunk in chunks:
-        m = len(chunk)
-        keep = min(m, n - start)                  # rows that are real episodes
-        env = SaddleTrapVectorEnv(num_envs=m, max_episode_steps=max_episode_steps, **kw)
-        obs, info = env.reset(seed=[int(s) for s in chunk])
-        if hasattr(act, "start"):
-            act.start(m)
-        if hasattr(act, "attach"):    # actors that plan on the environment itself (clairvoyant)
-            act.attach(env, max_episode_steps)
-        alive = np.ones(m, dtype=bool)
-        t_trap, r_sum, a_sum, ret = np.zeros(m), np.zeros(m), np.zeros(m), np.zeros(m)
-        steps = np.zeros(m, dtype=np.int64)
-        min_n = np.asarray(info["N_over_mg"], dtype=float).copy()
-        cause = np.full(m, "kept", dtype=object)
-        rec = [j for j in range(m) if start + j < record]
-        for j in rec:
-            trace_omega[start + j, 0] = info["omega"][j]
-            trace_r[start + j, 0] = math.hypot(*env.engine.Y[j, :2])
-        actions = np.zeros((m, 1), dtype=np.float32)
-        for step in range(max_episode_steps):
-            idx = np.flatnonzero(alive)
-            a = np.asarray(act(obs, idx), dtype=np.float32).reshape(len(idx))
-            actions[:] = 0.0
-            actions[idx, 0] = a
-            obs, rew, term, trunc, info = env.step(actions)
-            r = np.hypot(env.engine.Y[:, 0], env.engine.Y[:, 1])
-            t_trap[idx] += info["trapped_fraction"][idx] * dt
-            r_sum[idx] += r[idx]
-            a_sum[idx] += np.clip(a.astype(np.float64), -1, 1) ** 2
-            ret[idx] += rew[idx]
-            steps[idx] += 1
-            min_n[idx] = np.minimum(min_n[idx], info["N_over_mg"][idx])
-            for j in rec:
-                if alive[j]:
-                    trace_omega[start + j, step + 1] = info["omega"][j]
-                    trace_r[start + j, step + 1] = r[j]
-            for i in np.flatnonzero(term & alive):
-                cause[i] = info["cause"][i]
-            alive &= ~(term | trunc)
-            if bar is not None:
-                bar.update(1)
-            if not alive[:keep].any():
-                if bar is not None:
-                    bar.update(max_episode_steps - step - 1)
-                break
-        env.close()
+        keep = min(len(chunk), n - start)                  # rows that are real episodes
+        got = _run_chunk(config, act, chunk, start, keep, max_episode_steps, traces, bar)
         sl = slice(start, start + keep)
-        out["time"][sl] = t_trap[:keep]
-        out["cause"][sl] = cause[:keep]
-        out["kept"][sl] = cause[:keep] == "kept"
-        out["mean_r"][sl] = r_sum[:keep] / np.maximum(steps[:keep], 1)
-        out["effort"][sl] = a_sum[:keep] / np.maximum(steps[:keep], 1)
-        out["return"][sl] = ret[:keep]
-        out["min_normal"][sl] = min_n[:keep]
+        out["time"][sl] = got["time"][:keep]
+        out["cause"][sl] = got["cause"][:keep]
+        out["kept"][sl] = got["cause"][:keep] == "kept"
+        out["mean_r"][sl] = got["r_sum"][:keep] / np.maximum(got["steps"][:keep], 1)
+        out["effort"][sl] = got["a_sum"][:keep] / np.maximum(got["steps"][:keep], 1)
+        out["return"][sl] = got["return"][:keep]
+        out["min_normal"][sl] = got["min_normal"][:keep]
         start += keep
     if bar is not None:
         bar.close()
-    out["trace_omega"], out["trace_r"] = trace_omega, trace_r
-    out["trace_t"] = np.arange(max_episode_steps + 1) * dt
+    out["trace_omega"], out["trace_r"] = traces.omega, traces.r
+    out["trace_t"] = np.arange(max_episode_steps + 1) * config.control_period
     return out
 
 

@@ -3,10 +3,11 @@
 takes in, behind the one seam `agents.training.trainer.train`.
 
 `TrainSettings` is the one declaration of a run's settings, for every back end: the command
-line (``train.py``) fills it field by field from its flags, a run saves it as
-``config.json``, and ``--resume`` reads it back (`settings_for_resume`). Each setting is
-declared here once, with its default; a back end reads the ones it uses and `validate`
-refuses the ones it cannot honour.
+line (``train.py``) builds it from its flags, a run saves it as ``config.json``, and
+``--resume`` reads it back (`settings_for_resume`). Each setting is declared here once, with
+its default; a back end reads the ones it uses and `validate` refuses the ones it cannot
+honour. Settings are frozen: `validate` returns a checked copy, and `with_recipe` the
+`RunSettings` a back end trains with, every count the recipe decides filled in.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ import signal
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -44,10 +46,11 @@ DEFAULT_EVAL_EPISODES = 64   # validation episodes per evaluation, unless the re
 RLLIB_ONLY = ("num_env_runners", "address", "num_cpus")
 
 
-@dataclass
+@dataclass(frozen=True)
 class TrainSettings:
-    """What a run needs; saved as ``config.json`` in the run folder. The defaults here are
-    the command line's (``train.py`` reads its flags' defaults from this class)."""
+    """What a run asks for; saved as ``config.json`` in the run folder. The defaults here
+    are the command line's (``train.py`` reads its flags' defaults from this class). None
+    leaves a setting to the level or the recipe (`validate`, `with_recipe`)."""
 
     algo: str = "ppo"
     # The main job (`python train.py`) trains on a level where learning shows within minutes:
@@ -89,8 +92,8 @@ class TrainSettings:
                 "max_episode_steps", "torch_threads", "num_cpus")
 
     def validate(self) -> TrainSettings:
-        """Check every setting (ValueError naming the flag); fill in the level's episode
-        length and RLlib's runner count. Returns self."""
+        """Check every setting (ValueError naming the flag); return a copy with the level's
+        episode length and RLlib's runner count filled in."""
         if self.backend not in BACKEND_ALGOS:
             raise ValueError(f"--backend must be one of {list(BACKENDS)}, got {self.backend!r}")
         algos = BACKEND_ALGOS[self.backend]
@@ -122,12 +125,13 @@ class TrainSettings:
         if self.recipe_of is not None and self.recipe_of not in LEVEL_IDS:
             raise ValueError(f"--recipe-of must be a level id ({', '.join(LEVEL_IDS)}), "
                              f"got {self.recipe_of!r}")
+        filled: dict[str, Any] = {}
         if self.backend == "rllib" and self.num_env_runners is None:
-            self.num_env_runners = DEFAULT_ENV_RUNNERS
+            filled["num_env_runners"] = DEFAULT_ENV_RUNNERS
         level, _ = self.environment()
         if self.max_episode_steps is None:
-            self.max_episode_steps = level.max_episode_steps
-        return self
+            filled["max_episode_steps"] = level.max_episode_steps
+        return replace(self, **filled)
 
     def environment(self) -> tuple[Level, EnvConfig]:
         """The level and its config with ``env_kwargs`` on top (ValueError if invalid)."""
@@ -136,18 +140,29 @@ class TrainSettings:
         except TypeError as exc:
             raise ValueError(f"--env-kwargs: {exc}") from None
 
-    def take_recipe(self, hyper: dict[str, Any]) -> None:
-        """Fill what the command line left to the recipe: the balls, the budget and the
-        model selection's evaluations; record the recipe (``config.json`` keeps it)."""
-        self.hyperparams_used = hyper
-        self.n_envs = int(self.n_envs or hyper.get("n_envs", DEFAULT_N_ENVS[self.backend]))
-        self.total_timesteps = int(self.total_timesteps or float(hyper.get("n_timesteps", 1e5)))
-        if self.eval_freq is None:
-            self.eval_freq = int(hyper.get("eval_freq")
-                                 or max(20_000, self.total_timesteps // 20))
-        if self.eval_episodes is None:
-            self.eval_episodes = int(hyper.get("eval_episodes") or DEFAULT_EVAL_EPISODES)
-        self._check_eval_episodes()
+    def with_recipe(self, hyper: dict[str, Any]) -> RunSettings:
+        """The settings a back end trains with: what the command line left to the recipe
+        filled in (the balls, the budget and the model selection's evaluations) and the
+        recipe recorded (``config.json`` keeps it). Call on validated settings (the episode
+        length comes from `validate`)."""
+        if self.max_episode_steps is None:
+            raise ValueError("with_recipe needs validated settings: call validate() first")
+        total = int(self.total_timesteps or float(hyper.get("n_timesteps", 1e5)))
+        eval_episodes = self.eval_episodes
+        if eval_episodes is None:
+            eval_episodes = int(hyper.get("eval_episodes") or DEFAULT_EVAL_EPISODES)
+        eval_freq = self.eval_freq
+        if eval_freq is None:
+            eval_freq = int(hyper.get("eval_freq") or max(20_000, total // 20))
+        run = RunSettings(**{**{f.name: getattr(self, f.name) for f in fields(self)},
+                             "hyperparams_used": hyper,
+                             "n_envs": int(self.n_envs or hyper.get("n_envs",
+                                                                    DEFAULT_N_ENVS[self.backend])),
+                             "total_timesteps": total, "eval_freq": eval_freq,
+                             "eval_episodes": eval_episodes,
+                             "max_episode_steps": self.max_episode_steps})
+        run._check_eval_episodes()
+        return run
 
     def _check_eval_episodes(self) -> None:
         if self.eval_episodes is not None and self.eval_episodes > MAX_EVAL_EPISODES:
@@ -169,6 +184,33 @@ class TrainSettings:
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "config.json").write_text(json.dumps(asdict(self), indent=2, default=list))
         return run_dir
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunSettings(TrainSettings):
+    """`TrainSettings` resolved for training (`TrainSettings.with_recipe`): validated, and
+    every count the command line may leave to the level or the recipe filled in. What the
+    back ends, the model selection and the run's report take."""
+
+    n_envs: int
+    total_timesteps: int
+    eval_freq: int
+    eval_episodes: int
+    max_episode_steps: int
+
+    def environment(self) -> tuple[Level, EnvConfig]:
+        """The level and its config with ``env_kwargs`` on top, checked on the first call
+        only: the run's back end, model selection and report share it."""
+        return self._environment
+
+    @cached_property
+    def _environment(self) -> tuple[Level, EnvConfig]:
+        return super().environment()
+
+    @property
+    def env_runners(self) -> int:
+        """RLlib's env runner actors (`validate` fills ``num_env_runners`` for RLlib)."""
+        return DEFAULT_ENV_RUNNERS if self.num_env_runners is None else self.num_env_runners
 
 
 def run_folder_of(checkpoint: str | Path) -> Path:
@@ -195,6 +237,12 @@ def settings_for_resume(checkpoint: str | Path, total_timesteps: int | None = No
     config = run_folder_of(ckpt) / "config.json"
     return saved_settings(TrainSettings, config, total_timesteps, progress_bar,
                           **overrides).validate()
+
+
+def recorded_settings(checkpoint: str | Path) -> RunSettings:
+    """The settings a checkpoint's run trained with, from its ``config.json``, which
+    recorded every count the recipe gave (the recipe itself is not re-read)."""
+    return settings_for_resume(checkpoint).with_recipe({})
 
 
 class Stop(BaseException):
@@ -274,5 +322,6 @@ def sigterm_stops(deferred: bool = False) -> Iterator[StopRequest]:
 
 
 __all__ = ["ALGO_NAMES", "BACKENDS", "BACKEND_ALGOS", "DEFAULT_ENV_RUNNERS", "DEFAULT_N_ENVS",
-           "MAIN_JOB_ENV_ID", "Stop", "StopRequest", "TrainSettings", "run_folder_of", "settings_for_resume",
-           "sigterm_stops", "stops_held"]
+           "MAIN_JOB_ENV_ID", "RunSettings", "Stop", "StopRequest", "TrainSettings",
+           "recorded_settings", "run_folder_of", "settings_for_resume", "sigterm_stops",
+           "stops_held"]

@@ -46,7 +46,7 @@ import numpy as np
 from ..control.rollout import episode_set
 from ..seeds import RESELECT_SEED, TEST_SEED, VALIDATION_SEED
 from .run_report import CURVE_EPISODES
-from .runs import TrainSettings
+from .runs import RunSettings
 
 TOP = 3                                   # snapshots re-evaluated on fresh episodes
 FRESH_FACTOR = 4                          # fresh episodes per validation episode
@@ -56,12 +56,12 @@ RULE = (f"the {TOP} snapshots with the highest mean validation return, re-evalua
         f"scored on a second fresh set that chose nothing")
 
 
-def validation_set(settings: TrainSettings) -> dict[str, Any]:
+def validation_set(settings: RunSettings) -> dict[str, Any]:
     """The episodes of every evaluation during a run of ``settings`` (`VALIDATION_SEED`)."""
     return _set(settings, VALIDATION_SEED)
 
 
-def fresh_set(settings: TrainSettings) -> dict[str, Any]:
+def fresh_set(settings: RunSettings) -> dict[str, Any]:
     """The episodes the best snapshots of run ``settings.seed`` are re-evaluated on:
     `FRESH_FACTOR` × ``eval_episodes`` of them, the first half of the run's own block of
     seeds (`_reselect_block`), so that the offset of one set of episodes (easier or harder
@@ -71,7 +71,7 @@ def fresh_set(settings: TrainSettings) -> dict[str, Any]:
     return episode_set(settings.environment()[1], start, n, steps)
 
 
-def report_set(settings: TrainSettings) -> dict[str, Any]:
+def report_set(settings: RunSettings) -> dict[str, Any]:
     """The episodes the shipped network's recorded score comes from: the second half of the
     run's block, as many as `fresh_set` and disjoint from it, so that no choice was made on
     them."""
@@ -79,11 +79,10 @@ def report_set(settings: TrainSettings) -> dict[str, Any]:
     return episode_set(settings.environment()[1], start + n, n, steps)
 
 
-def _reselect_block(settings: TrainSettings) -> tuple[int, int, int]:
+def _reselect_block(settings: RunSettings) -> tuple[int, int, int]:
     """Run ``settings.seed``'s first re-selection seed, the size of each of its two sets
     (2 · `FRESH_FACTOR` · ``eval_episodes`` seeds from ``RESELECT_SEED + seed · 2n``) and the
     episodes' length."""
-    assert settings.eval_episodes is not None and settings.max_episode_steps is not None
     n = FRESH_FACTOR * settings.eval_episodes
     start = RESELECT_SEED + settings.seed * 2 * n
     if settings.seed < 0 or start + 2 * n > TEST_SEED:
@@ -95,13 +94,12 @@ def _reselect_block(settings: TrainSettings) -> tuple[int, int, int]:
     return start, n, settings.max_episode_steps
 
 
-def _set(settings: TrainSettings, seed: int) -> dict[str, Any]:
-    assert settings.eval_episodes is not None and settings.max_episode_steps is not None
+def _set(settings: RunSettings, seed: int) -> dict[str, Any]:
     return episode_set(settings.environment()[1], seed, settings.eval_episodes,
                        settings.max_episode_steps)
 
 
-def score(model_path: Path, settings: TrainSettings, episodes: dict[str, Any]
+def score(model_path: Path, settings: RunSettings, episodes: dict[str, Any]
           ) -> dict[str, Any]:
     """The saved model's mean return and trapping time on the `episode_set` ``episodes``,
     as the evaluation tool measures them (the model file read as data, with its sidecar's
@@ -144,7 +142,7 @@ class Selection:
     """The running state of a run's model selection: its curve, the `TOP` candidates (saved
     under ``candidates/``), and the choice at the end (`choose`)."""
 
-    def __init__(self, run_dir: Path, settings: TrainSettings, top: int = TOP):
+    def __init__(self, run_dir: Path, settings: RunSettings, top: int = TOP):
         if isinstance(top, bool) or not isinstance(top, int) or top < 1:
             raise ValueError(f"top must be a positive integer, got {top!r}")
         self.run_dir, self.settings, self.top = Path(run_dir), settings, top

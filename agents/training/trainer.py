@@ -89,22 +89,22 @@ def train(settings: TrainSettings, resume: str | Path | None = None, trust: bool
     back = backend(settings)
     back.check_dependencies(settings.progress_bar)
     began = time.time()
-    settings.validate()
+    checked = settings.validate()
     if resume is not None and back.RESUME_NEEDS_TRUST and not trust:
         raise untrusted(resume, f"resuming restores {settings.backend}'s own checkpoint, "
                                 f"which is pickled (evaluating it does not need this)")
-    hyper = recipe(settings, note=True)
-    settings.take_recipe(hyper)
-    run_dir = settings.open_run_folder(resume)
-    ahead = compile_ahead.start(settings, run_dir)   # the comparison's kernels and the curve's
+    hyper = recipe(checked, note=True)
+    run = checked.with_recipe(hyper)
+    run_dir = run.open_run_folder(resume)
+    ahead = compile_ahead.start(run, run_dir)   # the comparison's kernels and the curve's
     # reference lines, on the other core
     try:
-        model = back.run(settings, hyper, run_dir, resume, trust, began)
+        model = back.run(run, hyper, run_dir, resume, trust, began)
         if model is not None:
             plot_learning_curve(run_dir)
-            if settings.compare_episodes > 0:
+            if run.compare_episodes > 0:
                 compile_ahead.finish(ahead)     # waits for it: the comparison needs its work
-                compare(run_dir, settings, model)
+                compare(run_dir, run, model)
     finally:
         compile_ahead.finish(ahead, wait_s=0)   # stopped however the run ends
     return run_dir

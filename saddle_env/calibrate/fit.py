@@ -27,7 +27,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..envs.config import EnvConfig
-from .model import PARAMETERS, Model, contact_from_centre, plan_track, wrap
+from .model import PARAMETERS, Model, TrackPlan, contact_from_centre, plan_track, wrap
 from .tracks import Track
 
 Z95 = 1.959963984540054
@@ -391,6 +391,62 @@ HINTS = {
 }
 
 
+def _check_arguments(tracks: list[Track], config: EnvConfig, segment: float,
+                     max_iterations: int) -> None:
+    """`fit_tracks`' arguments that need no model: some tracks, the config, the segments'
+    length and the iteration budget (ValueError naming the argument)."""
+    if not tracks:
+        raise ValueError("no tracks to fit")
+    if not isinstance(config, EnvConfig):
+        raise ValueError(f"config must be an EnvConfig, got {type(config).__name__}")
+    if not (isinstance(segment, (int, float)) and 0.02 <= segment <= 2.0):
+        raise ValueError(f"segment must be in [0.02, 2] s, got {segment!r}")
+    if not (isinstance(max_iterations, int) and 1 <= max_iterations <= 1000):
+        raise ValueError(f"max_iterations must be an integer in [1, 1000], got {max_iterations!r}")
+
+
+def _noise_weights(tracks: list[Track], config: EnvConfig, position_noise: float | None,
+                   omega_noise: float | None) -> tuple[float, float]:
+    """The residuals' starting weights (camera [m], tachometer [rad/s]), after checking
+    that every track has enough tracked frames."""
+    for t in tracks:
+        if int(t.tracked.sum()) < MIN_FRAMES:
+            raise ValueError(f"{t.source}: {int(t.tracked.sum())} tracked frames; a fit needs "
+                             f"at least {MIN_FRAMES} per track")
+    sigma = position_noise if position_noise is not None else (config.position_noise or 1e-3)
+    sigma_w = omega_noise if omega_noise is not None else (config.omega_noise or 0.2)
+    for nm, val in (("position_noise", sigma), ("omega_noise", sigma_w)):
+        if not (isinstance(val, (int, float)) and 0 < val < 1):
+            raise ValueError(f"{nm} must be in (0, 1), got {val!r}")
+    return sigma, sigma_w
+
+
+def _restart_latency(model: Model, plans: list[TrackPlan], v: np.ndarray, v0: np.ndarray,
+                     lo: np.ndarray, hi: np.ndarray, max_iterations: int,
+                     say: Callable[[str], None]) -> np.ndarray:
+    """The fit ``v`` or a better one started from another camera latency.
+
+    The cost along the latency can be nearly flat with a worse minimum far off (seen: 96 ms
+    fitted for 27 ms, one track's residual 1.3x the others'). Start again from no latency
+    and from twice the start, with ``model``'s weights; keep the lowest cost."""
+    names = model.names
+    i = names.index("obs_delay")
+    start_delay = float(v0[i])
+    for d in (0.0, min(2.0 * start_delay + 0.02, PARAMETERS["obs_delay"][2])):
+        say(f"one track fits worse than the others: starting again from "
+            f"obs_delay = {d:g} s")
+        alt = Model(replace(model.config, obs_delay=d), plans, names, model.drive,
+                    model.sigma, model.sigma_omega, rtol=model.rtol)
+        alt_obj = _Objective(alt, lo, hi, say)
+        w, st = _solve(alt, alt_obj, initial_vector(alt, say), lo, hi,
+                       max_iterations, say, reweight=False)
+        cost_w, cost_v = (float(np.sum(model.residuals(x) ** 2)) for x in (w, v))
+        say(f"cost {0.5 * cost_w:.6g} against {0.5 * cost_v:.6g}")
+        if st == "converged" and cost_w < cost_v:
+            v = w
+    return v
+
+
 def fit_tracks(tracks: Sequence[Track], config: EnvConfig, fit: Sequence[str], *,
                drive: str | None = None, segment: float = 0.15,
                position_noise: float | None = None, omega_noise: float | None = None,
@@ -435,26 +491,11 @@ def fit_tracks(tracks: Sequence[Track], config: EnvConfig, fit: Sequence[str], *
     """
     say = progress or (lambda _: None)
     tracks = list(tracks)
-    if not tracks:
-        raise ValueError("no tracks to fit")
-    if not isinstance(config, EnvConfig):
-        raise ValueError(f"config must be an EnvConfig, got {type(config).__name__}")
-    if not (isinstance(segment, (int, float)) and 0.02 <= segment <= 2.0):
-        raise ValueError(f"segment must be in [0.02, 2] s, got {segment!r}")
-    if not (isinstance(max_iterations, int) and 1 <= max_iterations <= 1000):
-        raise ValueError(f"max_iterations must be an integer in [1, 1000], got {max_iterations!r}")
+    _check_arguments(tracks, config, segment, max_iterations)
     drive = choose_drive(tracks, fit, drive)
     names = check_fit_names(fit, config, drive)
     config = prepare_config(config, names)
-    for t in tracks:
-        if int(t.tracked.sum()) < MIN_FRAMES:
-            raise ValueError(f"{t.source}: {int(t.tracked.sum())} tracked frames; a fit needs "
-                             f"at least {MIN_FRAMES} per track")
-    sigma = position_noise if position_noise is not None else (config.position_noise or 1e-3)
-    sigma_w = omega_noise if omega_noise is not None else (config.omega_noise or 0.2)
-    for nm, val in (("position_noise", sigma), ("omega_noise", sigma_w)):
-        if not (isinstance(val, (int, float)) and 0 < val < 1):
-            raise ValueError(f"{nm} must be in (0, 1), got {val!r}")
+    sigma, sigma_w = _noise_weights(tracks, config, position_noise, omega_noise)
     plans = [plan_track(t, drive, segment) for t in tracks]
     model = Model(config, plans, names, drive, float(sigma), float(sigma_w), rtol=rtol)
     if model.layout.size > MAX_UNKNOWNS:
@@ -476,24 +517,7 @@ def fit_tracks(tracks: Sequence[Track], config: EnvConfig, fit: Sequence[str], *
         try:
             v, status = _solve(model, obj, v0, lo, hi, max_iterations, say)
             if status == "converged" and "obs_delay" in names and _odd_tracks(model, v):
-                # The cost along the latency can be nearly flat with a worse minimum far off
-                # (seen: 96 ms fitted for 27 ms, one track's residual 1.3x the others'). Start
-                # again from no latency and from twice the start, with these weights; keep the
-                # lowest cost.
-                i = names.index("obs_delay")
-                start_delay = float(v0[i])
-                for d in (0.0, min(2.0 * start_delay + 0.02, PARAMETERS["obs_delay"][2])):
-                    say(f"one track fits worse than the others: starting again from "
-                        f"obs_delay = {d:g} s")
-                    alt = Model(replace(config, obs_delay=d), plans, names, drive, model.sigma,
-                                model.sigma_omega, rtol=rtol)
-                    alt_obj = _Objective(alt, lo, hi, say)
-                    w, st = _solve(alt, alt_obj, initial_vector(alt, say), lo, hi,
-                                   max_iterations, say, reweight=False)
-                    cost_w, cost_v = (float(np.sum(model.residuals(x) ** 2)) for x in (w, v))
-                    say(f"cost {0.5 * cost_w:.6g} against {0.5 * cost_v:.6g}")
-                    if st == "converged" and cost_w < cost_v:
-                        v = w
+                v = _restart_latency(model, plans, v, v0, lo, hi, max_iterations, say)
             iterations = obj.iteration
         except KeyboardInterrupt:
             if obj.best_x is None:

@@ -194,18 +194,106 @@ def _module_name(flags: tuple[str, ...]) -> str:
     return "k_" + ("_".join(f[:-3].lower() for f in flags) or "none")
 
 
+def _warm_env(spec: BuildSpec, out_dir: str, module_name: str, exports: dict[str, list[str]],
+              threaded: list[str], shims: list[str]) -> None:
+    """First steps of the level's env and vector env (serial, SIMD blocks, threads), so the
+    step functions are compiled with their argument types; their exports listed."""
+    import gymnasium as gym
+
+    from ..compilation import aot_threads
+    from ..envs import _step
+    from ..lockstep import LANES
+    from .profile import first_step
+
+    assert spec["env"] is not None  # the caller checked
+    env_id, options = spec["env"]
+    first_step(gym.make(env_id, **options))
+    # the vector env below 2 x LANES balls (training's 64): SIMD blocks in one thread
+    first_step(gym.make_vec(env_id, num_envs=_step.MIN_BLOCK, **options))
+    # and from 2 x LANES on: numba's threads, reached through `aot_threads`'s forwarders
+    first_step(gym.make_vec(env_id, num_envs=2 * LANES, **options))
+    exports["saddle_env.envs._step"] = ["place", "step_scalar", "step_serial",
+                                        "step_parallel"]
+    threaded.append("saddle_env.envs._step.step_parallel")
+    shims.append(aot_threads.write_shim(out_dir, module_name))
+
+
+def _warm_simulator(spec: BuildSpec, exports: dict[str, list[str]]) -> None:
+    """First calls of simulate, simulate_batch and predict_batch on one ball of each of the
+    module's models; their exports listed."""
+    import numpy as np
+
+    from ..prediction import predict_batch
+    from ..runner import initial_state
+    from ..scene import CONTACT_MODELS
+    from ..simulate import simulate, simulate_batch
+
+    # one ball of each model (a mix's batch has rows of several)
+    by_code: dict[int, Scene] = {}
+    for contact in CONTACT_MODELS:
+        scene = _example_scene(contact)
+        if scene.model_code in spec["models"]:
+            by_code.setdefault(scene.model_code, scene)
+    scenes = list(by_code.values())
+    width = max(sc.state_size for sc in scenes)
+    starts = np.array([np.pad(s, (0, width - len(s))) for s in
+                       (initial_state(sc, 0.001, 0.001, omega=30.0) for sc in scenes)])
+    if spec["contact"] is not None:
+        simulate(scenes[0], starts[0, :scenes[0].state_size], 0.01, omega=30.0)
+        exports["saddle_env.integrators"] = ["integrate_h"]
+    simulate_batch(scenes * 2, np.concatenate([starts, starts]), 0.01, omega=30.0)
+    exports.setdefault("saddle_env.integrators", []).append("integrate_batch")
+    # a look-ahead, as a model-predictive controller makes it (agents.control.mpc): the argument
+    # types are predict_batch's own, whatever the values
+    rows = np.array([sc.model_code for sc in scenes] * 2)
+    P = np.array([sc.params() for sc in scenes] * 2)
+    from .._kernels import DRIVE_W0, DRIVE_WIDTH
+
+    drives = np.zeros((len(rows), 2, DRIVE_WIDTH))
+    drives[:, :, DRIVE_W0] = 30.0
+    predict_batch(rows, P, np.concatenate([starts, starts]), drives,
+                  np.full((len(rows), 2), 0.01), 0.005)
+    exports["saddle_env.prediction"] = ["integrate_segments"]
+
+
+def _warm_ion(exports: dict[str, list[str]]) -> None:
+    """A first ion-trap run; its integrator listed for export."""
+    import numpy as np
+
+    from ..iontrap import RRFTrap, simulate_ion
+    simulate_ion(RRFTrap(omega=20.0, kappa=1.0), np.array([1e-3, 0.0, 0.0, 0.0]), 0.01)
+    exports["saddle_env.integrators"] = ["integrate_h"]
+
+
+def _export(cc: Any, spec: BuildSpec, exports: dict[str, list[str]],
+            argtypes: dict[str, list[str]]) -> None:
+    """Each listed function's one compiled signature exported by ``cc`` through a thin
+    caller; its argument types recorded in ``argtypes``."""
+    from .. import integrators, prediction
+    from ..envs import _step
+
+    modules = {"saddle_env.envs._step": _step, "saddle_env.integrators": integrators,
+               "saddle_env.prediction": prediction}
+    for mod_name, names in exports.items():
+        space = specialise(frozenset(spec["models"]), bool(spec["resist"]), modules[mod_name])
+        for name in names:
+            dispatcher = getattr(space, name)
+            if len(dispatcher.signatures) != 1:
+                raise RuntimeError(f"{mod_name}.{name}: {len(dispatcher.signatures)} compiled "
+                                   "signatures, expected exactly the first call's one")
+            caller = _EXPORTS[mod_name][name]
+            thin = types.FunctionType(caller.__code__, {name: dispatcher}, caller.__name__)
+            signature = dispatcher.signatures[0]
+            cc.export(name, signature)(thin)
+            argtypes[f"{mod_name}.{name}"] = [str(t) for t in signature]
+
+
 def _build_one(flags: tuple[str, ...], spec: BuildSpec, out_dir: str) -> dict:
     """Compile one module in this (worker) process; return its manifest entry."""
     os.environ[_aot.AOT_ENV] = "0"  # the JIT's copies are what gets built
     # the compile notice is for a user waiting on a first call, not for this build
     logging.getLogger("saddle_env").setLevel(logging.ERROR)
     from numba.pycc import CC
-
-    from .. import integrators, prediction
-    from ..compilation import aot_threads
-    from ..envs import _step
-    from ..lockstep import LANES
-    from ..scene import CONTACT_MODELS
 
     t0 = time.perf_counter()
     exports: dict[str, list[str]] = {}
@@ -230,72 +318,13 @@ def _build_one(flags: tuple[str, ...], spec: BuildSpec, out_dir: str) -> dict:
     codegen._customize_tm_features = lambda self: target["features"]
     cc.target_cpu = target["cpu"]
     _release_gil_in_exports()
-    modules = {"saddle_env.envs._step": _step, "saddle_env.integrators": integrators,
-               "saddle_env.prediction": prediction}
     if spec["env"] is not None:
-        import gymnasium as gym
-
-        from .profile import first_step
-        env_id, options = spec["env"]
-        first_step(gym.make(env_id, **options))
-        # the vector env below 2 x LANES balls (training's 64): SIMD blocks in one thread
-        first_step(gym.make_vec(env_id, num_envs=_step.MIN_BLOCK, **options))
-        # and from 2 x LANES on: numba's threads, reached through `aot_threads`'s forwarders
-        first_step(gym.make_vec(env_id, num_envs=2 * LANES, **options))
-        exports["saddle_env.envs._step"] = ["place", "step_scalar", "step_serial",
-                                            "step_parallel"]
-        threaded.append("saddle_env.envs._step.step_parallel")
-        shims.append(aot_threads.write_shim(out_dir, cc.name))
+        _warm_env(spec, out_dir, cc.name, exports, threaded, shims)
     if spec["contact"] is not None or spec["mix"]:
-        import numpy as np
-
-        from ..prediction import predict_batch
-        from ..runner import initial_state
-        from ..simulate import simulate, simulate_batch
-        # one ball of each model (a mix's batch has rows of several)
-        by_code: dict[int, Scene] = {}
-        for contact in CONTACT_MODELS:
-            scene = _example_scene(contact)
-            if scene.model_code in spec["models"]:
-                by_code.setdefault(scene.model_code, scene)
-        scenes = list(by_code.values())
-        width = max(sc.state_size for sc in scenes)
-        starts = np.array([np.pad(s, (0, width - len(s))) for s in
-                           (initial_state(sc, 0.001, 0.001, omega=30.0) for sc in scenes)])
-        if spec["contact"] is not None:
-            simulate(scenes[0], starts[0, :scenes[0].state_size], 0.01, omega=30.0)
-            exports["saddle_env.integrators"] = ["integrate_h"]
-        simulate_batch(scenes * 2, np.concatenate([starts, starts]), 0.01, omega=30.0)
-        exports.setdefault("saddle_env.integrators", []).append("integrate_batch")
-        # a look-ahead, as a model-predictive controller makes it (agents.control.mpc): the argument
-        # types are predict_batch's own, whatever the values
-        rows = np.array([sc.model_code for sc in scenes] * 2)
-        P = np.array([sc.params() for sc in scenes] * 2)
-        from .._kernels import DRIVE_W0, DRIVE_WIDTH
-
-        drives = np.zeros((len(rows), 2, DRIVE_WIDTH))
-        drives[:, :, DRIVE_W0] = 30.0
-        predict_batch(rows, P, np.concatenate([starts, starts]), drives,
-                      np.full((len(rows), 2), 0.01), 0.005)
-        exports["saddle_env.prediction"] = ["integrate_segments"]
+        _warm_simulator(spec, exports)
     if spec["ion"]:
-        import numpy as np
-
-        from ..iontrap import RRFTrap, simulate_ion
-        simulate_ion(RRFTrap(omega=20.0, kappa=1.0), np.array([1e-3, 0.0, 0.0, 0.0]), 0.01)
-        exports["saddle_env.integrators"] = ["integrate_h"]
-    for mod_name, names in exports.items():
-        space = specialise(frozenset(spec["models"]), bool(spec["resist"]), modules[mod_name])
-        for name in names:
-            dispatcher = getattr(space, name)
-            if len(dispatcher.signatures) != 1:
-                raise RuntimeError(f"{mod_name}.{name}: {len(dispatcher.signatures)} compiled "
-                                   "signatures, expected exactly the first call's one")
-            caller = _EXPORTS[mod_name][name]
-            thin = types.FunctionType(caller.__code__, {name: dispatcher}, caller.__name__)
-            signature = dispatcher.signatures[0]
-            cc.export(name, signature)(thin)
-            argtypes[f"{mod_name}.{name}"] = [str(t) for t in signature]
+        _warm_ion(exports)
+    _export(cc, spec, exports, argtypes)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # numba.pycc's deprecation notice
         cc.compile()

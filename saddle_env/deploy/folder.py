@@ -170,6 +170,95 @@ def _json_plain(value: Any, depth: int = 0) -> bool:
     return False
 
 
+def _load_policy_json(folder: Path, limits: Limits) -> dict[str, Any]:
+    """The folder's ``policy.json`` as a JSON object of the right format (size, encoding and
+    ``format`` checked)."""
+    path = folder / POLICY_JSON
+    try:
+        size = path.stat().st_size
+    except OSError:
+        raise _fail(folder, f"no {POLICY_JSON}: not an exported policy folder") from None
+    if size > limits.json_bytes:
+        raise _fail(folder, f"{POLICY_JSON} is {size} bytes, larger than {limits.json_bytes}")
+    try:
+        data = json.loads(path.read_bytes().decode("utf-8"),
+                          parse_constant=lambda c: float("nan"))
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise _fail(folder, f"{POLICY_JSON} is not JSON ({str(exc)[:120]})") from None
+    if not isinstance(data, dict):
+        raise _fail(folder, f"{POLICY_JSON} must be a JSON object")
+    if data.get("format") != FORMAT:
+        raise _fail(folder, f"{POLICY_JSON}: format must be {FORMAT!r}, got "
+                            f"{json.dumps(data.get('format'))[:80]}")
+    return data
+
+
+def _observation(data: dict[str, Any], folder: Path, limits: Limits
+                 ) -> tuple[int, list[float], list[float], dict[str, Any]]:
+    """``observation``: its size, bounds and layout, checked."""
+    obs = _get(data, "observation", dict, folder, "")
+    dim = _int(obs, "dim", 1, limits.observation_dim, folder, "observation.")
+    low = _floats(obs, "low", dim, folder, "observation.", finite=False)
+    high = _floats(obs, "high", dim, folder, "observation.", finite=False)
+    layout = _get(obs, "layout", dict, folder, "observation.")
+    for key in ("frame_dim", "frames", "omega", "x", "y"):
+        _int(layout, key, 0, limits.observation_dim, folder, "observation.layout.")
+    # vx, vy are null on a level whose camera sees positions only (the Lab level)
+    for key in ("cos", "command", "vx", "vy"):
+        _int(layout, key, 0, limits.observation_dim, folder, "observation.layout.", optional=True)
+    _get(layout, "lab_frame", bool, folder, "observation.layout.")
+    if layout["frame_dim"] * layout["frames"] != dim:
+        raise _fail(folder, f"{POLICY_JSON}: observation.layout frame_dim × frames must equal "
+                            f"observation.dim {dim}")
+    return dim, low, high, layout
+
+
+def _normalizer(data: dict[str, Any], dim: int, folder: Path) -> dict[str, Any] | None:
+    """``normalizer`` (optional): the observation's mean, variance, epsilon and clip."""
+    norm = _get(data, "normalizer", dict, folder, "", optional=True)
+    if norm is not None:
+        where = "normalizer."
+        norm = {"mean": _floats(norm, "mean", dim, folder, where),
+                "var": _floats(norm, "var", dim, folder, where, nonneg=True),
+                "epsilon": _number(norm, "epsilon", folder, where),
+                "clip": _number(norm, "clip", folder, where)}
+        if min(norm["var"]) + norm["epsilon"] <= 0:
+            raise _fail(folder, f"{POLICY_JSON}: normalizer var + epsilon must be positive")
+    return norm
+
+
+def _action(data: dict[str, Any], folder: Path, limits: Limits
+            ) -> tuple[int, list[float], list[float], str]:
+    """``action``: its size, bounds and what the graph does to it, checked."""
+    act = _get(data, "action", dict, folder, "")
+    adim = _int(act, "dim", 1, limits.action_dim, folder, "action.")
+    alow = _floats(act, "low", adim, folder, "action.")
+    ahigh = _floats(act, "high", adim, folder, "action.")
+    if any(lo > hi for lo, hi in zip(alow, ahigh)):
+        raise _fail(folder, f"{POLICY_JSON}: action.low must not exceed action.high")
+    in_graph = _get(act, "in_graph", str, folder, "action.")
+    if in_graph not in ("clip", "unscale"):
+        raise _fail(folder, f"{POLICY_JSON}: action.in_graph must be 'clip' or 'unscale', got "
+                            f"{json.dumps(in_graph)[:40]}")
+    return adim, alow, ahigh, in_graph
+
+
+def _onnx(data: dict[str, Any], folder: Path) -> tuple[int, str]:
+    """``onnx``: the graph file's fixed name and tensor names; its opset and sha256."""
+    onnx_info = _get(data, "onnx", dict, folder, "")
+    if onnx_info.get("file") != POLICY_ONNX:
+        raise _fail(folder, f"{POLICY_JSON}: onnx.file must be {POLICY_ONNX!r} (a file in the "
+                            f"folder, never a path), got {json.dumps(onnx_info.get('file'))[:80]}")
+    if onnx_info.get("input") != INPUT_NAME or onnx_info.get("output") != OUTPUT_NAME:
+        raise _fail(folder, f"{POLICY_JSON}: onnx.input and onnx.output must be "
+                            f"{INPUT_NAME!r} and {OUTPUT_NAME!r}")
+    opset = _int(onnx_info, "opset", OPSETS.start, OPSETS.stop - 1, folder, "onnx.")
+    sha = _get(onnx_info, "sha256", str, folder, "onnx.")
+    if len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
+        raise _fail(folder, f"{POLICY_JSON}: onnx.sha256 must be 64 lower-case hex digits")
+    return opset, sha
+
+
 def read_spec(folder: str | os.PathLike, limits: Limits = LIMITS) -> PolicySpec:
     """``policy.json`` of ``folder``, checked field by field (see the module).
 
@@ -192,23 +281,7 @@ def read_spec(folder: str | os.PathLike, limits: Limits = LIMITS) -> PolicySpec:
         field is missing or out of range.
     """
     folder = Path(folder)
-    path = folder / POLICY_JSON
-    try:
-        size = path.stat().st_size
-    except OSError:
-        raise _fail(folder, f"no {POLICY_JSON}: not an exported policy folder") from None
-    if size > limits.json_bytes:
-        raise _fail(folder, f"{POLICY_JSON} is {size} bytes, larger than {limits.json_bytes}")
-    try:
-        data = json.loads(path.read_bytes().decode("utf-8"),
-                          parse_constant=lambda c: float("nan"))
-    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
-        raise _fail(folder, f"{POLICY_JSON} is not JSON ({str(exc)[:120]})") from None
-    if not isinstance(data, dict):
-        raise _fail(folder, f"{POLICY_JSON} must be a JSON object")
-    if data.get("format") != FORMAT:
-        raise _fail(folder, f"{POLICY_JSON}: format must be {FORMAT!r}, got "
-                            f"{json.dumps(data.get('format'))[:80]}")
+    data = _load_policy_json(folder, limits)
     _int(data, "format_version", FORMAT_VERSION, FORMAT_VERSION, folder)
     env_id = _get(data, "env_id", str, folder, "")
     if len(env_id) > 100:
@@ -219,55 +292,11 @@ def read_spec(folder: str | os.PathLike, limits: Limits = LIMITS) -> PolicySpec:
         if not _json_plain(value):
             raise _fail(folder, f"{POLICY_JSON}: {key} must hold plain, finite JSON values")
     steps = _int(data, "max_episode_steps", 1, 10**7, folder, optional=True)
-
-    obs = _get(data, "observation", dict, folder, "")
-    dim = _int(obs, "dim", 1, limits.observation_dim, folder, "observation.")
-    low = _floats(obs, "low", dim, folder, "observation.", finite=False)
-    high = _floats(obs, "high", dim, folder, "observation.", finite=False)
-    layout = _get(obs, "layout", dict, folder, "observation.")
-    for key in ("frame_dim", "frames", "omega", "x", "y"):
-        _int(layout, key, 0, limits.observation_dim, folder, "observation.layout.")
-    # vx, vy are null on a level whose camera sees positions only (the Lab level)
-    for key in ("cos", "command", "vx", "vy"):
-        _int(layout, key, 0, limits.observation_dim, folder, "observation.layout.", optional=True)
-    _get(layout, "lab_frame", bool, folder, "observation.layout.")
-    if layout["frame_dim"] * layout["frames"] != dim:
-        raise _fail(folder, f"{POLICY_JSON}: observation.layout frame_dim × frames must equal "
-                            f"observation.dim {dim}")
+    dim, low, high, layout = _observation(data, folder, limits)
     stack = _int(data, "frame_stack", 1, limits.frame_stack, folder)
-
-    norm = _get(data, "normalizer", dict, folder, "", optional=True)
-    if norm is not None:
-        where = "normalizer."
-        norm = {"mean": _floats(norm, "mean", dim, folder, where),
-                "var": _floats(norm, "var", dim, folder, where, nonneg=True),
-                "epsilon": _number(norm, "epsilon", folder, where),
-                "clip": _number(norm, "clip", folder, where)}
-        if min(norm["var"]) + norm["epsilon"] <= 0:
-            raise _fail(folder, f"{POLICY_JSON}: normalizer var + epsilon must be positive")
-
-    act = _get(data, "action", dict, folder, "")
-    adim = _int(act, "dim", 1, limits.action_dim, folder, "action.")
-    alow = _floats(act, "low", adim, folder, "action.")
-    ahigh = _floats(act, "high", adim, folder, "action.")
-    if any(lo > hi for lo, hi in zip(alow, ahigh)):
-        raise _fail(folder, f"{POLICY_JSON}: action.low must not exceed action.high")
-    in_graph = _get(act, "in_graph", str, folder, "action.")
-    if in_graph not in ("clip", "unscale"):
-        raise _fail(folder, f"{POLICY_JSON}: action.in_graph must be 'clip' or 'unscale', got "
-                            f"{json.dumps(in_graph)[:40]}")
-
-    onnx_info = _get(data, "onnx", dict, folder, "")
-    if onnx_info.get("file") != POLICY_ONNX:
-        raise _fail(folder, f"{POLICY_JSON}: onnx.file must be {POLICY_ONNX!r} (a file in the "
-                            f"folder, never a path), got {json.dumps(onnx_info.get('file'))[:80]}")
-    if onnx_info.get("input") != INPUT_NAME or onnx_info.get("output") != OUTPUT_NAME:
-        raise _fail(folder, f"{POLICY_JSON}: onnx.input and onnx.output must be "
-                            f"{INPUT_NAME!r} and {OUTPUT_NAME!r}")
-    opset = _int(onnx_info, "opset", OPSETS.start, OPSETS.stop - 1, folder, "onnx.")
-    sha = _get(onnx_info, "sha256", str, folder, "onnx.")
-    if len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
-        raise _fail(folder, f"{POLICY_JSON}: onnx.sha256 must be 64 lower-case hex digits")
+    norm = _normalizer(data, dim, folder)
+    adim, alow, ahigh, in_graph = _action(data, folder, limits)
+    opset, sha = _onnx(data, folder)
     source = _get(data, "source", dict, folder, "", optional=True) or {}
     if not _json_plain(source):
         raise _fail(folder, f"{POLICY_JSON}: source must hold plain, finite JSON values")

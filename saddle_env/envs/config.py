@@ -181,51 +181,70 @@ class EnvConfig:
     substep: float | None = None
 
     def __post_init__(self) -> None:
-        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
+        # In this order: the first invalid option found is the one reported.
+        self._check_drag_and_friction()
+        self._check_motor()
+        self._check_observation()
+        self._check_episode()
+        self._check_randomisation()
+        self._check_integration()
+
+    def _set(self, name: str, value: object) -> None:
+        """Store a checked (normalised) value in the frozen dataclass."""
+        object.__setattr__(self, name, value)
+
+    def _check_drag_and_friction(self) -> None:
+        """The drag, the nominal scene and the friction coefficients."""
         if self.ball_density is not None:
             density = _positive("ball_density", self.ball_density)
             # From aerogel to tungsten: outside it the drag formula over- or underflows.
             if not BALL_DENSITY_RANGE[0] <= density <= BALL_DENSITY_RANGE[1]:
                 raise ValueError(f"ball_density must be in [{BALL_DENSITY_RANGE[0]:g}, "
                                  f"{BALL_DENSITY_RANGE[1]:g}] kg/m^3, got {density}")
-            set_("ball_density", density)
+            self._set("ball_density", density)
             if self.drag_quadratic != 0.0:
                 raise ValueError("give drag_quadratic or ball_density (which sets each ball's "
                                  "quadratic drag from its size), not both")
         if self.mu_range is not None:  # before the nominal scene, which takes its low end
-            set_("mu_range", _range("mu_range", self.mu_range, lo=0.0))
+            self._set("mu_range", _range("mu_range", self.mu_range, lo=0.0))
         # Scene parameters are validated by building the nominal scene.
         self.scene()
         # The friction coefficients reach only coulomb balls' scenes: check them here too.
         for name in ("mu", "mu_static"):
             if getattr(self, name) is not None:
-                set_(name, _positive(name, getattr(self, name), allow_zero=True))
+                self._set(name, _positive(name, getattr(self, name), allow_zero=True))
         if self.mu is not None and self.mu_static is not None and self.mu_static < self.mu:
             raise ValueError(f"mu_static must be >= mu = {self.mu:g}, got {self.mu_static:g}")
-        set_("control_period", _positive("control_period", self.control_period))
+
+    def _check_motor(self) -> None:
+        """The control period, the motor and the delays."""
+        self._set("control_period", _positive("control_period", self.control_period))
         if self.control_period > 1.0:
             raise ValueError(f"control_period must be <= 1 s, got {self.control_period}")
-        set_("max_accel", _positive("max_accel", self.max_accel))
-        set_("omega_max", _positive("omega_max", self.omega_max))
+        self._set("max_accel", _positive("max_accel", self.max_accel))
+        self._set("omega_max", _positive("omega_max", self.omega_max))
         if self.action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {self.action_mode!r}")
         for name in ("voltage_max", "motor_gain", "motor_tau"):
-            set_(name, _positive(name, getattr(self, name)))
+            self._set(name, _positive(name, getattr(self, name)))
         if self.action_mode == "voltage" and \
                 self.motor_gain * self.voltage_max > self.omega_max * (1 + 1e-12):
             raise ValueError(f"motor_gain * voltage_max (the motor's top speed, "
                              f"{self.motor_gain * self.voltage_max:g} rad/s) must be <= "
                              f"omega_max = {self.omega_max:g} in voltage mode")
         for name in ("obs_delay", "action_delay"):
-            set_(name, _positive(name, getattr(self, name), allow_zero=True))
+            self._set(name, _positive(name, getattr(self, name), allow_zero=True))
             if getattr(self, name) > 10.0:
                 raise ValueError(f"{name} must be <= 10 s, got {getattr(self, name)}")
+
+    def _check_observation(self) -> None:
+        """The observation's frame, columns and history."""
         if self.obs_frame not in ("rotating", "lab"):
             raise ValueError(f"obs_frame must be 'rotating' or 'lab', got {self.obs_frame!r}")
         for name in ("observe_command", "observe_angle", "observe_velocity"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
-            set_(name, bool(getattr(self, name)))
+            self._set(name, bool(getattr(self, name)))
         if self.observe_command and self.action_mode == "voltage":
             # the column would hold the motor's true speed: no set-point exists to observe
             raise ValueError("observe_command needs a speed servo (action_mode 'acceleration' "
@@ -234,12 +253,15 @@ class EnvConfig:
         k = self.obs_history
         if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not 1 <= k <= 64:
             raise ValueError(f"obs_history must be an integer in [1, 64], got {k!r}")
-        set_("obs_history", int(k))
+        self._set("obs_history", int(k))
+
+    def _check_episode(self) -> None:
+        """Noise, rewards, disturbances and the episode's start."""
         for name in ("position_noise", "velocity_noise", "omega_noise", "init_offset",
                      "init_speed", "loss_penalty", "distance_cost", "effort_cost",
                      "air_force", "ripple_amp", "ripple_freq", "position_quantum"):
-            set_(name, _positive(name, getattr(self, name), allow_zero=True))
-        set_("air_force_tau", _positive("air_force_tau", self.air_force_tau))
+            self._set(name, _positive(name, getattr(self, name), allow_zero=True))
+        self._set("air_force_tau", _positive("air_force_tau", self.air_force_tau))
         if self.init_speed > self.max_start_speed:
             raise ValueError(f"init_speed must be <= omega_max * rim_radius = "
                              f"{self.max_start_speed:g} m/s, got {self.init_speed}")
@@ -256,7 +278,10 @@ class EnvConfig:
             raise ValueError(f"omega0_range must lie within [0, motor_gain * voltage_max = "
                              f"{self.motor_gain * self.voltage_max:g}] in voltage mode (the "
                              f"motor holds its start speed), got ({low}, {high})")
-        set_("omega0_range", (low, high))
+        self._set("omega0_range", (low, high))
+
+    def _check_randomisation(self) -> None:
+        """Domain randomisation; every randomised scene must be valid."""
         if self.ball_radii is not None:
             if not isinstance(self.ball_radii, (tuple, list)):
                 raise ValueError(f"ball_radii must be None or a tuple of radii [m], "
@@ -264,9 +289,9 @@ class EnvConfig:
             radii = tuple(_positive(f"ball_radii[{i}]", r) for i, r in enumerate(self.ball_radii))
             if not radii:
                 raise ValueError("ball_radii must be None or a non-empty tuple of radii")
-            set_("ball_radii", radii)
+            self._set("ball_radii", radii)
         if self.a_range is not None:
-            set_("a_range", _range("a_range", self.a_range, lo=1e-12))
+            self._set("a_range", _range("a_range", self.a_range, lo=1e-12))
         if self.contact_models is not None:
             if not isinstance(self.contact_models, (tuple, list)):
                 raise ValueError(f"contact_models must be None or a tuple from {CONTACT_MODELS}, "
@@ -275,7 +300,7 @@ class EnvConfig:
             if not models or any(m not in CONTACT_MODELS for m in models):
                 raise ValueError(f"contact_models must be a non-empty tuple from {CONTACT_MODELS}, "
                                  f"got {self.contact_models!r}")
-            set_("contact_models", models)
+            self._set("contact_models", models)
         if self.mu_range is not None:
             if "coulomb" not in (self.contact_models or (self.contact,)):
                 raise ValueError("mu_range randomises a coulomb ball's friction: it needs "
@@ -283,16 +308,19 @@ class EnvConfig:
         # Every randomised scene must be valid: check the extremes now, not mid-training.
         for scene in self.extreme_scenes():
             scene.with_()  # re-validates
+
+    def _check_integration(self) -> None:
+        """The integration method and its tolerance or step."""
         if not isinstance(self.method, str) or self.method not in METHODS:
             raise ValueError(f"method must be one of {sorted(METHODS)}, got {self.method!r}")
         if self.substep is not None:
-            set_("substep", _positive("substep", self.substep))
+            self._set("substep", _positive("substep", self.substep))
             if self.rtol is not None and METHODS[self.method].adaptive:
-                set_("rtol", None)
+                self._set("rtol", None)
         elif not METHODS[self.method].adaptive:
             raise ValueError(f"method {self.method!r} is fixed-step: give substep [s]")
         if self.rtol is not None:
-            set_("rtol", check_rtol(self.rtol))  # the simulator's own check
+            self._set("rtol", check_rtol(self.rtol))  # the simulator's own check
 
     @classmethod
     def from_kwargs(cls, **kwargs: object) -> EnvConfig:

@@ -34,13 +34,23 @@ class SaddleTrapSB3VecEnv(VecEnv):
         The number of balls.
     max_episode_steps : int or None
         The episode length in control steps (None: no limit).
+    config : EnvConfig or None
+        An `EnvConfig` already checked, used as given (its options are not checked again);
+        not together with ``**kwargs``.
     **kwargs
         `EnvConfig` options, as for ``gym.make``.
+
+    Raises
+    ------
+    ValueError
+        If an option is invalid, or both ``config`` and options are given.
     """
 
     def __init__(self, num_envs: int = 1, max_episode_steps: int | None = DEFAULT_EPISODE_STEPS,
-                 **kwargs: Any):
-        self.config = EnvConfig.from_kwargs(**kwargs)
+                 *, config: EnvConfig | None = None, **kwargs: Any):
+        if config is not None and kwargs:
+            raise ValueError(f"give config or the options {sorted(kwargs)}, not both")
+        self.config = EnvConfig.from_kwargs(**kwargs) if config is None else config
         self.engine = TrapEngine(self.config, num_envs)
         super().__init__(self.engine.n, observation_space(self.config), action_space())
         self.max_episode_steps = max_episode_steps

@@ -71,7 +71,7 @@ from ...evaluation.rllib_policy import (
 )
 from ..recipes import parse_policy_kwargs
 from ..run_report import append_curve_point
-from ..runs import BACKEND_ALGOS, Stop, TrainSettings, sigterm_stops
+from ..runs import BACKEND_ALGOS, RunSettings, Stop, TrainSettings, sigterm_stops
 
 RLLIB_ALGOS = BACKEND_ALGOS["rllib"]
 RLLIB_MODULES = ("ray", "torch", "yaml")
@@ -211,7 +211,7 @@ def module_config(algo: str, hyper: dict[str, Any]) -> dict[str, Any]:
     return {"fcnet_hiddens": _net_arch(hyper, [256, 256]), "fcnet_activation": "relu"}
 
 
-def build_config(settings: TrainSettings, hyper: dict[str, Any]):
+def build_config(settings: RunSettings, hyper: dict[str, Any]):
     """The RLlib AlgorithmConfig of a run (Ray must be initialised: the CPUs per env
     runner are shared out among the cluster's CPUs if there are more runners than CPUs)."""
     import ray
@@ -220,10 +220,8 @@ def build_config(settings: TrainSettings, hyper: dict[str, Any]):
     from ray.tune.registry import register_env
 
     register_env(ENV_NAME, make_env)
-    # filled before training: TrainSettings.validate and take_recipe
-    assert settings.n_envs is not None and settings.num_env_runners is not None
-    n_envs = int(settings.n_envs)
-    runners = int(settings.num_env_runners)
+    n_envs = settings.n_envs
+    runners = settings.env_runners
     cpus = float(ray.cluster_resources().get("CPU", 1.0))
     cpus_per_runner = min(1.0, cpus / max(runners, 1))
     model = DefaultModelConfig(**module_config(settings.algo, hyper))
@@ -394,7 +392,7 @@ def save_checkpoint(algo, path: Path, settings: TrainSettings, steps: int,
     return path
 
 
-def run(settings: TrainSettings, hyper: dict[str, Any], run_dir: Path,
+def run(settings: RunSettings, hyper: dict[str, Any], run_dir: Path,
         resume: str | os.PathLike | None = None, trust: bool = False,
         began: float | None = None) -> Path | None:
     """Train (or resume: RLlib's own checkpoint, pickled, which `agents.training.trainer` lets
@@ -413,7 +411,7 @@ def run(settings: TrainSettings, hyper: dict[str, Any], run_dir: Path,
             ray.shutdown()
 
 
-def _train(settings: TrainSettings, hyper: dict[str, Any], run_dir: Path,
+def _train(settings: RunSettings, hyper: dict[str, Any], run_dir: Path,
            resume: str | os.PathLike | None, began: float) -> Path | None:
     import contextlib
 
@@ -434,7 +432,6 @@ def _train(settings: TrainSettings, hyper: dict[str, Any], run_dir: Path,
     last_save = steps
     start = time.time()
     final = None
-    assert settings.total_timesteps is not None  # TrainSettings.take_recipe filled it
     try:
         with sigterm_stops(deferred=True) as stop_requested:
             while steps < settings.total_timesteps:

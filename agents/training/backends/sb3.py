@@ -43,9 +43,9 @@ from typing import Any
 
 import numpy as np
 
-from saddle_env.envs import ENV_ID
+from saddle_env.envs import EnvConfig
 
-from ...cli_args import MissingExtra, install_hint, level_overrides, missing, resolve_env
+from ...cli_args import MissingExtra, install_hint, level_overrides, missing
 from ..recipes import (
     ZOO_ONLY_KEYS,
     parse_policy_kwargs,
@@ -53,7 +53,7 @@ from ..recipes import (
     wrapper_settings,
 )
 from ..run_report import append_curve_point
-from ..runs import Stop, StopRequest, TrainSettings, sigterm_stops, stops_held
+from ..runs import RunSettings, Stop, StopRequest, TrainSettings, sigterm_stops, stops_held
 from ..schedules import with_schedules
 
 # What training imports beyond the core install (all in the "train" extra).
@@ -90,17 +90,27 @@ def check_dependencies(progress_bar: bool) -> None:
 # ---------------------------------------------------------------------------------------
 # environments
 # ---------------------------------------------------------------------------------------
-def make_vec_env(n_envs: int, seed: int, env_kwargs: dict[str, Any], max_episode_steps: int,
-                 env_id: str = ENV_ID):
-    """The batch environment for SB3 (level ``env_id`` with ``env_kwargs`` on top), with
-    episode statistics (VecMonitor)."""
+def make_vec_env(n_envs: int, seed: int, config: EnvConfig, max_episode_steps: int):
+    """The batch environment for SB3, with episode statistics (VecMonitor).
+
+    Parameters
+    ----------
+    n_envs : int
+        The number of balls.
+    seed : int
+        Ball i's first episode is seeded ``seed + i``.
+    config : EnvConfig
+        A level's config with its options on top (`agents.cli_args.resolve_env`), checked
+        there: the environment uses it as given.
+    max_episode_steps : int
+        The episode length in control steps.
+    """
     from stable_baselines3.common.vec_env import VecMonitor
 
     from saddle_env.envs.sb3 import SaddleTrapSB3VecEnv
 
-    _, config = resolve_env(env_id, env_kwargs)
     env = SaddleTrapSB3VecEnv(num_envs=n_envs, max_episode_steps=max_episode_steps,
-                              **config.as_dict())
+                              config=config)
     env.seed(seed)
     return VecMonitor(env)
 
@@ -417,7 +427,7 @@ def write_sidecar(model_path: Path, settings: TrainSettings,
     Path(model_path).with_suffix(".json").write_text(json.dumps(sidecar, indent=2, default=list))
 
 
-def _selection_callback(settings: TrainSettings, run_dir: Path, n_envs: int,
+def _selection_callback(settings: RunSettings, run_dir: Path, n_envs: int,
                         learner: Sb3Learner, began: float | None = None):
     """Every ``eval_freq`` steps (and on demand, `evaluate_now`): the network saved by
     ``learner`` as a snapshot and offered to the run's `agents.training.selection.Selection`
@@ -428,7 +438,6 @@ def _selection_callback(settings: TrainSettings, run_dir: Path, n_envs: int,
     from ..selection import Selection
 
     start_s = time.time() if began is None else began
-    assert settings.eval_freq is not None  # TrainSettings.take_recipe filled it
     per_env = max(1, settings.eval_freq // n_envs)    # callbacks count vector steps
 
     class SelectingCallback(BaseCallback):
@@ -508,7 +517,7 @@ def progress_callback():
 # ---------------------------------------------------------------------------------------
 # the run
 # ---------------------------------------------------------------------------------------
-def run(settings: TrainSettings, hyper: dict[str, Any], run_dir: Path,
+def run(settings: RunSettings, hyper: dict[str, Any], run_dir: Path,
         resume: str | Path | None = None, trust: bool = False,
         began: float | None = None) -> Path | None:
     """Train (or resume) in ``run_dir`` with the recipe ``hyper`` (settings validated and
@@ -518,7 +527,7 @@ def run(settings: TrainSettings, hyper: dict[str, Any], run_dir: Path,
     return train_with(Sb3Learner(), settings, hyper, run_dir, resume, trust, began)
 
 
-def train_with(learner: Sb3Learner, settings: TrainSettings, hyper: dict[str, Any],
+def train_with(learner: Sb3Learner, settings: RunSettings, hyper: dict[str, Any],
                run_dir: Path, resume: str | Path | None = None, trust: bool = False,
                began: float | None = None) -> Path | None:
     """`run` with the model made, warm-started, saved and resumed by ``learner``."""
@@ -529,13 +538,9 @@ def train_with(learner: Sb3Learner, settings: TrainSettings, hyper: dict[str, An
     began = time.time() if began is None else began
     torch.set_num_threads(settings.torch_threads)
     norm_kw, frame_stack = wrapper_settings(hyper)
-    # filled before training: TrainSettings.validate and take_recipe
-    assert settings.n_envs is not None and settings.max_episode_steps is not None
-    assert settings.eval_episodes is not None
-    n_envs, steps = int(settings.n_envs), int(settings.max_episode_steps)
+    n_envs, steps = settings.n_envs, settings.max_episode_steps
     _, config = settings.environment()
-    env = make_vec_env(n_envs, settings.seed, settings.env_kwargs,
-                       train_episode_steps(hyper, steps), settings.env_id)
+    env = make_vec_env(n_envs, settings.seed, config, train_episode_steps(hyper, steps))
     if hyper.get("reward_shaping") is not None:      # training rewards only (agents.training.shaping)
         from ..shaping import shape
 

@@ -35,7 +35,7 @@ import numpy as np
 
 from ...cli_args import MissingExtra, install_hint, missing
 from ..recipes import HYPERPARAMS_DIR, ZOO_ONLY_KEYS, parse_policy_kwargs
-from ..runs import TrainSettings
+from ..runs import RunSettings, TrainSettings
 from ..schedules import with_schedules
 from .sb3 import (
     PROGRESS_MODULES,
@@ -316,7 +316,7 @@ class SbxLearner(Sb3Learner):
         return model
 
 
-def run(settings: TrainSettings, hyper: dict[str, Any], run_dir: Path,
+def run(settings: RunSettings, hyper: dict[str, Any], run_dir: Path,
         resume: str | Path | None = None, trust: bool = False,
         began: float | None = None) -> Path | None:
     """As `agents.training.backends.sb3.run`, with SBX's PPO learning."""
