@@ -14,7 +14,8 @@ leaderboard's results, which are figures without a store entry:
 ``lb.LEVEL.POLICY.kept`` the percentage of balls kept 10 s (``.detach``: detached),
 ``lb.LEVEL.best-const.omega`` the best constant speed in rad/s,
 ``lb.LEVEL.shipped.margin`` the shipped agent's mean less best-const's upper bound [s],
-``lb.date`` the leaderboard's date.
+``lb.date`` the leaderboard's date. A figure whose value is a mapping (a table's rows, say)
+is also named cell by cell, ``NAME.ROW.COLUMN``, with the table's unit, date and command.
 
 A text names a figure with a marker pair around its rendered copy, which reads right on
 GitHub as well as on the site::
@@ -256,12 +257,38 @@ def render_figure(name: str, opts: str = "") -> str:
     FigureError
         If the store has no figure ``name``.
     """
-    store = figures()
-    if name not in store:
-        raise FigureError(f"unknown figure {name!r}: add it to {STORE.relative_to(REPO_ROOT)}")
+    figure = find_figure(name)
     if opts.split() == ["date"]:
-        return str(store[name]["date"])
-    return format_figure(store[name], opts.split())
+        return str(figure["date"])
+    return format_figure(figure, opts.split())
+
+
+def find_figure(name: str) -> dict[str, Any]:
+    """The store's figure ``name``, or one cell of a figure whose value is a mapping (a
+    table's rows): ``TABLE.ROW.COLUMN`` is the value at that path, with the table's unit,
+    date, machine and command.
+
+    Raises
+    ------
+    FigureError
+        If the store has neither the figure nor a table with that cell.
+    """
+    store = figures()
+    if name in store:
+        return store[name]
+    parts = name.split(".")
+    for cut in range(len(parts) - 1, 0, -1):   # the longest stored prefix is the table
+        table = store.get(".".join(parts[:cut]))
+        if table is None or not isinstance(table["value"], dict):
+            continue
+        value: Any = table["value"]
+        for part in parts[cut:]:
+            if not isinstance(value, dict) or part not in value:
+                raise FigureError(f"figure {'.'.join(parts[:cut])!r} has no cell "
+                                  f"{'.'.join(parts[cut:])!r}")
+            value = value[part]
+        return {**table, "value": value}
+    raise FigureError(f"unknown figure {name!r}: add it to {STORE.relative_to(REPO_ROOT)}")
 
 
 def render(text: str, keep_markers: bool = True) -> str:
@@ -310,9 +337,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         if args.show:
-            figure = figures().get(args.show)
-            if figure is None:
-                raise FigureError(f"--show: unknown figure {args.show!r}")
+            figure = find_figure(args.show)
             print(f"{args.show} = {format_figure(figure)} {figure['unit']}".rstrip())
             for key in ("date", "machine", "command", "what"):
                 if key in figure:

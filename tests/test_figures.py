@@ -181,3 +181,28 @@ def test_readme_headline_dates_come_from_the_store():
         for cell in cells[1:]:
             typed = re.search(r"\b20\d\d-\d\d-\d\d\b", figures.MARKER.sub("", cell))
             assert not typed, f"README headline cell {cell.strip()!r} types a date by hand"
+
+
+def test_a_table_figure_is_named_cell_by_cell(monkeypatch):
+    table = {"value": {"rk4-1ms": {"error": 1.2e-5, "us": 631}}, "unit": "m; µs",
+             "date": "2026-01-01", "machine": "m", "command": "c"}
+    monkeypatch.setattr(figures, "figures", lambda: {"t": table})
+    assert figures.render_figure("t.rk4-1ms.error", ".1e") == "1.2e-5"
+    assert figures.render_figure("t.rk4-1ms.us") == "631"
+    assert figures.render_figure("t.rk4-1ms.us", "date") == "2026-01-01"
+    assert figures.find_figure("t.rk4-1ms.us")["command"] == "c"
+    with pytest.raises(figures.FigureError, match="'t' has no cell 'rk4-1ms.steps'"):
+        figures.render_figure("t.rk4-1ms.steps")
+    with pytest.raises(figures.FigureError, match="unknown figure 'u.x'"):
+        figures.render_figure("u.x")
+
+
+@pytest.mark.parametrize("heading", ["| setting | coulomb error", "| tol [m] | picked"])
+def test_accuracy_tables_take_every_measured_cell_from_the_store(heading):
+    page = (figures.REPO_ROOT / "docs" / "accuracy.md").read_text()
+    rows = _table(page, heading)
+    assert len(rows) >= 4
+    for cells in rows:
+        for cell in cells[1:]:
+            assert figures.MARKER.fullmatch(cell.strip()), \
+                f"accuracy.md {heading!r}: {cell.strip()!r} is typed, not a store figure"
