@@ -123,6 +123,24 @@ def best_const_voltage(board: dict[str, Any], env_id: str = "SaddleTrap-Lab-v0")
     return float(omega) / level_config(env_id).motor_gain
 
 
+def _precession_excess(summary: dict[str, Any], release_m: float) -> float:
+    convergence = summary["precession_convergence"]
+    angle = convergence["angle_deg"][convergence["release_m"].index(release_m)]
+    return float(angle - summary["precession_deg_linear_limit"]["value"])
+
+
+def _paper_area_excess(summary: dict[str, Any], omega: int) -> float:
+    areas = summary[f"feasible_area_paper_eom_{omega}"]
+    return float(100 * (areas["paper_eom_cm2"] / areas["exact_cm2"] - 1))
+
+
+def _damping_rates(summary: dict[str, Any]) -> list[tuple[str, float, float]]:
+    """(drag key, simulated rate, theory's rate) of every point of the damping figure."""
+    return [(k1, sim, theory) for panel in ("symmetric", "asymmetric")
+            for k1, runs in summary["damping"][panel].items()
+            for sim, theory in zip(runs["growth_simulated"], runs["growth_theory"])]
+
+
 # Figures computed from a results file's rows (``derive:`` in the store): the real-saddle
 # check's held-out predictions (docs/figures/lifetimes_validation.json, one row per series
 # and model variant), and the Lab level's best constant as a voltage (docs/leaderboard.json).
@@ -148,6 +166,19 @@ DERIVED: dict[str, Any] = {
         r["median_abs_log_ratio"] for r in _variant(rows, "rigid ball"))),
     "lifetimes-rigid-series-above-2": lambda rows: sum(
         math.exp(r["median_abs_log_ratio"]) > 2 for r in _variant(rows, "rigid ball")),
+    # saddle-reproduce's summary.json (docs/figures/reproduce_summary.json): the precession's
+    # excess over linear theory's limit at the 1 mm and the 0.125 mm release, degrees
+    "reproduce-precession-excess-1mm": lambda summary: _precession_excess(summary, 0.001),
+    "reproduce-precession-excess-0.125mm": lambda summary: _precession_excess(summary, 0.000125),
+    # how much larger the paper's equation makes the feasible area, Omega = 35 and 45 rad/s, %
+    "reproduce-feasible-paper-excess-35": lambda summary: _paper_area_excess(summary, 35),
+    "reproduce-feasible-paper-excess-45": lambda summary: _paper_area_excess(summary, 45),
+    # the damping figure's simulated growth rates against theory: the largest relative
+    # difference of a damped rate in %, and the largest drag-free rate (theory: 0) in 1/s
+    "reproduce-damping-rel-diff": lambda summary: 100 * max(
+        abs(sim / theory - 1) for k1, sim, theory in _damping_rates(summary) if k1 != "k1=0"),
+    "reproduce-damping-drag-free": lambda summary: max(
+        abs(sim) for k1, sim, _ in _damping_rates(summary) if k1 == "k1=0"),
     # how early the calibrated model's onset comes for the 19 mm steel balls, least and most, %
     "lifetimes-onset-early-19mm": lambda rows: _least_and_most(
         100 * (1 - r["onset_rps"] / r["lab_onset_rps"])
@@ -155,16 +186,32 @@ DERIVED: dict[str, Any] = {
 }
 
 
+_MISSING = object()
+
+
+def _walk(value: Any, parts: list[str]) -> Any:
+    """The value at the path ``parts``, or _MISSING; a mapping key may hold dots itself, so
+    each way of joining the next parts into one key is tried."""
+    if not parts:
+        return value
+    if isinstance(value, list) and parts[0].isdigit() and int(parts[0]) < len(value):
+        return _walk(value[int(parts[0])], parts[1:])
+    if isinstance(value, dict):
+        for n in range(1, len(parts) + 1):
+            part = ".".join(parts[:n])
+            if part in value:
+                found = _walk(value[part], parts[n:])
+                if found is not _MISSING:
+                    return found
+    return _MISSING
+
+
 def _lookup(path: Path, key: str) -> Any:
-    """The value at ``key``, a dotted path of mapping keys and list positions (``paths.0.x``)."""
-    value: Any = json.loads(path.read_text())
-    for part in key.split("."):
-        if isinstance(value, list) and part.isdigit() and int(part) < len(value):
-            value = value[int(part)]
-        elif isinstance(value, dict) and part in value:
-            value = value[part]
-        else:
-            raise FigureError(f"{path.relative_to(REPO_ROOT)} has no key {key!r}")
+    """The value at ``key``, a dotted path of mapping keys and list positions (``paths.0.x``);
+    a mapping key that holds a dot itself (``omega_crt.R=2.23cm.theory``) is found too."""
+    value = _walk(json.loads(path.read_text()), key.split("."))
+    if value is _MISSING:
+        raise FigureError(f"{path.relative_to(REPO_ROOT)} has no key {key!r}")
     return value
 
 

@@ -206,3 +206,21 @@ def test_accuracy_tables_take_every_measured_cell_from_the_store(heading):
         for cell in cells[1:]:
             assert figures.MARKER.fullmatch(cell.strip()), \
                 f"accuracy.md {heading!r}: {cell.strip()!r} is typed, not a store figure"
+
+
+def test_a_results_key_that_holds_a_dot(tmp_path, monkeypatch):
+    """saddle-reproduce's summary.json names its balls R=2.23cm: the dotted path finds them."""
+    results = tmp_path / "r.json"
+    results.write_text('{"omega_crt": {"R=2.23cm": {"theory": 13.1}, "R=2": {"x": 1}}}')
+    monkeypatch.setattr(figures, "REPO_ROOT", tmp_path)
+    assert figures._lookup(results, "omega_crt.R=2.23cm.theory") == 13.1
+    with pytest.raises(figures.FigureError, match="has no key 'omega_crt.R=2.5cm.theory'"):
+        figures._lookup(results, "omega_crt.R=2.5cm.theory")
+
+
+def test_reproduce_figures_come_from_the_shipped_summary():
+    """The paper pages' model outputs are read from saddle-reproduce's shipped summary.json."""
+    store = figures.figures()
+    assert store["paper-omega-crt-rolling-2.65"]["source"] == "docs/figures/reproduce_summary.json"
+    assert figures.render_figure("paper-omega-crt-rolling-2.65") == "13.593"
+    assert figures.render_figure("paper-precession-excess-1mm") == "14.8"   # 150.62 - 135.83
