@@ -328,12 +328,10 @@ def find_figure(name: str) -> dict[str, Any]:
         table = store.get(".".join(parts[:cut]))
         if table is None or not isinstance(table["value"], dict):
             continue
-        value: Any = table["value"]
-        for part in parts[cut:]:
-            if not isinstance(value, dict) or part not in value:
-                raise FigureError(f"figure {'.'.join(parts[:cut])!r} has no cell "
-                                  f"{'.'.join(parts[cut:])!r}")
-            value = value[part]
+        value = _walk(table["value"], parts[cut:])   # a cell's key may hold a dot too
+        if value is _MISSING:
+            raise FigureError(f"figure {'.'.join(parts[:cut])!r} has no cell "
+                              f"{'.'.join(parts[cut:])!r}")
         return {**table, "value": value}
     raise FigureError(f"unknown figure {name!r}: add it to {STORE.relative_to(REPO_ROOT)}")
 
