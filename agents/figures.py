@@ -173,6 +173,11 @@ DERIVED: dict[str, Any] = {
     # how much larger the paper's equation makes the feasible area, Omega = 35 and 45 rad/s, %
     "reproduce-feasible-paper-excess-35": lambda summary: _paper_area_excess(summary, 35),
     "reproduce-feasible-paper-excess-45": lambda summary: _paper_area_excess(summary, 45),
+    # how far the nonlinear rolling threshold of the paper's three balls lies below theory, %
+    "reproduce-omega-crt-below-theory": lambda summary: _least_and_most(
+        100 * (1 - summary["omega_crt"][ball]["nonlinear_rolling"]
+               / summary["omega_crt"][ball]["theory"])
+        for ball in ("R=2.23cm", "R=2.65cm", "R=3.30cm")),
     # the damping figure's simulated growth rates against theory: the largest relative
     # difference of a damped rate in %, and the largest drag-free rate (theory: 0) in 1/s
     "reproduce-damping-rel-diff": lambda summary: 100 * max(
