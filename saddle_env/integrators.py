@@ -585,244 +585,392 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
 
     Parameters
     ----------
-    model : int — ROLLING, SLIPPING or COULOMB (or an ion model, `saddle_env.iontrap`).
-    p : (N_PARAMS,) — packed scene parameters.
-    prof : (DRIVE_WIDTH,) — drive row (DRIVE_* in _kernels).
-    y : (STATE_WIDTH,) — state at t0; on return, the state at the final time (or at the event).
-    t0 : float.  t_out : (m,) ascending output times, all ≥ t0.
-    tab : Tableau — the method (`Method.tableau`).
-    ctl : StepControl — fixed step or tolerances, largest step, events, step limit.
-    scale : (STATE_WIDTH,) characteristic size of each state component (`state_scale`).
-    Y_out : (m, STATE_WIDTH) — written with the state at each output time reached.
-    stats : (4,) int64 — incremented: steps accepted, steps rejected, f evaluations,
-        outputs written.
-    h_start : float — adaptive only: the starting step if > 0 (a caller continuing a run,
-        e.g. the environment's next control step, passes the last ``h_next`` back); 0 lets
-        the starting-step heuristic choose.
-    work : scratch memory from `workspace(tab)`; a caller stepping many short intervals (the
+    model : int
+        ROLLING, SLIPPING or COULOMB (or an ion model, `saddle_env.iontrap`).
+    p : ndarray, shape (N_PARAMS,)
+        Packed scene parameters.
+    prof : ndarray, shape (DRIVE_WIDTH,)
+        Drive row (DRIVE_* in `saddle_env._kernels`).
+    y : ndarray, shape (STATE_WIDTH,)
+        State at ``t0``; on return, the state at the final time (or at the event).
+    t0 : float
+        Starting time [s].
+    t_out : ndarray, shape (m,)
+        Ascending output times, all ≥ ``t0``.
+    tab : Tableau
+        The method (`Method.tableau`).
+    ctl : StepControl
+        Fixed step or tolerances, largest step, events, step limit.
+    scale : ndarray, shape (STATE_WIDTH,)
+        Characteristic size of each state component (`state_scale`).
+    Y_out : ndarray, shape (m, STATE_WIDTH)
+        Written with the state at each output time reached.
+    stats : ndarray of int64, shape (4,)
+        Incremented: steps accepted, steps rejected, f evaluations, outputs written.
+    h_start : float
+        Adaptive only: the starting step if > 0 (a caller continuing a run, e.g. the
+        environment's next control step, passes the last ``h_next`` back); 0 lets the
+        starting-step heuristic choose.
+    work : ndarray
+        Scratch memory from `workspace(tab)`; a caller stepping many short intervals (the
         environment) passes the same one every time instead of allocating per call.
 
     Returns
     -------
-    Outcome — ``(status, t_final, h_next, normal)``: STATUS_DONE, STATUS_DETACH,
-    STATUS_ESCAPE, STATUS_FAILED or STATUS_MAX_STEPS; the time of the final state (the event
-    time if an event fired); the step to continue with; N/m at the last accepted state.
+    Outcome
+        ``(status, t_final, h_next, normal)``: STATUS_DONE, STATUS_DETACH, STATUS_ESCAPE,
+        STATUS_FAILED or STATUS_MAX_STEPS; the time of the final state (the event time if an
+        event fired); the step to continue with; N/m at the last accepted state.
     """
-    B, err_order = tab.B, tab.err_order
-    dt, rtol, atol, max_step = ctl.dt, ctl.rtol, ctl.atol, ctl.max_step
-    events = ctl.events
-    d = integrated_size(model, p)
-    s = B.shape[0]
+    s = tab.B.shape[0]
     K = work[:s + 1]
-    ytmp = work[s + 1]
-    ynew = work[s + 2]
-    dy = work[s + 3]
-    sc = work[s + 4]
-    adaptive = dt <= 0.0
-    want_normal = (events & EVENT_DETACH) != 0
-    m = t_out.shape[0]
-    k = 0
-    t = t0
-    # the flags: see `compilation.specialise`
-    coulomb = COULOMB_ON and model == COULOMB
-    resisted = RESIST_ON and (model == ROLLING or coulomb) and p[P_RESIST] != 0.0
-    just_stopped = False  # a spin was just stopped: take a step before stopping one again
-    if resisted:
-        _set_spin_band(p, y, atol, rtol, scale)
-    hold = 0.0 if adaptive else dt  # how long an ONSET slip must be able to follow itself
-    if coulomb:  # the starting phase (not logged: it is no change)
-        _settle_coulomb(p, prof, t, y, _snap_speed(p, y, atol, rtol, scale), hold, np.inf)
-    normal = rhs(model, p, prof, t, y, K[0], want_normal)
+    want_normal = (ctl.events & EVENT_DETACH) != 0
+    normal = _begin(model, p, prof, t0, y, K[0], ctl, scale, want_normal)
     stats[2] += 1
     accepted_normal = normal if want_normal else np.nan  # N/m at the last accepted state
-    fired = _fired(events, model, p, prof, t, y, dy, normal)
+    fired = _fired(ctl.events, model, p, prof, t0, y, work[s + 3], normal)
     if fired:
-        return Outcome(fired, t, h_start, accepted_normal)
-    while k < m and t_out[k] <= t:
+        return Outcome(fired, t0, h_start, accepted_normal)
+    k = 0
+    while k < t_out.shape[0] and t_out[k] <= t0:
         _copy_row(Y_out[k], y)
         k += 1
     stats[3] += k
-    if k == m:
-        return Outcome(STATUS_DONE, t, h_start, accepted_normal)
-    if adaptive and h_start > 0.0:
-        h = min(h_start, max_step)
-    elif adaptive:
+    if k == t_out.shape[0]:
+        return Outcome(STATUS_DONE, t0, h_start, accepted_normal)
+    h = _starting_step(model, p, prof, t0, y, K, tab, ctl, scale, h_start, work)
+    return _march(model, p, prof, y, t0, t_out, k, h, tab, ctl, scale, Y_out, stats, h_start,
+                  work, accepted_normal)
+
+
+@jit
+def _begin(model, p, prof, t, y, f, ctl, scale, want_normal):
+    """Ready the state at the start of a run (the spin band of rolling resistance; a coulomb
+    ball's starting phase, not logged: it is no change) and write f(t, y) into ``f``; return
+    N/m at y (if ``want_normal``)."""
+    # the flags: see `compilation.specialise`
+    coulomb = COULOMB_ON and model == COULOMB
+    if RESIST_ON and (model == ROLLING or coulomb) and p[P_RESIST] != 0.0:
+        _set_spin_band(p, y, ctl.atol, ctl.rtol, scale)
+    if coulomb:
+        hold = 0.0 if ctl.dt <= 0.0 else ctl.dt
+        _settle_coulomb(p, prof, t, y, _snap_speed(p, y, ctl.atol, ctl.rtol, scale), hold,
+                        np.inf)
+    return rhs(model, p, prof, t, y, f, want_normal)
+
+
+@jit
+def _starting_step(model, p, prof, t, y, K, tab, ctl, scale, h_start, work):
+    """The first step to try [s]: ``h_start`` where a caller continues an adaptive run,
+    else Hairer's heuristic (adaptive) or the fixed step; never above the largest step."""
+    if ctl.dt <= 0.0 and h_start > 0.0:
+        return min(h_start, ctl.max_step)
+    if ctl.dt <= 0.0:
+        s = tab.B.shape[0]
+        d = integrated_size(model, p)
+        sc = work[s + 4]
         for j in range(d):
-            sc[j] = atol * scale[j] + rtol * abs(y[j])
-        h = _initial_step(model, p, prof, t, y, K[0], d, sc, err_order, ytmp, dy, max_step)
-    else:
-        h = min(dt, max_step)
-    exponent = -1.0 / (err_order + 1.0) if adaptive else 0.0
+            sc[j] = ctl.atol * scale[j] + ctl.rtol * abs(y[j])
+        return _initial_step(model, p, prof, t, y, K[0], d, sc, tab.err_order, work[s + 1],
+                             work[s + 3], ctl.max_step)
+    return min(ctl.dt, ctl.max_step)
+
+
+@jit
+def _march(model, p, prof, y, t, t_out, k, h, tab, ctl, scale, Y_out, stats, h_start, work,
+           accepted_normal):
+    """The stepping loop of `integrate_h`, from output ``k`` on, with f(t, y) in the
+    workspace's first row and ``h`` the step to try first; returns its `Outcome`.
+
+    Each pass: cut the step at the next output, at a slip's stop, at a rolling spin's stop;
+    take it; reject it (adaptive: shrink and retry) or accept it; stop at an event inside
+    it, or go on from where slip starts inside it, or from its end."""
+    d = integrated_size(model, p)
+    s = tab.B.shape[0]
+    K, ynew = work[:s + 1], work[s + 2]
+    adaptive = ctl.dt <= 0.0
+    want_normal = (ctl.events & EVENT_DETACH) != 0
+    coulomb = COULOMB_ON and model == COULOMB
+    exponent = -1.0 / (tab.err_order + 1.0) if adaptive else 0.0
+    just_stopped = False  # a spin was just stopped: take a step before stopping one again
     n_steps = 0
-    while k < m:
+    while k < t_out.shape[0]:
         if n_steps >= ctl.max_steps:
             return Outcome(STATUS_MAX_STEPS, t, h_start, accepted_normal)
         target = t_out[k]
-        hstep = h
-        clipped = False
-        if reaches(t, hstep, target):
-            hstep = target - t
-            clipped = True
-        capped = False
-        if coulomb and y[PHASE_SLOT] != STICK:
-            speed_tol = _snap_speed(p, y, atol, rtol, scale)
-            before = y[PHASE_SLOT]
-            # the lag at which an ONSET step of hstep would spend half its error on it
-            lag_limit = ((atol * scale[1] + rtol * math.sqrt(y[0] * y[0] + y[1] * y[1]))
-                         / hstep if adaptive else np.inf)
-            switched, speed, growth = _settle_coulomb(p, prof, t, y, speed_tol, hold,
-                                                      lag_limit)
-            if switched >= 0.0:
-                # A slip stopped at the noise level is logged where it would have reached 0,
-                # |v_s|/(-d|v_s|/dt) later (measured: up to 7e-9 s at rtol 1e-12 otherwise).
-                _log_switch(work, s, t + speed / -growth if growth < 0.0 else t, before,
-                            switched)
-                normal = rhs(model, p, prof, t, y, K[0], want_normal)
-                stats[2] += 1
-                continue
-            if (growth < 0.0 and speed > speed_tol
-                    and hstep > SLIP_STOP_FRACTION * speed / -growth):
-                hstep = SLIP_STOP_FRACTION * speed / -growth
-                clipped, capped = False, True
-        if resisted and not just_stopped:
-            # A rolling spin that rolling resistance stops and then holds (see roll stop
-            # above): cut the step at the stop, snap the spin to 0 at the noise level.
-            _set_spin_band(p, y, atol, rtol, scale)
-            spin, rate = rolling_spin(p, y, K[0])
-            at_stop = 0.0 < spin <= p[P_SPIN_BAND]
-            if at_stop or rate < 0.0:
-                cut = SLIP_STOP_FRACTION * spin / -rate if rate < 0.0 else np.inf
-                if at_stop or hstep > cut:
-                    _copy_row(ytmp, y)
-                    stop_rolling(model, p, prof, t, ytmp)
-                    stats[2] += 1
-                    if spin_held(p, ytmp, dy, rhs(model, p, prof, t, ytmp, dy, True)):
-                        if at_stop:
-                            _copy_row(y, ytmp)
-                            normal = rhs(model, p, prof, t, y, K[0], want_normal)
-                            stats[2] += 1
-                            just_stopped = True
-                            continue
-                        hstep = cut
-                        clipped, capped = False, True
-        just_stopped = False
+        clipped = reaches(t, h, target)  # then the step lands on the output exactly
+        hstep = target - t if clipped else h
+        restart, just_stopped, hstep, capped = _before_step(model, p, prof, t, y, hstep, tab,
+                                                            ctl, scale, stats, work,
+                                                            just_stopped)
+        if restart:
+            continue
+        if capped:  # cut short of a stop: it no longer lands on the output
+            clipped = False
         if not (hstep > 1e-14 * max(1.0, abs(t))):
             return Outcome(STATUS_FAILED, t, h_start, accepted_normal)
-        stage_normal = _stages(model, p, prof, t, y, hstep, d, tab, K, ytmp, ynew, want_normal)
-        normal = rhs(model, p, prof, t + hstep, ynew, K[s], want_normal)
-        stats[2] += s
-        finite = True
-        for j in range(d):
-            if not math.isfinite(ynew[j]) or not math.isfinite(K[s, j]):
-                finite = False
-        if adaptive:
-            for j in range(d):
-                sc[j] = atol * scale[j] + rtol * max(abs(y[j]), abs(ynew[j]))
-            err = _error_norm(tab, hstep, d, K, sc) if finite else np.inf
-            if coulomb and y[PHASE_SLOT] == ONSET and finite:
-                # the lag at the end is in the phase slot of the end's rates (see `rhs`)
-                err = max(err, _onset_error(K[s, PHASE_SLOT], ynew, hstep, atol, rtol, scale))
-            if not err <= 1.0:
-                # Rejected: shrink and retry (an infinite/NaN error shrinks by the maximum).
-                factor = MIN_FACTOR if not math.isfinite(err) else max(
-                    MIN_FACTOR, SAFETY * err ** exponent)
-                h = hstep * factor
-                stats[1] += 1
-                continue
-        elif not finite:
-            return Outcome(STATUS_FAILED, t, h_start, accepted_normal)
+        err, normal, stage_normal = _attempt(model, p, prof, t, y, hstep, d, tab, ctl, scale,
+                                             stats, work)
+        if not err <= 1.0:
+            if not adaptive:
+                return Outcome(STATUS_FAILED, t, h_start, accepted_normal)
+            # Rejected: shrink and retry (an infinite/NaN error shrinks by the maximum).
+            h = hstep * (MIN_FACTOR if not math.isfinite(err) else max(
+                MIN_FACTOR, SAFETY * err ** exponent))
+            stats[1] += 1
+            continue
         n_steps += 1
         stats[0] += 1
-        switch_tau = -1.0
-        yswitch = ynew
+        switch_tau, yswitch = -1.0, ynew
         if coulomb and y[PHASE_SLOT] == STICK:
-            # Static friction gives way inside this step: at its end (the margin is in the
-            # phase slot of the end's rates), or only briefly inside it, which a stage point
-            # saw and a true partial step at a stage time confirms. Locate where, and keep
-            # that state (locating a stopping event below overwrites ynew).
-            reach = hstep if K[s, PHASE_SLOT] < 0.0 else 0.0
-            if reach == 0.0 and _stick_dip(K):
-                yend = ynew.copy()
-                reach = _probe_dip(TRANSITION, model, p, prof, t, y, hstep, d, tab, K, ytmp,
-                                   ynew, dy)
-                _copy_row(ynew, yend)
-            if reach > 0.0:
-                yend = ynew.copy()
-                switch_tau = _locate(TRANSITION, model, p, prof, t, y, reach, d, tab, K,
-                                     ytmp, ynew, dy)
-                yswitch = ynew.copy()
-                _copy_row(ynew, yend)
-        fired = _fired(events, model, p, prof, t + hstep, ynew, dy, normal) if events else 0
+            switch_tau, yswitch = _slip_start_in_step(model, p, prof, t, y, hstep, d, tab, work)
+        fired = _fired(ctl.events, model, p, prof, t + hstep, ynew, work[s + 3],
+                       normal) if ctl.events else 0
         if not fired and stage_normal < 0.0:
-            # N is positive at both ends but a stage point saw it negative: a brief dip
-            # inside the step. Probe with true partial steps at the stage times; the first
-            # negative one brackets a crossing, located as usual.
-            tau_dip = _probe_dip(STATUS_DETACH, model, p, prof, t, y, hstep, d, tab, K,
-                                 ytmp, ynew, dy)
-            if tau_dip > 0.0:
-                tau = _locate(STATUS_DETACH, model, p, prof, t, y, tau_dip, d, tab, K,
-                              ytmp, ynew, dy)
-                _copy_row(y, ynew)
-                stats[2] += 1
+            dipped, tau = _detach_in_dip(model, p, prof, t, y, hstep, d, tab, stats, work)
+            if dipped:
                 return Outcome(STATUS_DETACH, t + tau, h_start, accepted_normal)
-            # a false alarm: the stage values are low-order estimates; redo the full step
-            _stages(model, p, prof, t, y, hstep, d, tab, K, ytmp, ynew, False)
-            rhs(model, p, prof, t + hstep, ynew, K[s], False)
         if fired:
-            # The state at t is still in y and f(t, y) in K[0]: locate on the partial step.
-            # Each event that fired is located on the whole step; the earliest wins.
-            ybest = np.empty(STATE_WIDTH)
-            yend = ynew.copy()
-            best_tau = hstep
-            best_kind = 0
-            for kind in (STATUS_DETACH, STATUS_ESCAPE):
-                if _fired(events & kind, model, p, prof, t + hstep, yend, dy, normal) == kind:
-                    tau = _locate(kind, model, p, prof, t, y, hstep, d, tab, K, ytmp, ynew,
-                                  dy)
-                    if best_kind == 0 or tau < best_tau:
-                        best_tau, best_kind = tau, kind
-                        _copy_row(ybest, ynew)
-            if switch_tau < 0.0 or best_tau <= switch_tau:
-                _copy_row(y, ybest)
-                stats[2] += 1
-                return Outcome(best_kind, t + best_tau, h_start, accepted_normal)
-        if switch_tau >= 0.0:
-            # Slip starts at t + switch_tau from v_s = 0; go on from there.
-            _copy_row(y, yswitch)
+            kind, tau = _earliest_event(ctl.events, model, p, prof, t, y, hstep, d, tab,
+                                        normal, switch_tau, stats, work)
+            if kind:
+                return Outcome(kind, t + tau, h_start, accepted_normal)
+        if switch_tau >= 0.0:  # slip starts at t + switch_tau from v_s = 0: go on from there
             t = target if (clipped and switch_tau >= hstep) else t + switch_tau
-            y[PHASE_SLOT] = ONSET
-            rolling_velocity(p, y, y)
-            _record(work, s, t, SLIP)
-            normal = rhs(model, p, prof, t, y, K[0], want_normal)
-            stats[2] += 1
-            if want_normal:
-                accepted_normal = normal
-            if clipped and t >= target:
-                _copy_row(Y_out[k], y)
-                k += 1
-                stats[3] += 1
-            if adaptive:
-                h = min(max(hstep * step_factor(err, exponent), switch_tau), max_step)
-            continue
-        t = target if clipped else t + hstep
+            normal = _start_slip(model, p, prof, t, y, yswitch, s, want_normal, stats, work)
+        else:
+            t = target if clipped else t + hstep
+            _accept(y, ynew, K, s, coulomb)
         if want_normal:
             accepted_normal = normal
-        for j in range(ROW_WIDTH):  # constant length: see _kernels.ROW_WIDTH
-            y[j] = ynew[j]
-            K[0, j] = K[s, j]
-        if coulomb:
-            for j in range(ROW_WIDTH, STATE_WIDTH):
-                y[j] = ynew[j]
-                K[0, j] = K[s, j]
-        if clipped:
+        if clipped and t >= target:
             _copy_row(Y_out[k], y)
             k += 1
             stats[3] += 1
         if adaptive:
-            hnew = hstep * step_factor(err, exponent)
-            # A step shortened to hit an output says nothing against the natural step.
-            h = min(max(hnew, h) if (clipped or capped) else hnew, max_step)
+            h = _next_step(h, hstep, err, exponent, switch_tau, clipped or capped, ctl.max_step)
     return Outcome(STATUS_DONE, t, h, accepted_normal)
+
+
+@jit
+def _before_step(model, p, prof, t, y, hstep, tab, ctl, scale, stats, work, just_stopped):
+    """Cut a step of ``hstep`` at a slip's stop (`_settle_slip`) and a rolling spin's stop
+    (`_stop_roll`, skipped right after a spin was stopped: ``just_stopped``), or make the
+    switch or the stop there. Returns ``(restart, stopped, hstep, cut)``: whether the loop
+    starts the pass again (a phase switched or a spin stopped: the new f(t, y) is in the
+    workspace's first row), whether a spin was stopped, the step, and whether it was cut."""
+    # the flags: see `compilation.specialise`
+    coulomb = COULOMB_ON and model == COULOMB
+    cut = False
+    if coulomb and y[PHASE_SLOT] != STICK:
+        switched, hstep, cut = _settle_slip(model, p, prof, t, y, hstep, tab, ctl, scale,
+                                            stats, work)
+        if switched:
+            return True, just_stopped, hstep, cut
+    if RESIST_ON and (model == ROLLING or coulomb) and p[P_RESIST] != 0.0 and not just_stopped:
+        stopped, hstep, cut_here = _stop_roll(model, p, prof, t, y, hstep, tab, ctl, scale,
+                                              stats, work)
+        if stopped:
+            return True, True, hstep, cut
+        cut = cut or cut_here
+    return False, False, hstep, cut
+
+
+@jit
+def _next_step(h, hstep, err, exponent, switch_tau, shortened, max_step):
+    """The step to try after an accepted one of ``hstep`` with error norm ``err`` (the step
+    tried before it was ``h``): up to the slip's start where one started in it (at
+    ``switch_tau`` ≥ 0), at least ``h`` where the step was ``shortened`` to land on an output
+    or short of a stop, never above ``max_step``."""
+    if switch_tau >= 0.0:
+        return min(max(hstep * step_factor(err, exponent), switch_tau), max_step)
+    hnew = hstep * step_factor(err, exponent)
+    # A step shortened to hit an output says nothing against the natural step.
+    return min(max(hnew, h) if shortened else hnew, max_step)
+
+
+@jit
+def _settle_slip(model, p, prof, t, y, hstep, tab, ctl, scale, stats, work):
+    """A slipping coulomb ball before a step of ``hstep`` (slip -> stick above): switch its
+    phase where `_settle_coulomb` says so, logging the change and writing the new f(t, y)
+    into the workspace's first row; else cut the step short of the stop that the slip's
+    deceleration predicts. Returns ``(switched, hstep, cut)``: whether the phase changed
+    (then the loop starts the pass again), the step, and whether it was cut."""
+    atol, rtol = ctl.atol, ctl.rtol
+    s = tab.B.shape[0]
+    speed_tol = _snap_speed(p, y, atol, rtol, scale)
+    before = y[PHASE_SLOT]
+    # the lag at which an ONSET step of hstep would spend half its error on it
+    lag_limit = ((atol * scale[1] + rtol * math.sqrt(y[0] * y[0] + y[1] * y[1]))
+                 / hstep if ctl.dt <= 0.0 else np.inf)
+    hold = 0.0 if ctl.dt <= 0.0 else ctl.dt  # how long an ONSET slip must follow itself
+    switched, speed, growth = _settle_coulomb(p, prof, t, y, speed_tol, hold, lag_limit)
+    if switched >= 0.0:
+        # A slip stopped at the noise level is logged where it would have reached 0,
+        # |v_s|/(-d|v_s|/dt) later (measured: up to 7e-9 s at rtol 1e-12 otherwise).
+        _log_switch(work, s, t + speed / -growth if growth < 0.0 else t, before, switched)
+        rhs(model, p, prof, t, y, work[0], (ctl.events & EVENT_DETACH) != 0)
+        stats[2] += 1
+        return True, hstep, False
+    if growth < 0.0 and speed > speed_tol and hstep > SLIP_STOP_FRACTION * speed / -growth:
+        return False, SLIP_STOP_FRACTION * speed / -growth, True
+    return False, hstep, False
+
+
+@jit
+def _stop_roll(model, p, prof, t, y, hstep, tab, ctl, scale, stats, work):
+    """Rolling resistance before a step of ``hstep`` (roll stop above): where the rolling
+    spin will be held once stopped, snap a spin within the band to 0 (its energy booked as
+    work; the new f(t, y) written into the workspace's first row), or cut the step at the
+    stop that the spin's deceleration predicts. Returns ``(stopped, hstep, cut)``: whether
+    the spin was stopped (then the loop starts the pass again), the step, and whether it
+    was cut."""
+    s = tab.B.shape[0]
+    ytmp, dy = work[s + 1], work[s + 3]
+    _set_spin_band(p, y, ctl.atol, ctl.rtol, scale)
+    spin, rate = rolling_spin(p, y, work[0])
+    at_stop = 0.0 < spin <= p[P_SPIN_BAND]
+    if not (at_stop or rate < 0.0):
+        return False, hstep, False
+    cut = SLIP_STOP_FRACTION * spin / -rate if rate < 0.0 else np.inf
+    if not (at_stop or hstep > cut):
+        return False, hstep, False
+    _copy_row(ytmp, y)
+    stop_rolling(model, p, prof, t, ytmp)
+    stats[2] += 1
+    if not spin_held(p, ytmp, dy, rhs(model, p, prof, t, ytmp, dy, True)):
+        return False, hstep, False  # it will not be held: the spin passes zero and turns
+    if not at_stop:
+        return False, cut, True
+    _copy_row(y, ytmp)
+    rhs(model, p, prof, t, y, work[0], (ctl.events & EVENT_DETACH) != 0)
+    stats[2] += 1
+    return True, hstep, False
+
+
+@jit
+def _attempt(model, p, prof, t, y, hstep, d, tab, ctl, scale, stats, work):
+    """One RK step of ``hstep`` from (t, y), f(t, y) in the workspace's first row: the new
+    point goes to its row ``s + 2`` and f there to row ``s``. Returns ``(err, normal,
+    stage_normal)``: the scaled error norm (adaptive; 0 with a fixed step), inf when the step
+    is not finite; N/m at the new point and the lowest N/m at a stage point (if detachment
+    events are on)."""
+    s = tab.B.shape[0]
+    K, ytmp, ynew, sc = work[:s + 1], work[s + 1], work[s + 2], work[s + 4]
+    want_normal = (ctl.events & EVENT_DETACH) != 0
+    stage_normal = _stages(model, p, prof, t, y, hstep, d, tab, K, ytmp, ynew, want_normal)
+    normal = rhs(model, p, prof, t + hstep, ynew, K[s], want_normal)
+    stats[2] += s
+    finite = True
+    for j in range(d):
+        if not math.isfinite(ynew[j]) or not math.isfinite(K[s, j]):
+            finite = False
+    if not ctl.dt <= 0.0:  # a fixed step: no error estimate
+        return 0.0 if finite else np.inf, normal, stage_normal
+    for j in range(d):
+        sc[j] = ctl.atol * scale[j] + ctl.rtol * max(abs(y[j]), abs(ynew[j]))
+    err = _error_norm(tab, hstep, d, K, sc) if finite else np.inf
+    if COULOMB_ON and model == COULOMB and y[PHASE_SLOT] == ONSET and finite:
+        # the lag at the end is in the phase slot of the end's rates (see `rhs`)
+        err = max(err, _onset_error(K[s, PHASE_SLOT], ynew, hstep, ctl.atol, ctl.rtol, scale))
+    return err, normal, stage_normal
+
+
+@jit
+def _slip_start_in_step(model, p, prof, t, y, hstep, d, tab, work):
+    """Where a sticking coulomb ball's static friction gave way inside the step just taken
+    (stick -> slip above): at its end (the margin is in the phase slot of the end's rates),
+    or only briefly inside it, which a stage point saw and a true partial step at a stage
+    time confirms. Returns ``(tau, state)``: the time from t at which slip starts and a copy
+    of the state there (located: locating a stopping event later overwrites the step's end),
+    or ``(-1, end)`` where the friction held. The step's end stays in the workspace."""
+    s = tab.B.shape[0]
+    K, ytmp, ynew, dy = work[:s + 1], work[s + 1], work[s + 2], work[s + 3]
+    reach = hstep if K[s, PHASE_SLOT] < 0.0 else 0.0
+    if reach == 0.0 and _stick_dip(K):
+        yend = ynew.copy()
+        reach = _probe_dip(TRANSITION, model, p, prof, t, y, hstep, d, tab, K, ytmp, ynew, dy)
+        _copy_row(ynew, yend)
+    if not reach > 0.0:
+        return -1.0, ynew
+    yend = ynew.copy()
+    tau = _locate(TRANSITION, model, p, prof, t, y, reach, d, tab, K, ytmp, ynew, dy)
+    yswitch = ynew.copy()
+    _copy_row(ynew, yend)
+    return tau, yswitch
+
+
+@jit
+def _detach_in_dip(model, p, prof, t, y, hstep, d, tab, stats, work):
+    """N is positive at both ends of the step just taken but a stage point saw it negative:
+    a brief dip inside the step. Probe with true partial steps at the stage times; the first
+    negative one brackets a crossing, located as usual, and y becomes the state there.
+    Returns ``(detached, tau)``, tau the time from t. A false alarm (the stage values are
+    low-order estimates) redoes the full step, so the workspace holds it as before."""
+    s = tab.B.shape[0]
+    K, ytmp, ynew, dy = work[:s + 1], work[s + 1], work[s + 2], work[s + 3]
+    tau_dip = _probe_dip(STATUS_DETACH, model, p, prof, t, y, hstep, d, tab, K, ytmp, ynew, dy)
+    if tau_dip > 0.0:
+        tau = _locate(STATUS_DETACH, model, p, prof, t, y, tau_dip, d, tab, K, ytmp, ynew, dy)
+        _copy_row(y, ynew)
+        stats[2] += 1
+        return True, tau
+    _stages(model, p, prof, t, y, hstep, d, tab, K, ytmp, ynew, False)
+    rhs(model, p, prof, t + hstep, ynew, K[s], False)
+    return False, 0.0
+
+
+@jit
+def _earliest_event(events, model, p, prof, t, y, hstep, d, tab, normal, switch_tau, stats,
+                    work):
+    """Locate each stopping event that fired at the end of the step just taken, on the
+    partial step from (t, y) (still in y, f(t, y) in the workspace's first row); the
+    earliest wins. Unless slip starts before it (at ``switch_tau`` ≥ 0 from t), y becomes the
+    state at the event and ``(kind, tau)`` is returned, tau the time from t; else ``(0,
+    tau)`` and the step goes on to the slip's start."""
+    s = tab.B.shape[0]
+    K, ytmp, ynew, dy = work[:s + 1], work[s + 1], work[s + 2], work[s + 3]
+    ybest = np.empty(STATE_WIDTH)
+    yend = ynew.copy()
+    best_tau = hstep
+    best_kind = 0
+    for kind in (STATUS_DETACH, STATUS_ESCAPE):
+        if _fired(events & kind, model, p, prof, t + hstep, yend, dy, normal) == kind:
+            tau = _locate(kind, model, p, prof, t, y, hstep, d, tab, K, ytmp, ynew, dy)
+            if best_kind == 0 or tau < best_tau:
+                best_tau, best_kind = tau, kind
+                _copy_row(ybest, ynew)
+    if switch_tau >= 0.0 and best_tau > switch_tau:
+        return 0, best_tau
+    _copy_row(y, ybest)
+    stats[2] += 1
+    return best_kind, best_tau
+
+
+@jit
+def _start_slip(model, p, prof, t, y, yswitch, s, want_normal, stats, work):
+    """Slip starts at t from v_s = 0 in the state ``yswitch``: y becomes it, in phase ONSET
+    with its rolling velocity, the switch is logged (``s`` the method's stages) and f(t, y)
+    written into the workspace's first row. Returns N/m there (if ``want_normal``)."""
+    _copy_row(y, yswitch)
+    y[PHASE_SLOT] = ONSET
+    rolling_velocity(p, y, y)
+    _record(work, s, t, SLIP)
+    normal = rhs(model, p, prof, t, y, work[0], want_normal)
+    stats[2] += 1
+    return normal
+
+
+@ir_inline
+def _accept(y, ynew, K, s, coulomb):
+    """Move to the accepted step's end: y = ynew and its rates K[0] = K[s]."""
+    for j in range(ROW_WIDTH):  # constant length: see _kernels.ROW_WIDTH
+        y[j] = ynew[j]
+        K[0, j] = K[s, j]
+    if coulomb:
+        for j in range(ROW_WIDTH, STATE_WIDTH):
+            y[j] = ynew[j]
+            K[0, j] = K[s, j]
 
 
 @python_entry
