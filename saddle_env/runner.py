@@ -133,39 +133,14 @@ def initial_state(scene: Scene, x: float, y: float, vx: float = 0.0, vy: float =
 
 
 def padded_width(models: np.ndarray) -> int:
-    """Width of a batch's public states (`BatchResult`, `Prediction`).
-
-    Parameters
-    ----------
-    models : ndarray of int
-        The batch's model codes.
-
-    Returns
-    -------
-    int
-        A rolling ball's 5, or a coulomb ball's 7 when the batch has one.
-    """
+    """Width of a batch's public states (`BatchResult`, `Prediction`): a rolling ball's 5,
+    or a coulomb ball's 7 when the batch (model codes ``models``) has one."""
     return K.DYNAMICS_WIDTH if np.any(np.asarray(models) == COULOMB) else 5
 
 
 def check_force(force: object) -> tuple[float, float]:
-    """A constant lab-fixed force per unit mass, checked.
-
-    Parameters
-    ----------
-    force : pair of float
-        ``(fx, fy)`` [m/s²], each finite.
-
-    Returns
-    -------
-    tuple of float
-        ``(fx, fy)`` as Python floats.
-
-    Raises
-    ------
-    ValueError
-        Not a pair of finite numbers.
-    """
+    """A constant lab-fixed force per unit mass ``(fx, fy)`` [m/s²], checked: returned as a
+    pair of floats; ValueError unless it is a pair of finite numbers."""
     if not isinstance(force, (tuple, list, np.ndarray)) or len(force) != 2:
         raise ValueError(f"force must be a pair (fx, fy) of lab-frame accelerations [m/s^2], "
                          f"got {force!r}")
@@ -199,24 +174,10 @@ def drive_row(profile: OmegaProfile, force: tuple[float, float] = (0.0, 0.0),
 
 
 def integrator_loop(model: int, resist: bool, args: tuple):
-    """The integrator's loop compiled for this contact model (or ion trap) alone.
-
-    Parameters
-    ----------
-    model : int
-        The model code.
-    resist : bool
-        Whether the scene has rolling resistance.
-    args : tuple
-        `integrators.integrate_h`'s arguments: its callers (`run_checked`,
-        `iontrap.simulate_ion`) build every argument themselves, so their types do not
-        change from call to call (`compilation.specialise.entry`).
-
-    Returns
-    -------
-    callable
-        `integrate_h`, compiled for them.
-    """
+    """`integrators.integrate_h` compiled for the contact model (or ion trap) ``model`` alone,
+    with rolling resistance if ``resist``, for the arguments ``args``
+    (`compilation.specialise.entry`): its callers (`run_checked`, `iontrap.simulate_ion`)
+    build every argument themselves, so their types do not change from call to call."""
     return entry((model,), resist, integrators, "integrate_h", args)
 
 
@@ -362,13 +323,8 @@ class Settings:
 
 
 def default_max_step(omega_bound: float) -> float:
-    """Default largest adaptive step [s] for saddle speeds up to ``omega_bound`` [rad/s].
-
-    Returns
-    -------
-    float
-        π/(2Ω), or inf when the saddle does not turn.
-    """
+    """Default largest adaptive step [s] for saddle speeds up to ``omega_bound`` [rad/s]:
+    π/(2Ω), or inf when the saddle does not turn."""
     return math.pi / (2.0 * omega_bound) if omega_bound > 0 else math.inf
 
 
@@ -733,49 +689,18 @@ def run(scene: Scene, state: np.ndarray, t_end: float, *,
              force: tuple[float, float] = (0.0, 0.0)) -> Trajectory:
     """Integrate one ball from t = 0 to ``t_end`` with the given integrator settings.
 
-    The layer under `saddle_env.simulate.simulate`: `check_run`, `Settings.build`, then
-    `run_checked`, without ``tol=`` and without the checks of a fixed step against the
-    output spacing and the scene's dynamics.
-
-    Parameters
-    ----------
-    scene, state, t_end, omega, dt_out, method, rtol, atol, dt, events, max_step, max_steps, force
-        As in `saddle_env.simulate.simulate`.
-
-    Returns
-    -------
-    Trajectory
-
-    Raises
-    ------
-    ValueError
-        Invalid input (the message names the parameter and the allowed range).
-    SimulationError
-        The integration failed.
+    `check_run`, `Settings.build`, then `run_checked`: `saddle_env.simulate.simulate`
+    without ``tol=`` and without its checks of a fixed step, with its parameters, result
+    (`Trajectory`) and errors (ValueError, SimulationError).
     """
     return run_checked(check_run(scene, state, t_end, omega, dt_out, force),
                        Settings.build(method, rtol, atol, dt, events, max_step, max_steps))
 
 
 def run_checked(inputs: RunInputs, settings: Settings) -> Trajectory:
-    """Run one ball whose inputs and settings are checked.
-
-    Parameters
-    ----------
-    inputs : RunInputs
-        From `check_run`.
-    settings : Settings
-        From `Settings.build`.
-
-    Returns
-    -------
-    Trajectory
-
-    Raises
-    ------
-    SimulationError
-        The integration failed (non-finite state, step-size underflow, step limit).
-    """
+    """Run one ball whose inputs (`check_run`) and settings (`Settings.build`) are checked;
+    returns its `Trajectory`, or raises SimulationError when the integration failed
+    (non-finite state, step-size underflow, step limit)."""
     scene, profile, force, t_out = inputs.scene, inputs.omega, inputs.force, inputs.t_out
     y = inputs.state.copy()
     p = scene.params()
@@ -863,17 +788,8 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
 
     Parameters
     ----------
-    scenes : Scene or sequence of Scene
-        One Scene for all balls or one per ball (contact models may differ).
-    states : ndarray, shape (n, k)
-        Each row a ball's state, padded with zeros to a common k ≤ 7.
-    t_end : float
-        Final time [s].
-    omega : float, OmegaProfile, sequence or ndarray
-        One value/profile for all, or one per ball (a sequence, or an (n,) array of
-        constant speeds, or an (n, 5) array of profile rows).
-    dt_out, method, rtol, atol, dt, events, max_step, max_steps, force
-        As in `saddle_env.simulate.simulate`.
+    scenes, states, t_end, omega, dt_out, method, rtol, atol, dt, events, max_step, max_steps, force
+        As in `saddle_env.simulate.simulate_batch`.
     angle : float or ndarray, shape (n,)
         The saddle's angle [rad] at t = 0 from the laboratory's x axis, one for all balls or
         one each: where the saddle points when each ball is released, which matters only
@@ -882,32 +798,16 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
     Returns
     -------
     BatchResult
-        Failures do not raise; they are reported per ball in ``status``.
-
-    Raises
-    ------
-    ValueError
-        Invalid input (the message names the parameter and the allowed range).
+        Failures do not raise; they are reported per ball in ``status`` (bad input raises
+        ValueError).
     """
     return run_batch_checked(check_batch(scenes, states, t_end, omega, dt_out, force, angle),
                              Settings.build(method, rtol, atol, dt, events, max_step, max_steps))
 
 
 def run_batch_checked(inputs: BatchInputs, settings: Settings) -> BatchResult:
-    """Run a batch whose inputs and settings are checked.
-
-    Parameters
-    ----------
-    inputs : BatchInputs
-        From `check_batch`.
-    settings : Settings
-        From `Settings.build`.
-
-    Returns
-    -------
-    BatchResult
-        Failures do not raise; they are reported per ball in ``status``.
-    """
+    """Run a batch whose inputs (`check_batch`) and settings (`Settings.build`) are checked;
+    failures do not raise, they are reported per ball in the `BatchResult`'s ``status``."""
     scene_list, profiles, t_out = inputs.scenes, inputs.omegas, inputs.t_out
     n = len(scene_list)
     Y = inputs.states.copy()
