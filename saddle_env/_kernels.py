@@ -728,7 +728,7 @@ def rhs(model, p, prof, t, y, dy, want_normal):
             y[0], y[1], y[2], y[3], y[4], y[5], y[6])
         # The phase is not integrated, so its slot carries what the loop checks a step with,
         # at no extra cost: sticking, the stick margin μ_s N/m - |f| (at every stage, so that
-        # static friction giving way briefly inside a step is seen: `integrators._stick_dip`);
+        # static friction giving way briefly inside a step is seen: `rk.stick_dip`);
         # at onset, the slip's lag behind the push (`integrators._onset_error`).
         if phase == STICK:
             dy[PHASE_SLOT] = p[P_MU_STATIC] * normal - friction

@@ -34,14 +34,14 @@ from __future__ import annotations
 import contextvars
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, TypedDict
 
 import numpy as np
 
 from . import _kernels as K
 from .omega import OmegaProfile
-from .runner import Settings, drive_row, run
+from .runner import RunInputs, Settings, check_run, drive_row, output_times, run, run_checked
 from .scene import Scene, _finite_number
 
 if TYPE_CHECKING:
@@ -57,6 +57,7 @@ TOL_FLOOR = 1e-11                # [m] below this the reference itself cannot vo
 TOL_CEIL = 1.0                   # [m]
 ADAPTIVE_RTOLS = tuple(10.0 ** -k for k in range(4, 14))
 RK4_DIVISORS = (1, 2, 4, 8, 16, 32)
+MAX_STEPS = 50_000_000           # the pilots' step limit (`simulate`'s default)
 
 
 class IntegratorKwargs(TypedDict, total=False):
@@ -85,6 +86,7 @@ class Choice:
     pilot_rhs_evaluations: int
 
     def kwargs(self) -> IntegratorKwargs:
+        """The pick as `simulate`'s keywords (method and rtol or dt, and max_step if set)."""
         out: IntegratorKwargs = {"method": self.method}
         if self.dt is not None:
             out["dt"] = self.dt
@@ -95,6 +97,7 @@ class Choice:
         return out
 
     def describe(self) -> str:
+        """What was picked and why, in one line (a `Trajectory`'s ``settings``)."""
         what = (f"{self.method} fixed dt = {self.dt:.4g} s" if self.dt is not None
                 else f"{self.method} rtol = {self.rtol:g}"
                 + ("" if self.max_step is None else f", max_step = {self.max_step:g} s"))
@@ -104,6 +107,22 @@ class Choice:
 
 
 def check_tol(tol: object) -> float:
+    """The position error asked for, checked.
+
+    Parameters
+    ----------
+    tol : float
+        Largest position error [m] over the run, in [TOL_FLOOR, TOL_CEIL].
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    ValueError
+        Not a finite number in that range.
+    """
     tol = _finite_number("tol", tol)
     if not TOL_FLOOR <= tol <= TOL_CEIL:
         raise ValueError(f"tol must satisfy {TOL_FLOOR:g} <= tol <= {TOL_CEIL:g} metres (the "
@@ -174,33 +193,83 @@ def choose(scenes: Scene | Sequence[Scene], states: Sequence[np.ndarray], t_end:
     """Cheapest setting that keeps every given ball within ``tol`` metres of the exact
     trajectory (contact-point position, maximum over the run). See the module docstring.
 
-    ``scenes``/``states``/``omegas`` are one or more balls (a batch passes a few
-    representatives); the pick must pass for all of them.
+    Parameters
+    ----------
+    scenes : Scene or sequence of Scene
+        One scene for all balls or one per ball.
+    states : sequence of ndarray
+        The balls' starting states (each of its scene's ``state_size``); a batch passes a
+        few representatives, and the pick must pass for all of them.
+    t_end : float
+        The run's length [s] (the pilot covers its start and extrapolates).
+    tol : float
+        Largest position error [m] allowed over the run (`check_tol`).
+    omegas : sequence of OmegaProfile
+        Each ball's Ω profile.
+    dt_out : float or None
+        The run's output spacing [s] (the pilot lands on it, as the run will).
+    events : subset of ("detach", "escape")
+        The run's events.
+    force : (fx, fy)
+        The run's lab-fixed force per unit mass [m/s²].
+
+    Returns
+    -------
+    Choice
+        The pick; ``kwargs()`` gives `simulate`'s keywords for it.
+
+    Raises
+    ------
+    ValueError
+        ``tol`` or ``t_end`` out of range, or no candidate reaches ``tol``.
     """
-    token = _INTERNAL.set(True)  # candidates that are too coarse are expected here
-    try:
-        return _choose(run, scenes, states, t_end, tol, omegas, dt_out, events, force)
-    finally:
-        _INTERNAL.reset(token)
-
-
-def _choose(simulate, scenes, states, t_end, tol, omegas, dt_out, events, force) -> Choice:
-    tol = check_tol(tol)
     t_end = _finite_number("t_end", t_end)
     if t_end <= 0:
         raise ValueError(f"t_end must be > 0 seconds, got {t_end}")
     scene_list = [scenes] * len(states) if isinstance(scenes, Scene) else list(scenes)
+    balls = [check_run(sc, s0, t_end, om, None, force)
+             for sc, s0, om in zip(scene_list, states, omegas)]
+    return choose_for(balls, tol, dt_out, events)
+
+
+def choose_for(balls: Sequence[RunInputs], tol: float, dt_out: float | None,
+               events: Sequence[str]) -> Choice:
+    """`choose` for balls whose inputs are checked (`runner.check_run`), as
+    `saddle_env.simulate` has them: nothing is checked again.
+
+    Parameters
+    ----------
+    balls : sequence of RunInputs
+        The balls; their last output time is the run's end.
+    tol : float
+        Largest position error [m] allowed over the run (checked: `check_tol`).
+    dt_out : float or None
+        The run's output spacing [s].
+    events : subset of ("detach", "escape")
+        The run's events.
+
+    Returns
+    -------
+    Choice
+    """
+    token = _INTERNAL.set(True)  # candidates that are too coarse are expected here
+    try:
+        return _choose(balls, check_tol(tol), dt_out, events)
+    finally:
+        _INTERNAL.reset(token)
+
+
+def _choose(balls: Sequence[RunInputs], tol: float, dt_out: float | None,
+            events: Sequence[str]) -> Choice:
+    t_end = float(balls[0].t_out[-1])
     detach = "detach" in (events if not isinstance(events, str) else (events,))
-    t_p = min(_pilot_window(om, t_end) for om in omegas)
+    t_p = min(_pilot_window(b.omega, t_end) for b in balls)
     # The pilot lands on the run's own output grid (landing changes the steps), or on t_p/2.
     out_dt = dt_out if dt_out is not None and t_p / 2000 <= dt_out <= t_p / 2 else t_p / 2
-    balls = list(zip(scene_list, states, omegas))
-    refs = []
-    for sc, s0, om in balls:
-        tr = simulate(sc, s0, t_p, omega=om, dt_out=out_dt, method="dop853",
-                      rtol=REFERENCE_RTOL, events=events, force=force)
-        refs.append(_positions(tr))
-    h0 = min(_base_step(sc, om, t_end) for sc, _, om in balls)
+    pilots = [replace(b, t_out=output_times(t_p, out_dt)) for b in balls]
+    reference = Settings.build("dop853", REFERENCE_RTOL, None, None, events, None, MAX_STEPS)
+    refs = [_positions(run_checked(b, reference)) for b in pilots]
+    h0 = min(_base_step(b.scene, b.omega, t_end) for b in balls)
     fams = _families(h0, t_end, detach)
     best: tuple[int, IntegratorKwargs, float] | None = None
     tried = 0
@@ -212,10 +281,11 @@ def _choose(simulate, scenes, states, t_end, tol, omegas, dt_out, events, force)
             evals = 0
             worst = 0.0
             worst_half = 0.0
-            for b, (sc, s0, om) in enumerate(balls):
+            for b, pilot in enumerate(pilots):
                 try:
-                    tr = simulate(sc, s0, t_p, omega=om, dt_out=out_dt, events=events,
-                                  force=force, **kw)
+                    tr = run_checked(pilot, Settings.build(
+                        kw.get("method"), kw.get("rtol"), kw.get("atol"), kw.get("dt"), events,
+                        kw.get("max_step"), MAX_STEPS))
                 except Exception:  # noqa: BLE001 — a failed candidate simply does not pass
                     worst = math.inf
                     break
@@ -282,10 +352,21 @@ def _jacobi_rows(traj) -> np.ndarray:
 
 
 def jacobi_drift(traj) -> float:
-    """Largest |h(t) − h(0) − W(t)| over the outputs (and, without dissipation, the event
-    state), relative to |h(0)| + g·a/100, where W is the work of the dissipative forces
-    (`Trajectory.work`); NaN when the Jacobi integral is not conserved (Ω varies or a
-    lab-frame force acts)."""
+    """How far a run's Jacobi integral drifted, net of the dissipated work.
+
+    Parameters
+    ----------
+    traj : Trajectory
+        A finished run.
+
+    Returns
+    -------
+    float
+        Largest |h(t) − h(0) − W(t)| over the outputs (and, without dissipation, the event
+        state), relative to |h(0)| + g·a/100, where W is the work of the dissipative forces
+        (`Trajectory.work`); NaN when the Jacobi integral is not conserved (Ω varies or a
+        lab-frame force acts).
+    """
     if not traj.omega.constant or traj.force != (0.0, 0.0) or len(traj.t) < 1:
         return math.nan
     # The event state carries no work, so a dissipative run is measured at its outputs.
@@ -320,11 +401,27 @@ def _doubling_estimate(traj, dt: float, method: str) -> float:
 
 
 def check_fixed_step(traj, dt: float, method: str = "rk4") -> str | None:
-    """Warn (`AccuracyWarning`) if a fixed-step run is evidently inaccurate. Checks, in
-    turn: the step is more than a radian of the fastest rotation (dt·max(|Ω|, ω₀) > 1);
-    at constant Ω, the Jacobi integral (outputs and event state) drifted by more than
-    `FIXED_STEP_DRIFT`; otherwise a step-doubling estimate on a short window at the start
-    exceeds `FIXED_STEP_ERROR`·min(a, b). Returns the message, or None."""
+    """Warn (`AccuracyWarning`) if a fixed-step run is evidently inaccurate.
+
+    Checks, in turn: the step is more than a radian of the fastest rotation
+    (dt·max(|Ω|, ω₀) > 1); at constant Ω, the Jacobi integral (outputs and event state)
+    drifted by more than `FIXED_STEP_DRIFT`; otherwise a step-doubling estimate on a short
+    window at the start exceeds `FIXED_STEP_ERROR`·min(a, b).
+
+    Parameters
+    ----------
+    traj : Trajectory
+        The fixed-step run.
+    dt : float
+        Its step [s].
+    method : str
+        Its method (the step doubling reruns with it).
+
+    Returns
+    -------
+    str or None
+        The warning's message, or None when no check flagged the run.
+    """
     import warnings
 
     if _INTERNAL.get():
@@ -360,10 +457,23 @@ def check_fixed_step(traj, dt: float, method: str = "rk4") -> str | None:
 
 
 def assess(traj, **settings: Unpack[IntegratorKwargs]) -> dict[str, float]:
-    """A posteriori error estimate of a finished run: re-run it with half the fixed step
-    (or rtol/100 for an adaptive run; pass the run's ``method``/``dt``/``rtol`` as
-    ``settings``) and report the largest contact-point distance between the two, plus the
-    Jacobi drift where it is conserved."""
+    """A posteriori error estimate of a finished run.
+
+    Re-runs it with half the fixed step (or rtol/100 for an adaptive run) and compares.
+
+    Parameters
+    ----------
+    traj : Trajectory
+        The finished run.
+    **settings
+        The run's ``method`` and ``dt`` or ``rtol`` (`IntegratorKwargs`).
+
+    Returns
+    -------
+    dict
+        ``"error_estimate_m"``: the largest contact-point distance [m] between the two
+        runs; ``"jacobi_drift"``: `jacobi_drift` of the run (NaN where not conserved).
+    """
     kw: IntegratorKwargs = {**settings}
     dt_out = float(traj.t[1] - traj.t[0]) if len(traj.t) > 2 else None
     if kw.get("dt") is not None:

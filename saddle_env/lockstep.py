@@ -151,7 +151,7 @@ def _rates(model, m, P, fr, Y, Kout, Nout, dragged, work):
 
 @jit
 def _combine(m, d, h, w, count, K, Y0, acc, Yout):
-    """Yout = Y0 + h·Σ_{l < count} w[l]·K[l] for lanes 0..m-1, summed in the order `_stages`
+    """Yout = Y0 + h·Σ_{l < count} w[l]·K[l] for lanes 0..m-1, summed in the order `rk.stages`
     uses; components from d on (slots not integrated) are copied."""
     for j in range(d):
         for q in range(m):
@@ -213,7 +213,7 @@ def rk_step_block(model, m, h, tab, ctl, ws):
 
 @jit
 def _error_norms(m, d, h, tab, rtol, atol, ws):
-    """`integrators._error_norm` for every lane (same operations, same order)."""
+    """`rk.error_norm` for every lane (same operations, same order)."""
     P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3 = ws
     E, E3, err_kind = tab.E, tab.E3, tab.err_kind
     s1 = K.shape[0]

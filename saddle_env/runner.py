@@ -1,9 +1,17 @@
-"""The simulator with explicit integrator settings: initial states, validated settings, the
-output grid, results, and `run` (one ball) / `run_batch` (many balls).
+"""The simulator below its public entry points: the one check of a run's inputs, validated
+integrator settings, initial states, results, and the runs.
+
+* Inputs: `check_run` (one ball) and `check_batch` (many) check everything but the
+  integrator settings, once per call, out of the checks named for their job
+  (`check_state`, `check_force`, `output_times`, `omega_rows`, `check_angles`);
+  `Settings.build` checks the settings.
+* Runs: `run_checked` and `run_batch_checked` run checked inputs with checked settings;
+  `run` and `run_batch` check and run in one call, with explicit settings.
 
 This is the layer automatic accuracy (`saddle_env.accuracy`) pilots: it never resolves
 ``tol=``. The public entry points `saddle_env.simulate.simulate` / `simulate_batch` sit above
-both, resolve ``tol=`` there (one place) and report fixed steps that are too large.
+both: they check with this module, resolve ``tol=`` (one place), run with this module and
+report fixed steps that are too large.
 
 Both runs call the same compiled loop (`saddle_env.integrators.integrate`); the batch path
 runs it once per ball in parallel threads, so a ball gives bit-identical results either way.
@@ -130,7 +138,9 @@ def padded_width(models: np.ndarray) -> int:
     return K.DYNAMICS_WIDTH if np.any(np.asarray(models) == COULOMB) else 5
 
 
-def _check_force(force: object) -> tuple[float, float]:
+def check_force(force: object) -> tuple[float, float]:
+    """A constant lab-fixed force per unit mass ``(fx, fy)`` [m/s²], checked: returned as a
+    pair of floats; ValueError unless it is a pair of finite numbers."""
     if not isinstance(force, (tuple, list, np.ndarray)) or len(force) != 2:
         raise ValueError(f"force must be a pair (fx, fy) of lab-frame accelerations [m/s^2], "
                          f"got {force!r}")
@@ -139,7 +149,21 @@ def _check_force(force: object) -> tuple[float, float]:
 
 def drive_row(profile: OmegaProfile, force: tuple[float, float] = (0.0, 0.0),
               theta0: float = 0.0) -> np.ndarray:
-    """The kernels' drive row: Ω profile, saddle angle at t = 0, lab-frame force per unit mass."""
+    """The kernels' drive row.
+
+    Parameters
+    ----------
+    profile : OmegaProfile
+        Ω(t).
+    force : (fx, fy)
+        Lab-frame force per unit mass [m/s²].
+    theta0 : float
+        The saddle's angle at t = 0 [rad].
+
+    Returns
+    -------
+    ndarray, shape (DRIVE_WIDTH,)
+    """
     row = np.zeros(K.DRIVE_WIDTH)
     row[K.DRIVE_W0], row[K.DRIVE_RATE] = profile.w0, profile.rate
     row[K.DRIVE_AMP], row[K.DRIVE_FREQ] = profile.amp, profile.freq
@@ -150,13 +174,35 @@ def drive_row(profile: OmegaProfile, force: tuple[float, float] = (0.0, 0.0),
 
 
 def integrator_loop(model: int, resist: bool, args: tuple):
-    """The integrator's loop compiled for this contact model (or ion trap) alone
-    (`compilation.specialise.entry`), for ``args``: its callers (`run`, `iontrap.simulate_ion`) build
-    every argument themselves, so their types do not change from call to call."""
+    """`integrators.integrate_h` compiled for the contact model (or ion trap) ``model`` alone,
+    with rolling resistance if ``resist``, for the arguments ``args``
+    (`compilation.specialise.entry`): its callers (`run_checked`, `iontrap.simulate_ion`)
+    build every argument themselves, so their types do not change from call to call."""
     return entry((model,), resist, integrators, "integrate_h", args)
 
 
-def _check_state(scene: Scene, state: object, name: str = "state") -> np.ndarray:
+def check_state(scene: Scene, state: object, name: str = "state") -> np.ndarray:
+    """A ball's state for ``scene``, checked and padded as the compiled loop takes it.
+
+    Parameters
+    ----------
+    scene : Scene
+        The ball's scene (its ``state_size`` and contact model).
+    state : array_like, shape (scene.state_size,)
+        Finite real numbers (from `initial_state`).
+    name : str
+        What the error messages call it (``"states[3]"`` for a batch's row).
+
+    Returns
+    -------
+    ndarray, shape (STATE_WIDTH,)
+        The state, zero-padded; a coulomb ball's phase slot set to ONSET.
+
+    Raises
+    ------
+    ValueError
+        Wrong length, not real, or not finite.
+    """
     try:
         arr = np.asarray(state, dtype=float)
     except (TypeError, ValueError):
@@ -193,6 +239,17 @@ class Settings:
     def build(cls, method: str | None, rtol: float | None, atol: float | None,
               dt: float | None, events: Sequence[str], max_step: float | None,
               max_steps: int) -> Settings:
+        """Check the integrator settings; the parameters are `saddle_env.simulate.simulate`'s.
+
+        Returns
+        -------
+        Settings
+
+        Raises
+        ------
+        ValueError
+            A setting out of range (named), or dt given with rtol/atol.
+        """
         name = DEFAULT_METHOD if method is None else method
         if not isinstance(name, str) or name not in METHODS:
             raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
@@ -243,12 +300,22 @@ class Settings:
         return default_max_step(profile.bound(t_end))
 
     def control(self, max_step: float) -> StepControl:
-        """The compiled loop's record of these settings, with largest step ``max_step`` [s]
-        (from `max_step_for`)."""
+        """The compiled loop's record of these settings.
+
+        Parameters
+        ----------
+        max_step : float
+            Largest step [s] (from `max_step_for`).
+
+        Returns
+        -------
+        StepControl
+        """
         return step_control(self.dt, self.rtol, self.atol, max_step, self.events,
                             self.max_steps)
 
     def describe(self) -> str:
+        """The settings in one line (a `Trajectory`'s ``settings``)."""
         if self.dt > 0:
             return f"{self.method.name} (order {self.method.order}), fixed dt = {self.dt:g} s"
         return (f"{self.method.name} (order {self.method.order}), adaptive, "
@@ -256,11 +323,31 @@ class Settings:
 
 
 def default_max_step(omega_bound: float) -> float:
-    """Default largest adaptive step [s] for saddle speeds up to ``omega_bound``: π/(2Ω)."""
+    """Default largest adaptive step [s] for saddle speeds up to ``omega_bound`` [rad/s]:
+    π/(2Ω), or inf when the saddle does not turn."""
     return math.pi / (2.0 * omega_bound) if omega_bound > 0 else math.inf
 
 
-def _output_times(t_end: float, dt_out: float | None) -> np.ndarray:
+def output_times(t_end: float, dt_out: float | None) -> np.ndarray:
+    """A run's output times, its end and spacing checked.
+
+    Parameters
+    ----------
+    t_end : float
+        Final time [s], > 0.
+    dt_out : float or None
+        Output spacing [s], > 0, at most MAX_OUTPUTS outputs; None: only 0 and ``t_end``.
+
+    Returns
+    -------
+    ndarray
+        The multiples of ``dt_out`` up to ``t_end``, and ``t_end`` when it is not one.
+
+    Raises
+    ------
+    ValueError
+        A time that is not a finite positive number, or too many outputs.
+    """
     t_end = _finite_number("t_end", t_end)
     if t_end <= 0:
         raise ValueError(f"t_end must be > 0 seconds, got {t_end}")
@@ -282,9 +369,24 @@ def _output_times(t_end: float, dt_out: float | None) -> np.ndarray:
 
 
 def check_rtol(rtol: object) -> float:
-    """A relative tolerance of the adaptive integrators: a finite number in [1e-15, 1)
-    (below 1e-15 the error estimate is rounding noise). The one check of ``rtol`` for the
-    simulator and the environment's config."""
+    """A relative tolerance of the adaptive integrators, checked.
+
+    The one check of ``rtol`` for the simulator and the environment's config.
+
+    Parameters
+    ----------
+    rtol : float
+        A finite number in [1e-15, 1) (below 1e-15 the error estimate is rounding noise).
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    ValueError
+        Out of range or not a finite number.
+    """
     r = _finite_number("rtol", rtol)
     if not RTOL_MIN <= r < 1:
         raise ValueError(f"rtol must satisfy {RTOL_MIN:g} <= rtol < 1, got {r}")
@@ -292,8 +394,23 @@ def check_rtol(rtol: object) -> float:
 
 
 def check_fixed_step_fits(dt: float, dt_out: float | None) -> None:
-    """A fixed step larger than the output spacing would be cut to it (the loop lands on
-    every output): say so rather than run with a step other than the one asked for."""
+    """Check that a fixed step fits the output spacing.
+
+    A step larger than the spacing would be cut to it (the loop lands on every output): say
+    so rather than run with a step other than the one asked for.
+
+    Parameters
+    ----------
+    dt : float
+        The fixed step [s].
+    dt_out : float or None
+        The output spacing [s] (None: outputs at 0 and the end only).
+
+    Raises
+    ------
+    ValueError
+        ``dt`` > ``dt_out``.
+    """
     if dt_out is not None and dt > dt_out * (1 + 1e-9):
         raise ValueError(f"dt = {dt:g} s is larger than dt_out = {dt_out:g} s: the integrator "
                          "lands on every output, so the step would be cut to dt_out; give "
@@ -312,6 +429,7 @@ class Event:
     state: np.ndarray
 
     def as_dict(self) -> dict[str, object]:
+        """The fields as JSON-ready values."""
         return {"kind": self.kind, "t": self.t}
 
 
@@ -323,6 +441,7 @@ class Transition:
     phase: str
 
     def as_dict(self) -> dict[str, object]:
+        """The fields as JSON-ready values."""
         return {"t": self.t, "phase": self.phase}
 
 
@@ -385,18 +504,22 @@ class Trajectory:
 
     @property
     def x(self) -> np.ndarray:
+        """Contact point's x [m] at each output, rotating frame."""
         return self.state[:, 0]
 
     @property
     def y(self) -> np.ndarray:
+        """Contact point's y [m] at each output, rotating frame."""
         return self.state[:, 1]
 
     @property
     def vx(self) -> np.ndarray:
+        """Contact point's velocity along x [m/s] relative to the saddle."""
         return self._observables(False)[:, K.OBS_VX]
 
     @property
     def vy(self) -> np.ndarray:
+        """Contact point's velocity along y [m/s] relative to the saddle."""
         return self._observables(False)[:, K.OBS_VY]
 
     @property
@@ -452,6 +575,110 @@ class Trajectory:
 
 
 # --------------------------------------------------------------------------------------
+# A run's inputs, checked once
+# --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class RunInputs:
+    """One ball's run with its inputs checked (`check_run`): the scene, the padded state
+    (`check_state`), the Ω profile, the lab-fixed force and the output times."""
+
+    scene: Scene
+    state: np.ndarray
+    omega: OmegaProfile
+    force: tuple[float, float]
+    t_out: np.ndarray
+
+
+def check_run(scene: Scene, state: object, t_end: float, omega: object = 20.0,
+              dt_out: float | None = 0.01,
+              force: object = (0.0, 0.0)) -> RunInputs:
+    """Check one ball's run inputs, once for a call of `simulate` or `run`.
+
+    Parameters
+    ----------
+    scene, state, t_end, omega, dt_out, force
+        As in `saddle_env.simulate.simulate`.
+
+    Returns
+    -------
+    RunInputs
+
+    Raises
+    ------
+    ValueError
+        The first input out of range, named (the scene, the state, Ω, the force, then the
+        times).
+    """
+    if not isinstance(scene, Scene):
+        raise ValueError(f"scene must be a saddle_env.Scene, got {type(scene).__name__}")
+    y = check_state(scene, state)
+    profile = OmegaProfile.coerce(omega)
+    return RunInputs(scene, y, profile, check_force(force), output_times(t_end, dt_out))
+
+
+@dataclass(frozen=True)
+class BatchInputs:
+    """Many balls' run with its inputs checked (`check_batch`): a scene per ball, the
+    padded states (n, STATE_WIDTH), the Ω profile rows (n, 5), the lab-fixed force, the
+    saddle's angles at t = 0 (n,) and the common output times."""
+
+    scenes: list[Scene]
+    states: np.ndarray
+    omegas: np.ndarray
+    force: tuple[float, float]
+    angles: np.ndarray
+    t_out: np.ndarray
+
+
+def check_batch(scenes: object, states: object, t_end: float, omega: object = 20.0,
+                dt_out: float | None = 0.01, force: object = (0.0, 0.0),
+                angle: object = 0.0) -> BatchInputs:
+    """Check a batch's run inputs, once for a call of `simulate_batch` or `run_batch`.
+
+    Parameters
+    ----------
+    scenes, states, t_end, omega, dt_out, force
+        As in `saddle_env.simulate.simulate_batch`.
+    angle : float or ndarray
+        As in `run_batch`.
+
+    Returns
+    -------
+    BatchInputs
+
+    Raises
+    ------
+    ValueError
+        The first input out of range, named.
+    """
+    try:
+        rows = np.asarray(states, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError("states must be a real array of shape (n, state_size)") from None
+    if rows.ndim != 2 or rows.shape[0] < 1:
+        raise ValueError(f"states must have shape (n, state_size), got {rows.shape}")
+    n = rows.shape[0]
+    if isinstance(scenes, Scene):
+        scene_list = [scenes] * n
+    elif isinstance(scenes, (list, tuple)):
+        scene_list = list(scenes)
+    else:
+        raise ValueError(f"scenes must be a Scene or a sequence of {n} Scenes, "
+                         f"got {type(scenes).__name__}")
+    if len(scene_list) != n or not all(isinstance(s, Scene) for s in scene_list):
+        raise ValueError(f"scenes must be a Scene or a sequence of {n} Scenes (one per ball)")
+    Y = np.zeros((n, K.STATE_WIDTH))
+    for i, (sc, row) in enumerate(zip(scene_list, rows)):
+        if sc.state_size < rows.shape[1] <= K.DYNAMICS_WIDTH:  # a padded row
+            row = row[: sc.state_size]
+        Y[i] = check_state(sc, row, f"states[{i}]")
+    profiles = omega_rows(omega, n)
+    force = check_force(force)
+    angles = check_angles(angle, n)
+    return BatchInputs(scene_list, Y, profiles, force, angles, output_times(t_end, dt_out))
+
+
+# --------------------------------------------------------------------------------------
 # Runs
 # --------------------------------------------------------------------------------------
 def run(scene: Scene, state: np.ndarray, t_end: float, *,
@@ -460,17 +687,22 @@ def run(scene: Scene, state: np.ndarray, t_end: float, *,
              dt: float | None = None, events: Sequence[str] = DEFAULT_EVENTS,
              max_step: float | None = None, max_steps: int = 50_000_000,
              force: tuple[float, float] = (0.0, 0.0)) -> Trajectory:
-    """Integrate one ball from t = 0 to ``t_end`` with the given integrator settings: the
-    layer under `saddle_env.simulate.simulate`, whose docstring documents the parameters, the
-    `Trajectory` returned and the errors raised (here without ``tol=`` and without the check
-    of a fixed step's accuracy)."""
-    if not isinstance(scene, Scene):
-        raise ValueError(f"scene must be a saddle_env.Scene, got {type(scene).__name__}")
-    y = _check_state(scene, state)
-    profile = OmegaProfile.coerce(omega)
-    force = _check_force(force)
-    t_out = _output_times(t_end, dt_out)
-    settings = Settings.build(method, rtol, atol, dt, events, max_step, max_steps)
+    """Integrate one ball from t = 0 to ``t_end`` with the given integrator settings.
+
+    `check_run`, `Settings.build`, then `run_checked`: `saddle_env.simulate.simulate`
+    without ``tol=`` and without its checks of a fixed step, with its parameters, result
+    (`Trajectory`) and errors (ValueError, SimulationError).
+    """
+    return run_checked(check_run(scene, state, t_end, omega, dt_out, force),
+                       Settings.build(method, rtol, atol, dt, events, max_step, max_steps))
+
+
+def run_checked(inputs: RunInputs, settings: Settings) -> Trajectory:
+    """Run one ball whose inputs (`check_run`) and settings (`Settings.build`) are checked;
+    returns its `Trajectory`, or raises SimulationError when the integration failed
+    (non-finite state, step-size underflow, step limit)."""
+    scene, profile, force, t_out = inputs.scene, inputs.omega, inputs.force, inputs.t_out
+    y = inputs.state.copy()
     p = scene.params()
     tab = settings.method.tableau
     Y_out = np.empty((len(t_out), K.STATE_WIDTH))
@@ -488,7 +720,7 @@ def run(scene: Scene, state: np.ndarray, t_end: float, *,
     event = None
     if status in EVENT_KINDS:
         event = Event(EVENT_KINDS[status], float(t_final), y[: scene.state_size].copy())
-    traj = Trajectory(scene, profile, t_out[:n].copy(), Y_out[:n, : scene.state_size].copy(),
+    return Trajectory(scene, profile, t_out[:n].copy(), Y_out[:n, : scene.state_size].copy(),
                       event, settings.describe(),
                       Stats(int(stats[0]), int(stats[1]), int(stats[2])), force,
                       Y_out[:n, scene.state_size].copy(),
@@ -496,7 +728,6 @@ def run(scene: Scene, state: np.ndarray, t_end: float, *,
                       np.minimum(Y_out[:n, K.PHASE_SLOT], K.SLIP) if coulomb else None,
                       [Transition(float(r[LOG_T]), PHASE_NAMES[float(r[LOG_PHASE])])
                        for r in rows[:min(total, len(rows))]], total)
-    return traj
 
 
 def _raise_on_failure(status: int, t_final: float, r: float, scene: Scene) -> None:
@@ -540,6 +771,7 @@ class BatchResult:
     work: np.ndarray | None = None
 
     def event(self, i: int) -> str | None:
+        """Ball ``i``'s event ("detach" or "escape"), or None if none stopped it."""
         return EVENT_KINDS.get(int(self.status[i]))
 
 
@@ -554,44 +786,33 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
     """Integrate many balls at once (threads over balls; same kernel as `run`), with the
     given integrator settings (``tol=`` is `saddle_env.simulate.simulate_batch`'s).
 
-    ``angle`` [rad] is the saddle's angle at t = 0 from the laboratory's x axis, one for all
-    balls or an (n,) array: where the saddle points when each ball is released, which
-    matters only when something is fixed in the laboratory (``force``, a scene's ``tilt``).
+    Parameters
+    ----------
+    scenes, states, t_end, omega, dt_out, method, rtol, atol, dt, events, max_step, max_steps, force
+        As in `saddle_env.simulate.simulate_batch`.
+    angle : float or ndarray, shape (n,)
+        The saddle's angle [rad] at t = 0 from the laboratory's x axis, one for all balls or
+        one each: where the saddle points when each ball is released, which matters only
+        when something is fixed in the laboratory (``force``, a scene's ``tilt``).
 
-    ``scenes`` is one Scene for all balls or one per ball (contact models may differ).
-    ``states`` is (n, k): each row a ball's state, padded with zeros to a common k ≤ 7.
-    ``omega`` is one value/profile for all, or one per ball (a sequence, or an (n,) array of
-    constant speeds, or an (n, 5) array of profile rows). Failures do not raise; they are
-    reported per ball in ``status``.
+    Returns
+    -------
+    BatchResult
+        Failures do not raise; they are reported per ball in ``status`` (bad input raises
+        ValueError).
     """
-    try:
-        states = np.asarray(states, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError("states must be a real array of shape (n, state_size)") from None
-    if states.ndim != 2 or states.shape[0] < 1:
-        raise ValueError(f"states must have shape (n, state_size), got {states.shape}")
-    n = states.shape[0]
-    if isinstance(scenes, Scene):
-        scene_list = [scenes] * n
-    elif isinstance(scenes, (list, tuple)):
-        scene_list = list(scenes)
-    else:
-        raise ValueError(f"scenes must be a Scene or a sequence of {n} Scenes, "
-                         f"got {type(scenes).__name__}")
-    if len(scene_list) != n or not all(isinstance(s, Scene) for s in scene_list):
-        raise ValueError(f"scenes must be a Scene or a sequence of {n} Scenes (one per ball)")
-    Y = np.zeros((n, K.STATE_WIDTH))
-    for i, (sc, row) in enumerate(zip(scene_list, states)):
-        if sc.state_size < states.shape[1] <= K.DYNAMICS_WIDTH:  # a padded row
-            row = row[: sc.state_size]
-        Y[i] = _check_state(sc, row, f"states[{i}]")
-    profiles = _profiles(omega, n)
-    force = _check_force(force)
-    angles = _angles(angle, n)
-    drives = np.array([drive_row(OmegaProfile(*row), force, theta0)
-                       for row, theta0 in zip(profiles, angles)])
-    t_out = _output_times(t_end, dt_out)
-    settings = Settings.build(method, rtol, atol, dt, events, max_step, max_steps)
+    return run_batch_checked(check_batch(scenes, states, t_end, omega, dt_out, force, angle),
+                             Settings.build(method, rtol, atol, dt, events, max_step, max_steps))
+
+
+def run_batch_checked(inputs: BatchInputs, settings: Settings) -> BatchResult:
+    """Run a batch whose inputs (`check_batch`) and settings (`Settings.build`) are checked;
+    failures do not raise, they are reported per ball in the `BatchResult`'s ``status``."""
+    scene_list, profiles, t_out = inputs.scenes, inputs.omegas, inputs.t_out
+    n = len(scene_list)
+    Y = inputs.states.copy()
+    drives = np.array([drive_row(OmegaProfile(*row), inputs.force, theta0)
+                       for row, theta0 in zip(profiles, inputs.angles)])
     P = np.array([sc.params() for sc in scene_list])
     models = np.array([sc.model_code for sc in scene_list], dtype=np.int64)
     scales = np.array([state_scale(P[i], models[i]) for i in range(n)])
@@ -607,7 +828,7 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
             max_step_arr, np.ones(n, dtype=bool), Y_out, status, t_final, stats)
     # compiled for these balls' contact models alone, as `simulate` is for its one
     batch = entry(np.unique(models), bool((P[:, P_RESIST] != 0.0).any()), integrators,
-                    "integrate_batch", (0, n, *args))
+                  "integrate_batch", (0, n, *args))
     in_threads(batch, n, *args, simulated_s=n * float(t_out[-1]))
     work = np.array([Y_out[i, :, sc.state_size] for i, sc in enumerate(scene_list)])
     width = padded_width(models)
@@ -615,8 +836,9 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
                        Y[:, :width], stats, settings.describe(), work)
 
 
-def _angles(angle: object, n: int) -> np.ndarray:
-    """The saddle's angle at t = 0 for each of n balls, checked: a number or an (n,) array."""
+def check_angles(angle: object, n: int) -> np.ndarray:
+    """The saddle's angle at t = 0 [rad] for each of n balls, checked: a finite number for
+    all, or an (n,) array of finite angles. Returns an (n,) float array."""
     if isinstance(angle, np.ndarray) and angle.ndim >= 1:
         if angle.shape != (n,) or not np.issubdtype(angle.dtype, np.number) \
                 or not np.all(np.isfinite(angle)):
@@ -626,7 +848,11 @@ def _angles(angle: object, n: int) -> np.ndarray:
     return np.full(n, _finite_number("angle", angle))
 
 
-def _profiles(omega: object, n: int) -> np.ndarray:
+def omega_rows(omega: object, n: int) -> np.ndarray:
+    """Each of n balls' Ω profile, checked, as (n, 5) profile rows (`OmegaProfile.array`).
+
+    ``omega`` is one number or `OmegaProfile` for all, a sequence of n of them, an (n,)
+    array of constant speeds [rad/s] or an (n, 5) array of profile rows."""
     if isinstance(omega, np.ndarray) and omega.ndim >= 1:
         if omega.shape == (n,):
             return np.array([OmegaProfile.coerce(float(w)).array() for w in omega])

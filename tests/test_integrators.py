@@ -153,7 +153,7 @@ def test_a_copy_compiled_for_one_contact_model_steps_it_identically(monkeypatch)
     assert specialise((ROLLING,), False, I) is rolling  # made once
     # only compiled code calls a copy that is not an entry point: no wrapper for Python
     assert rolling.rhs.targetoptions.get("no_cpython_wrapper") is True
-    assert rolling._error_norm.targetoptions.get("no_cpython_wrapper") is True  # tests no flag
+    assert rolling.error_norm.targetoptions.get("no_cpython_wrapper") is True  # tests no flag
     assert not jit_copy(rolling.integrate_h).targetoptions.get("no_cpython_wrapper", False)
     with pytest.raises(TypeError, match="only compiled code calls"):  # not a crash
         rolling.step_factor(1.0, 2.0)
