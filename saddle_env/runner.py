@@ -447,6 +447,9 @@ class Transition:
 
 @dataclass(frozen=True)
 class Stats:
+    """The integrator's work on one run: accepted steps, rejected steps and right-hand-side
+    evaluations."""
+
     steps: int
     rejected: int
     rhs_evaluations: int

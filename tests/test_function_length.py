@@ -17,16 +17,6 @@ ROOT = Path(__file__).resolve().parents[1]
 # site's hooks, CI's wheel check).
 SOURCES = ("saddle_env", "agents", "train.py", "setup.py", "docs/hooks.py", ".ci")
 MAX_LINES = 100
-# Functions being split on other branches of issue 51 (item 2, the integrator): the lead
-# removes each entry when that branch is merged. An entry matches a measured name that ends
-# with it.
-PENDING_SPLIT = {"saddle_env/integrators.py::integrate_h"}
-
-
-def _pending(name: str) -> bool:
-    return any(name.endswith(entry) for entry in PENDING_SPLIT)
-
-
 def _files() -> list[Path]:
     out: list[Path] = []
     for name in SOURCES:
@@ -71,18 +61,9 @@ def test_the_sources_are_found():
 
 def test_no_function_is_over_one_screen():
     too_long = {name: n for name, n in _all_lengths().items()
-                if n > MAX_LINES and not _pending(name)}
+                if n > MAX_LINES}
     assert not too_long, (f"functions over {MAX_LINES} lines (split them into helpers of one "
                           f"purpose each): {too_long}")
-
-
-def test_the_pending_allowance_names_real_functions():
-    """An entry of PENDING_SPLIT that is gone or short enough must be removed."""
-    lengths = _all_lengths()
-    stale = sorted(entry for entry in PENDING_SPLIT
-                   if not any(name.endswith(entry) and n > MAX_LINES
-                              for name, n in lengths.items()))
-    assert not stale, f"remove from PENDING_SPLIT: {stale}"
 
 
 def test_the_count_follows_the_rule(tmp_path):

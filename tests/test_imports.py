@@ -152,7 +152,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
      ("saddle_env.compilation",)),
     ("the simulator: kernels, integrators, simulate, prediction",
      ("saddle_env._kernels", "saddle_env.omega", "saddle_env.linear",
-      "saddle_env.integrators", "saddle_env.lockstep", "saddle_env.runner",
+      "saddle_env.rk", "saddle_env.integrators", "saddle_env.lockstep", "saddle_env.runner",
       "saddle_env.accuracy", "saddle_env.simulate", "saddle_env.prediction",
       "saddle_env.iontrap")),
     ("the environments", ("saddle_env.envs",)),
