@@ -13,4 +13,4 @@ HYPERPARAMS_DIR = AGENTS_DIR / "hyperparams"  # the recipes, one YAML file per a
 # these; the tools that write into them say so when they are missing.
 REPO_ROOT = AGENTS_DIR.parent
 DOCS_DIR = REPO_ROOT / "docs"
-BENCHMARK_DIR = REPO_ROOT / "benchmark"
+BENCHMARK_DATA = REPO_ROOT / "benchmark_data"

@@ -23,7 +23,7 @@ A page asks for a generated section with an HTML comment on a line of its own:
   calibration and its held-out check, from the files the calibration ships.
 * ``<!-- generated: bench-rolling -->`` and ``bench-targets``: the work-precision benchmark's
   table of settings and of targets, from its shipped run (``docs/figures/bench_results.csv``,
-  ``bench_summary.json``; ``saddle_env.bench.tables``).
+  ``bench_summary.json``; ``saddle_env.workprecision.tables``).
 
 A measured figure in a page's prose is a marker pair, ``<!-- fig NAME -->copy<!-- /fig -->``,
 which the hook replaces by the figure's current value from the figure store
@@ -104,7 +104,7 @@ CLIS: dict[str, Callable[[], argparse.ArgumentParser]] = {
     "saddle-fit": _build_parser("saddle_env.calibrate.cli"),
     "python -m saddle_env.calibrate.synthetic": _build_parser("saddle_env.calibrate.synthetic"),
     "saddle-sim": _build_parser("saddle_env.cli"),
-    "saddle-bench": _build_parser("saddle_env.bench"),
+    "saddle-bench": _build_parser("saddle_env.workprecision"),
     "saddle-reproduce": _build_parser("saddle_env.reproduce.cli"),
     "python -m agents.benchmark": _build_parser("agents.benchmark.run"),
     "python -m agents.benchmark.leaderboard": _build_parser("agents.benchmark.leaderboard"),
@@ -115,7 +115,7 @@ CLIS: dict[str, Callable[[], argparse.ArgumentParser]] = {
     "python -m agents.benchmark.headroom": _from_main("agents.benchmark.headroom"),
     "python -m agents.benchmark.ship": _from_main("agents.benchmark.ship"),
     "python -m agents.benchmark.deploy_latency": _build_parser("agents.benchmark.deploy_latency"),
-    "python -m saddle_env.envs.benchmark": _from_main("saddle_env.envs.benchmark"),
+    "python -m saddle_env.envs.throughput": _from_main("saddle_env.envs.throughput"),
     "python -m saddle_env.coldstart.profile": _build_parser("saddle_env.coldstart.profile"),
     "python -m saddle_env.coldstart.precompile": _build_parser("saddle_env.coldstart.precompile"),
     "python -m saddle_env.rig": _build_parser("saddle_env.rig.__main__"),
@@ -474,7 +474,7 @@ def bench_markdown(what: str) -> str:
     (docs/figures/bench_results.csv and bench_summary.json)."""
     import json
 
-    from saddle_env.bench import report, tables
+    from saddle_env.workprecision import report, tables
 
     if what == "bench-rolling":
         return tables.rolling_markdown(report.read_rows(ROOT / "docs" / "figures"

@@ -9,6 +9,12 @@ from .compilation import threads as _threads  # noqa: F401  (numba's threading l
 # first call into `saddle_env.coldstart`, the atomic writer into `saddle_env.jobs`); the old
 # names say where.
 _moved.announce({
+    # renamed by what they measure or hold; the kernels and the control step are public
+    "saddle_env.bench": "saddle_env.workprecision",
+    "saddle_env.envs.benchmark": "saddle_env.envs.throughput",
+    "saddle_env.lifetimes.bench": "saddle_env.lifetimes.timing",
+    "saddle_env._kernels": "saddle_env.kernels",
+    "saddle_env.envs._step": "saddle_env.envs.control_step",
     "saddle_env.compile_profile": "saddle_env.coldstart.profile",
     "saddle_env.precompile": "saddle_env.coldstart.precompile",
     "saddle_env.aot_build": "saddle_env.coldstart.aot_build",

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, TypedDict
 
 import numpy as np
 
-from . import _kernels as K
+from . import kernels as K
 from .omega import OmegaProfile
 from .runner import RunInputs, Settings, check_run, drive_row, output_times, run, run_checked
 from .scene import Scene, _finite_number

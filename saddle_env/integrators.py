@@ -22,7 +22,9 @@ from collections import namedtuple
 import numba as nb
 import numpy as np
 
-from ._kernels import (
+from .compilation.jit import inline, ir_inline, jit, python_entry
+from .compilation.specialise import COULOMB_ON, RESIST_ON, specialisable
+from .kernels import (
     ONSET,
     PHASE_SLOT,
     ROW_WIDTH,
@@ -40,8 +42,6 @@ from ._kernels import (
     stop_slip,
     work_slot,
 )
-from .compilation.jit import inline, ir_inline, jit, python_entry
-from .compilation.specialise import COULOMB_ON, RESIST_ON, specialisable
 from .rk import (
     ERR_DOP853,
     ERR_EMBEDDED,
@@ -98,7 +98,7 @@ EVENT_KINDS = {STATUS_DETACH: "detach", STATUS_ESCAPE: "escape"}
 #   deceleration predicts: a step is cut to SLIP_STOP_FRACTION of |v_s|/(-d|v_s|/dt), so
 #   |v_s| falls about a hundredfold per step (faster as the approach straightens), and once
 #   it is at the integration's noise level (`_snap_speed`, SLIP_SNAP times the tolerance),
-#   the rest of the slip is stopped by a friction impulse (`_kernels.stop_slip`: the ball's
+#   the rest of the slip is stopped by a friction impulse (`kernels.stop_slip`: the ball's
 #   momentum and spin change as friction would change them, the energy that takes is added
 #   to the dissipated work, so the Jacobi balance still closes), and the ball sticks if
 #   static friction can hold it (`_settle_coulomb`; else slip restarts, along the push).
@@ -125,9 +125,9 @@ EVENT_KINDS = {STATUS_DETACH: "detach", STATUS_ESCAPE: "escape"}
 #   roll against the push that starts it (the spin's own direction is stiff while it is
 #   small: it turns towards the push at c_rr N/(m R |w_t|), faster than a step can follow;
 #   measured before the band: the release from rest 1 % past the holding edge was 1e-4 m off
-#   at rtol 1e-8). Where the ball will be held once stopped (`_kernels.spin_held`, judged on
+#   at rtol 1e-8). Where the ball will be held once stopped (`kernels.spin_held`, judged on
 #   the state with its spin stopped), no step goes past the stop that the spin's
-#   deceleration predicts, and within the band w_t is snapped to 0 (`_kernels.stop_rolling`,
+#   deceleration predicts, and within the band w_t is snapped to 0 (`kernels.stop_rolling`,
 #   its energy booked as work). Where it will not be held, the spin passes zero and turns.
 SLIP_STOP_FRACTION = 0.99
 SLIP_SNAP = 100.0
@@ -336,7 +336,7 @@ def _settle_coulomb(p, prof, t, y, speed_tol, hold, lag_limit):
     cut the next step), or it is ONSET_SPAN times above the noise level and above
     |a0|·``hold`` (the fixed step [s]; 0 when adaptive). Slipping,
     a slip that has fallen to the noise level and is still falling is stopped
-    (`_kernels.stop_slip`), and it sticks if static friction can hold it, else starts again."""
+    (`kernels.stop_slip`), and it sticks if static friction can hold it, else starts again."""
     old = y[PHASE_SLOT]
     if old == STICK:
         rolling_velocity(p, y, y)
@@ -397,7 +397,7 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
     p : ndarray, shape (N_PARAMS,)
         Packed scene parameters.
     prof : ndarray, shape (DRIVE_WIDTH,)
-        Drive row (DRIVE_* in `saddle_env._kernels`).
+        Drive row (DRIVE_* in `saddle_env.kernels`).
     y : ndarray, shape (STATE_WIDTH,)
         State at ``t0``; on return, the state at the final time (or at the event).
     t0 : float
@@ -782,7 +782,7 @@ def _start_slip(model, p, prof, t, y, yswitch, s, want_normal, stats, K, work):
 @ir_inline
 def _accept(y, ynew, K, s, coulomb):
     """Move to the accepted step's end: y = ynew and its rates K[0] = K[s]."""
-    for j in range(ROW_WIDTH):  # constant length: see _kernels.ROW_WIDTH
+    for j in range(ROW_WIDTH):  # constant length: see kernels.ROW_WIDTH
         y[j] = ynew[j]
         K[0, j] = K[s, j]
     if coulomb:

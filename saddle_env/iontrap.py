@@ -22,7 +22,7 @@ the end-cap voltage of a trap that confines along the axis does). `RRFTrap.from_
 and `PaulTrap.from_voltages` take SI voltages instead.
 
 Both are integrated by the project's own stepping loop and Runge–Kutta registry
-(`saddle_env.integrators`; the rates are `_kernels.ion_rates`, model codes ION_RRF and
+(`saddle_env.integrators`; the rates are `kernels.ion_rates`, model codes ION_RRF and
 ION_PAUL), with the escape event at the electrode radius r0. `simulate_ion` is the entry.
 
 `ball_to_ion` maps a ball on the rotating saddle to the RRF ion that obeys its linearised
@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _kernels as K
+from . import kernels as K
 from .integrators import EVENT_KINDS, STATUS_FAILED, STATUS_MAX_STEPS, workspace
 from .linear import (
     ABCD,
@@ -182,7 +182,7 @@ class RRFTrap:
         return ION_RRF
 
     def params(self) -> np.ndarray:
-        """The packed row the compiled rates read (`_kernels.ion_rates`)."""
+        """The packed row the compiled rates read (`kernels.ion_rates`)."""
         p = np.zeros(N_PARAMS)
         p[K.I_KQUAD], p[K.I_OMEGA_B], p[K.I_KSTATIC], p[P_RIM] = (
             self.kappa, self.omega_B, self.kappa_t, self.r0)

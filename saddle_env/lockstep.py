@@ -5,7 +5,7 @@ integrator usually takes that period as one step (its step-size hint is longer).
 is then the same arithmetic for every ball, so here it is done on a block of balls laid
 out as structure-of-arrays, ``X[component, lane]``, in loops over the lanes that the
 compiler turns into SIMD instructions (4–8 balls per instruction with AVX2/AVX-512). The
-rates are `_kernels.rolling_rates` / `slipping_rates`, inlined — the same code `rhs` runs.
+rates are `kernels.rolling_rates` / `slipping_rates`, inlined — the same code `rhs` runs.
 
 A lane's result is *accepted* only if `integrators.integrate_h` would have accepted exactly
 this step: the state is finite, the error estimate is ≤ 1, no event holds at the start or
@@ -22,7 +22,9 @@ from collections import namedtuple
 
 import numpy as np
 
-from ._kernels import (
+from .compilation.jit import jit
+from .integrators import ERR_EMBEDDED, EVENT_DETACH, EVENT_ESCAPE, step_factor
+from .kernels import (
     DRIVE_WIDTH,
     ROW_WIDTH,
     frame_terms,
@@ -31,8 +33,6 @@ from ._kernels import (
     sized,
     slipping_rates,
 )
-from .compilation.jit import jit
-from .integrators import ERR_EMBEDDED, EVENT_DETACH, EVENT_ESCAPE, step_factor
 from .scene import (
     N_PARAMS,
     P_A,
@@ -54,7 +54,7 @@ from .scene import (
 
 LANES = 64  # balls per block: the stage arrays of a block stay in the L1 cache
 # The state slots a block steps: a rolling ball's five (a slipping ball's four) and the work
-# slot. Coulomb balls never enter a block (`saddle_env.envs._step`).
+# slot. Coulomb balls never enter a block (`saddle_env.envs.control_step`).
 BLOCK_WIDTH = ROW_WIDTH
 PARAM_WIDTH = N_PARAMS
 FRAME_WIDTH = 4  # Ω, Ω̇, fx, fy (saddle axes) at one stage time

@@ -3,7 +3,7 @@ drive segments, sampled on a regular grid — what a model-predictive controller
 model every control step.
 
 `predict_batch` runs each of n balls from its own state through S segments. Segment j of
-run r lasts ``durations[r, j]`` seconds under the drive row ``drives[r, j]`` (`_kernels`'s
+run r lasts ``durations[r, j]`` seconds under the drive row ``drives[r, j]`` (`kernels`'s
 DRIVE_* layout: Ω ramping linearly or relaxing exponentially, ripple, lab-fixed force), its
 time starting at 0; the saddle angle carries over from segment to segment, so a lab-fixed
 force keeps its direction in the laboratory. The run is sampled ``ceil(duration / sample)``
@@ -22,12 +22,12 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from . import _kernels as K
-from ._kernels import rhs
+from . import kernels as K
 from .compilation.jit import python_entry
 from .compilation.specialise import entry, specialisable
 from .compilation.threads import in_threads
 from .integrators import integrate_h, state_scale, workspace
+from .kernels import rhs
 from .runner import DEFAULT_EVENTS, Settings, default_max_step, padded_width
 from .scene import N_PARAMS, P_RESIST
 

@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._kernels import PHASE_SLOT, ROW_WIDTH, STATE_WIDTH, rhs, rim_margin, stick_margin
 from .compilation.jit import jit
 from .compilation.specialise import COULOMB_ON, specialisable
+from .kernels import PHASE_SLOT, ROW_WIDTH, STATE_WIDTH, rhs, rim_margin, stick_margin
 from .scene import COULOMB, P_RIM, P_RIM_SQUARE
 
 # Event flags (a bit mask of the events a run stops at) and the event kinds, which are also

@@ -26,8 +26,8 @@ from typing import Literal
 
 import numpy as np
 
-from . import _kernels as K
 from . import integrators
+from . import kernels as K
 from .compilation.specialise import entry
 from .compilation.threads import in_threads
 from .integrators import (

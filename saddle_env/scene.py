@@ -22,7 +22,7 @@ ROLLING, SLIPPING = 0, 1
 ION_RRF, ION_PAUL = 2, 3
 COULOMB = 4
 
-# Layout of the packed parameter vector read by the kernels (saddle_env._kernels).
+# Layout of the packed parameter vector read by the kernels (saddle_env.kernels).
 (P_A, P_B, P_R, P_ALPHA, P_G, P_DRILL, P_RIM, P_DRAG_LINEAR, P_DRAG_QUADRATIC, P_MU,
  P_MU_STATIC, P_RESIST, P_SPIN_BAND, P_TILT_FORCE, P_RIM_SQUARE, P_SURFACE_DRAG) = range(16)
 N_PARAMS = 16

@@ -8,7 +8,7 @@ import signal
 
 import numpy as np
 
-from saddle_env import _kernels as K
+from saddle_env import kernels as K
 from saddle_env.compilation.specialise import _jit_of
 from saddle_env.scene import Scene
 

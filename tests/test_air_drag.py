@@ -16,7 +16,7 @@ from helpers import assert_matches_lab_frame, batch_and_singles, centre_state, f
 from reference_lab_frame import simulate_lab_frame
 
 from saddle_env import OmegaProfile, Scene, initial_state, simulate
-from saddle_env import _kernels as K
+from saddle_env import kernels as K
 from saddle_env.linear import (
     damped_band,
     growth_rate,

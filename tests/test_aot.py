@@ -57,7 +57,7 @@ def test_a_build_is_used_only_from_its_sources_and_on_its_platform_and_cpu(
     found = _aot.compiled(("ROLLING_ON",), "saddle_env.integrators")
     assert list(found) == ["integrate_h"] and found["integrate_h"]() == "ahead"
     assert _aot.compiled(("SLIPPING_ON",), "saddle_env.integrators") == {}
-    assert _aot.compiled(("ROLLING_ON",), "saddle_env.envs._step") == {}
+    assert _aot.compiled(("ROLLING_ON",), "saddle_env.envs.control_step") == {}
     assert "in use (1 modules" in _aot.status()
     fake_build(digest="0" * 64)
     assert _aot.compiled(("ROLLING_ON",), "saddle_env.integrators") == {}
@@ -311,7 +311,7 @@ for contact in ("rolling", "slipping", "coulomb"):
     starts = np.array([state * (1.0 + 0.1 * i) for i in range(3)])
     batch = se.simulate_batch(scene, starts, t_end=1.0, omega=[28.0, 30.0, 32.0], dt_out=0.05)
     out["batch " + contact] = np.nan_to_num(batch.state, nan=-1.0).tolist()
-    drives = np.zeros((3, 2, se._kernels.DRIVE_WIDTH))
+    drives = np.zeros((3, 2, se.kernels.DRIVE_WIDTH))
     drives[:, :, 0] = [[28.0, 29.0], [30.0, 31.0], [32.0, 33.0]]
     pred = se.predict_batch(scene.model_code, np.repeat(scene.params()[None], 3, 0), starts,
                             drives, np.full((3, 2), 0.2), 0.02)  # mpc's look-ahead
@@ -449,8 +449,8 @@ def test_a_build_for_the_level_runs_under_another_cpu_model_and_only_at_the_leve
         [sys.executable, "-c", "import saddle_env, saddle_env.envs\n"
          "from saddle_env.compilation import aot, specialise as S\n"
          "from saddle_env.scene import ROLLING, SLIPPING\n"
-         "S.specialise((ROLLING,), False, saddle_env.envs._step)\n"
-         "S.specialise((SLIPPING,), False, saddle_env.envs._step)\n"
+         "S.specialise((ROLLING,), False, saddle_env.envs.control_step)\n"
+         "S.specialise((SLIPPING,), False, saddle_env.envs.control_step)\n"
          "print(aot.status())"],
         cwd=tmp_path, env=below, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr

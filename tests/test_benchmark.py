@@ -1,5 +1,5 @@
 """The benchmark suite: cells, resume, one JSON per run, and the rliable report generated
-from result files alone (tiny budgets; the real runs are committed under benchmark/)."""
+from result files alone (tiny budgets; the real runs are committed under benchmark_data/)."""
 
 from __future__ import annotations
 
@@ -247,14 +247,14 @@ def test_two_cells_run_as_tasks_on_a_local_ray(tmp_path):
 
 
 def test_the_clairvoyant_reference_is_at_or_above_mpc_and_every_shipped_agent():
-    """benchmark/references.json (the clairvoyant on each level's test set) against the
+    """benchmark_data/references.json (the clairvoyant on each level's test set) against the
     committed leaderboard, episode by episode: never shorter than mpc or a shipped agent."""
     from pathlib import Path
 
     from agents.benchmark import leaderboard as lb
 
     root = Path(__file__).resolve().parents[1]
-    refs = json.loads((root / "benchmark" / "references.json").read_text())["levels"]
+    refs = json.loads((root / "benchmark_data" / "references.json").read_text())["levels"]
     board = json.loads((root / "docs" / "leaderboard.json").read_text())
     assert set(refs) == set(board["levels"])
     for lid, ref in refs.items():

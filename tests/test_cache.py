@@ -17,20 +17,20 @@ from saddle_env.compilation import cache as _cache
 
 def _tree(tmp_path, monkeypatch):
     """A package with the real import structure in miniature: kernels <- integrators <-
-    envs._step, a module nothing compiled imports, and agents/mpc importing the kernels."""
+    envs.control_step, a module nothing compiled imports, and agents/mpc importing the kernels."""
     pkg = tmp_path / "saddle_env"
     (pkg / "envs").mkdir(parents=True)
-    (pkg / "__init__.py").write_text("from . import integrators\nfrom .envs import _step\n")
+    (pkg / "__init__.py").write_text("from . import integrators\nfrom .envs import control_step\n")
     (pkg / "scene.py").write_text("P_A = 0\n")
-    (pkg / "_kernels.py").write_text("from .scene import P_A\nx = 1\n")
-    (pkg / "integrators.py").write_text("from ._kernels import x\n")
+    (pkg / "kernels.py").write_text("from .scene import P_A\nx = 1\n")
+    (pkg / "integrators.py").write_text("from .kernels import x\n")
     (pkg / "linear.py").write_text("import math\n")
     (pkg / "envs" / "__init__.py").write_text("")
-    (pkg / "envs" / "_step.py").write_text("from .. import _kernels as K\n"
-                                           "from ..integrators import x\n")
+    (pkg / "envs" / "control_step.py").write_text("from .. import kernels as K\n"
+                                                  "from ..integrators import x\n")
     other = tmp_path / "agents"
     other.mkdir()
-    (other / "mpc.py").write_text("import numba\nfrom saddle_env._kernels import x\n")
+    (other / "mpc.py").write_text("import numba\nfrom saddle_env.kernels import x\n")
     return pkg, other
 
 
@@ -62,17 +62,17 @@ def test_dependencies_follow_the_imports(tmp_path, monkeypatch):
     pkg, other = _tree(tmp_path, monkeypatch)
     mods = _cache._sources([pkg, other])
     deps = {m: _cache._imports(m, p, mods) for m, p in mods.items()}
-    assert deps["saddle_env._kernels"] == {"saddle_env.scene"}
-    assert deps["saddle_env.envs._step"] == {"saddle_env._kernels", "saddle_env.integrators"}
-    assert deps["agents.mpc"] == {"saddle_env._kernels"}
+    assert deps["saddle_env.kernels"] == {"saddle_env.scene"}
+    assert deps["saddle_env.envs.control_step"] == {"saddle_env.kernels", "saddle_env.integrators"}
+    assert deps["agents.mpc"] == {"saddle_env.kernels"}
     # the package __init__ is not a dependency of its modules (it imports everything)
     assert "saddle_env" not in set().union(*deps.values())
 
 
 def test_a_changed_file_drops_only_its_own_and_its_dependents_caches(tmp_path, monkeypatch):
     pkg, other = _tree(tmp_path, monkeypatch)
-    files = {name: pkg / name for name in ("_kernels.py", "integrators.py", "linear.py")}
-    files["step"] = pkg / "envs" / "_step.py"
+    files = {name: pkg / name for name in ("kernels.py", "integrators.py", "linear.py")}
+    files["step"] = pkg / "envs" / "control_step.py"
     files["mpc"] = other / "mpc.py"
     assert _refresh(pkg, other)  # no stamp yet: every module is new
     for f in files.values():
@@ -81,7 +81,7 @@ def test_a_changed_file_drops_only_its_own_and_its_dependents_caches(tmp_path, m
 
     # The environment's step changes: only its own cache goes.
     files["step"].write_text(files["step"].read_text() + "y = 2\n")
-    assert _modules(_refresh(pkg, other)) == {"saddle_env.envs._step"}
+    assert _modules(_refresh(pkg, other)) == {"saddle_env.envs.control_step"}
     assert not _has_cache(files["step"])
     assert all(_has_cache(f) for k, f in files.items() if k != "step")
 
@@ -93,9 +93,9 @@ def test_a_changed_file_drops_only_its_own_and_its_dependents_caches(tmp_path, m
 
     # The kernels change: every module that imports them, directly or not, recompiles.
     _cached(files["linear.py"])
-    files["_kernels.py"].write_text("from .scene import P_A\nx = 2\n")
-    assert _modules(_refresh(pkg, other)) == {"saddle_env._kernels", "saddle_env.integrators",
-                                              "saddle_env.envs._step", "agents.mpc"}
+    files["kernels.py"].write_text("from .scene import P_A\nx = 2\n")
+    assert _modules(_refresh(pkg, other)) == {"saddle_env.kernels", "saddle_env.integrators",
+                                              "saddle_env.envs.control_step", "agents.mpc"}
     assert _has_cache(files["linear.py"])
     assert not any(_has_cache(f) for k, f in files.items() if k != "linear.py")
 
@@ -113,7 +113,7 @@ def test_another_tree_is_refreshed_only_by_its_own_call(tmp_path, monkeypatch):
     pkg, other = _tree(tmp_path, monkeypatch)
     _refresh(pkg, other)
     _cached(other / "mpc.py")
-    (pkg / "_kernels.py").write_text("from .scene import P_A\nx = 2\n")
+    (pkg / "kernels.py").write_text("from .scene import P_A\nx = 2\n")
     assert "agents.mpc" not in _cache.refresh(pkg) and _has_cache(other / "mpc.py")
     assert _cache.refresh(other, depends_on=[pkg]) == ["agents.mpc"]
     assert not _has_cache(other / "mpc.py")
@@ -133,7 +133,7 @@ def test_only_a_changed_file_is_parsed_again_and_its_new_imports_count(tmp_path,
     assert _modules(_cache.refresh(pkg)) == {"saddle_env.linear"}
     assert parsed == ["saddle_env.linear"]
     _cached(pkg / "linear.py")
-    (pkg / "_kernels.py").write_text("from .scene import P_A\nx = 2\n")
+    (pkg / "kernels.py").write_text("from .scene import P_A\nx = 2\n")
     assert "saddle_env.linear" in _cache.refresh(pkg) and not _has_cache(pkg / "linear.py")
     (pkg / "new.py").write_text("")  # a new module: every file parsed again
     parsed.clear()
@@ -147,7 +147,7 @@ def test_touching_a_file_keeps_the_stamp_valid(tmp_path, monkeypatch):
     pkg, _ = _tree(tmp_path, monkeypatch)
     _cache.refresh(pkg)
     _cached(pkg / "integrators.py")
-    os.utime(pkg / "_kernels.py", (1, 1))
+    os.utime(pkg / "kernels.py", (1, 1))
     assert _cache.refresh(pkg) == [] and _has_cache(pkg / "integrators.py")
     assert json.loads((pkg / _cache._STAMP_FILE).read_text())["saddle_env.integrators"]
 

@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-HEAVY = ("numba", "saddle_env.integrators", "saddle_env._kernels", "gymnasium")
+HEAVY = ("numba", "saddle_env.integrators", "saddle_env.kernels", "gymnasium")
 
 
 def test_importing_agents_seeds_loads_no_simulator():

@@ -21,7 +21,7 @@ from helpers import assert_matches_lab_frame
 from reference_lab_frame import simulate_lab_frame
 
 from saddle_env import OmegaProfile, Scene, initial_state, simulate
-from saddle_env import _kernels as K
+from saddle_env import kernels as K
 from saddle_env.accuracy import AccuracyWarning
 from saddle_env.linear import is_stable
 

@@ -182,8 +182,8 @@ def _tool(argv: list[str]) -> tuple[str, list[str]]:
             return "train.py", argv[2:]
         if argv[1:3] == ["-m", "pytest"]:
             return "pytest", argv[3:]
-        if argv[1:3] == ["-m", "saddle_env.envs.benchmark"]:
-            return "env-benchmark", argv[3:]
+        if argv[1:3] == ["-m", "saddle_env.envs.throughput"]:
+            return "env-throughput", argv[3:]
         if argv[1:3] == ["-m", "agents.benchmark.rllib_throughput"]:
             return "rllib-benchmark", argv[3:]
         if argv[1:3] in (["-m", "agents.benchmark"], ["-m", "agents.benchmark.run"]):
@@ -220,7 +220,7 @@ def _parser(tool: str) -> argparse.ArgumentParser | None:
     elif tool == "saddle-export":
         from agents.evaluation.export import build_parser
     elif tool == "saddle-bench":
-        from saddle_env.bench import build_parser
+        from saddle_env.workprecision import build_parser
     elif tool == "saddle-reproduce":
         from saddle_env.reproduce.cli import build_parser
     elif tool == "train.py":
@@ -252,7 +252,7 @@ def _parse(tool: str, args: list[str]) -> argparse.Namespace | None:
                 return parser.parse_args(args)
             # The env benchmark builds its parser inside main(): stop main() right after
             # its arguments are parsed.
-            from saddle_env.envs import benchmark
+            from saddle_env.envs import throughput
 
             original = argparse.ArgumentParser.parse_args
 
@@ -261,7 +261,7 @@ def _parse(tool: str, args: list[str]) -> argparse.Namespace | None:
 
             argparse.ArgumentParser.parse_args = parse_then_stop
             try:
-                benchmark.main(args)
+                throughput.main(args)
             finally:
                 argparse.ArgumentParser.parse_args = original
     except _Parsed as done:
@@ -634,7 +634,7 @@ def test_every_documented_tool_has_a_reference():
              "saddle-export": "saddle-export",
              "saddle-bench": "saddle-bench", "saddle-reproduce": "saddle-reproduce",
              "train.py": "train.py", "benchmark": "python -m agents.benchmark",
-             "env-benchmark": "python -m saddle_env.envs.benchmark",
+             "env-throughput": "python -m saddle_env.envs.throughput",
              "rllib-benchmark": "python -m agents.benchmark.rllib_throughput",
              "compile-profile": "python -m saddle_env.coldstart.profile"}
     for page, _, argv in COMMANDS:
@@ -754,7 +754,7 @@ def _small(tool: str, args: list[str], tmp: Path) -> list[str]:
                             ("--out", str(tmp / "rllib"))):
             setting(flag, value)
         args.extend(["--no-sync", "--no-figure"])
-    elif tool == "env-benchmark":
+    elif tool == "env-throughput":
         for flag, value in (("--seconds", "0.02"), ("--num-envs", "16"), ("--sizes", "16"),
                             ("--out", str(tmp / "env"))):
             setting(flag, value)
@@ -779,15 +779,15 @@ def _main(tool: str):
     elif tool == "saddle-export":
         from agents.evaluation.export import main
     elif tool == "saddle-bench":
-        from saddle_env.bench import main
+        from saddle_env.workprecision import main
     elif tool == "saddle-reproduce":
         from saddle_env.reproduce.cli import main
     elif tool == "saddle-fit":
         from saddle_env.calibrate.cli import main
     elif tool == "saddle-lifetimes":
         from saddle_env.lifetimes.cli import main
-    elif tool == "env-benchmark":
-        from saddle_env.envs.benchmark import main
+    elif tool == "env-throughput":
+        from saddle_env.envs.throughput import main
     elif tool == "rllib-benchmark":
         from agents.benchmark.rllib_throughput import main
     elif tool == "compile-profile":
@@ -871,7 +871,7 @@ def test_documented_commands_run(page, k, block, tmp_path, monkeypatch, capsys):
 def test_the_benchmark_tables_come_from_its_shipped_run():
     """The accuracy page's tables are rendered from the benchmark's results, so a changed
     row of the CSV changes the page (no figure typed by hand)."""
-    from saddle_env.bench import report, tables
+    from saddle_env.workprecision import report, tables
 
     rows = report.read_rows(DOCS / "figures" / "bench_results.csv")
     page = HOOKS.expand((DOCS / "accuracy.md").read_text())

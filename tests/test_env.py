@@ -454,14 +454,14 @@ def _assert_identical(own: list[tuple], full: list[tuple]) -> None:
 def test_each_levels_own_compiled_step_matches_the_full_kernels(env_id, monkeypatch):
     """A level compiles its step for the contact models it draws (`compilation.specialise`);
     seeded episodes through that copy are the full kernels' to the last bit."""
-    from saddle_env.envs import _step
+    from saddle_env.envs import control_step
 
     monkeypatch.delenv(FULL_KERNELS_ENV)           # the copies (the suite's default)
     engine, own = _seeded_steps(env_id)
-    assert engine._S is not _step                    # a copy, without the other models
+    assert engine._S is not control_step                    # a copy, without the other models
     monkeypatch.setenv(FULL_KERNELS_ENV, "1")
     engine, full = _seeded_steps(env_id)
-    assert engine._S is _step
+    assert engine._S is control_step
     _assert_identical(own, full)
 
 

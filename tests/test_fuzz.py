@@ -267,7 +267,7 @@ def _check_cli(flag, value, tmp_path, capsys):
 
 @pytest.mark.parametrize("argv", BENCH_ARGS, ids=lambda a: " ".join(a) or "empty")
 def test_saddle_bench_bad_arguments_exit_2(argv, tmp_path):
-    from saddle_env.bench import main
+    from saddle_env.workprecision import main
 
     with pytest.raises(SystemExit) as exc:
         main(argv + ["--out", str(tmp_path), "--quick", "--quiet", "--no-figures"])

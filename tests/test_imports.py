@@ -151,14 +151,14 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("compilation: numba, the on-disk cache, the install's build loaded",
      ("saddle_env.compilation",)),
     ("the simulator: kernels, integrators, simulate, prediction",
-     ("saddle_env._kernels", "saddle_env.omega", "saddle_env.linear",
+     ("saddle_env.kernels", "saddle_env.omega", "saddle_env.linear",
       "saddle_env.rk", "saddle_env.integrators", "saddle_env.lockstep", "saddle_env.runner",
       "saddle_env.accuracy", "saddle_env.simulate", "saddle_env.prediction",
       "saddle_env.iontrap")),
     ("the environments", ("saddle_env.envs",)),
     ("saddle_env's public face", ("saddle_env",)),
     ("tools on the simulator and the environments",
-     ("saddle_env.coldstart", "saddle_env.bench", "saddle_env.calibrate", "saddle_env.cli",
+     ("saddle_env.coldstart", "saddle_env.workprecision", "saddle_env.calibrate", "saddle_env.cli",
       "saddle_env.deploy", "saddle_env.lifetimes", "saddle_env.reproduce", "saddle_env.rig")),
     ("agents: seeds, paths and shared command-line options",
      ("agents", "agents.seeds", "agents.paths", "agents.cli_args")),
@@ -266,7 +266,7 @@ def test_the_layering_check_catches_an_upward_import(tmp_path):
 
 def test_agents_sit_above_the_physics_and_in_order():
     """The table itself: the check above would pass trivially if it placed nothing."""
-    assert layer_of("saddle_env.compilation.cache") < layer_of("saddle_env._kernels") \
+    assert layer_of("saddle_env.compilation.cache") < layer_of("saddle_env.kernels") \
         < layer_of("saddle_env.envs.engine") < layer_of("saddle_env") \
         < layer_of("saddle_env.coldstart.precompile") < layer_of("agents.seeds")
     assert layer_of("agents.control.mpc") < layer_of("agents.evaluation.policies") \

@@ -136,8 +136,8 @@ def test_a_copy_compiled_for_one_contact_model_steps_it_identically(monkeypatch)
     the install's ahead-of-time entry point where a build matches, else numba's JIT copy)
     gives the full loop's trajectory bit for bit, and a model it was not compiled for fails
     (NaN rates) instead of being stepped as another."""
-    from saddle_env import _kernels as K
     from saddle_env import integrators as I
+    from saddle_env import kernels as K
     from saddle_env.scene import ROLLING, SLIPPING
 
     monkeypatch.delenv(FULL_KERNELS_ENV)          # the copies (the suite's default)

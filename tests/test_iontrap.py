@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from saddle_env import METHODS, Scene
-from saddle_env import _kernels as K
+from saddle_env import kernels as K
 from saddle_env.compilation.specialise import FULL_KERNELS_ENV, specialise
 from saddle_env.iontrap import (
     Q_MAX,

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from saddle_env.envs import _step as S
+from saddle_env.envs import control_step as S
 from saddle_env.envs.config import EnvConfig
 from saddle_env.envs.engine import TrapEngine
 

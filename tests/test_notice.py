@@ -18,7 +18,7 @@ def _event(module, name="step_serial"):
 def test_a_long_compile_is_announced_once_with_its_name(caplog, monkeypatch):
     monkeypatch.setattr(_notice, "NOTICE_AFTER", 0.05)
     caplog.set_level(logging.INFO, logger="saddle_env")
-    outer, inner = _event("saddle_env.envs._step"), _event("saddle_env.integrators", "integrate_h")
+    outer, inner = _event("saddle_env.envs.control_step"), _event("saddle_env.integrators", "integrate_h")
     _notice._start(outer)
     _notice._start(inner)  # a callee compiled inside it: no second notice
     time.sleep(0.3)
@@ -26,16 +26,16 @@ def test_a_long_compile_is_announced_once_with_its_name(caplog, monkeypatch):
     _notice._end(outer)
     warnings = [r for r in caplog.records if r.levelno == logging.WARNING]
     assert len(warnings) == 1
-    assert "saddle_env.envs._step.step_serial" in warnings[0].getMessage()
+    assert "saddle_env.envs.control_step.step_serial" in warnings[0].getMessage()
     assert "once" in warnings[0].getMessage()
-    assert any("compiled saddle_env.envs._step.step_serial in" in r.getMessage()
+    assert any("compiled saddle_env.envs.control_step.step_serial in" in r.getMessage()
                for r in caplog.records if r.levelno == logging.INFO)
 
 
 def test_a_short_compile_and_other_packages_say_nothing(caplog, monkeypatch):
     monkeypatch.setattr(_notice, "NOTICE_AFTER", 0.2)
     caplog.set_level(logging.INFO, logger="saddle_env")
-    quick = _event("saddle_env._kernels", "rhs")
+    quick = _event("saddle_env.kernels", "rhs")
     _notice._start(quick)
     _notice._end(quick)
     monkeypatch.setattr(_notice, "NOTICE_AFTER", 0.01)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from saddle_env import OmegaProfile, Scene, initial_state, prediction, simulate
-from saddle_env import _kernels as K
+from saddle_env import kernels as K
 from saddle_env.compilation import threads as threads_mod
 from saddle_env.compilation.specialise import FULL_KERNELS_ENV, entry, specialise
 from saddle_env.compilation.threads import in_threads
@@ -84,7 +84,7 @@ def _cases_batch():
 def test_the_kernel_is_called_with_the_same_types_however_the_models_are_given(monkeypatch):
     """One model for all runs (an int), one per run (an array, of any integer type): the
     compiled kernel gets the same argument types, so one compiled entry point (the install's
-    build holds one per contact model) serves every form, and `_kernels.entry`, which keeps
+    build holds one per contact model) serves every form, and `kernels.entry`, which keeps
     the entry it checked first, never hands it others."""
     import numba
 

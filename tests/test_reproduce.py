@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from saddle_env import Scene, initial_state, simulate
-from saddle_env import _kernels as K
+from saddle_env import kernels as K
 from saddle_env.reproduce import FIGURE_NAMES, main, paper_eom
 from saddle_env.reproduce import cli as reproduce_cli
 from saddle_env.reproduce.precession import orientation_series, precession_angle

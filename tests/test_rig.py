@@ -189,7 +189,7 @@ def test_voltage_mode_matches_an_independent_integration_with_omega_as_a_state()
     kernel, fed the Ω and Ω̇ of the moment)."""
     from scipy.integrate import solve_ivp
 
-    from saddle_env import _kernels as K
+    from saddle_env import kernels as K
 
     kw = dict(action_mode="voltage", rtol=1e-11, air_force=0.3, ripple_amp=0.7,
               ripple_freq=25.0)

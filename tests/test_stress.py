@@ -314,7 +314,7 @@ def test_property_event_times_consistent_with_N(case):
     if tr.event.kind == "detach":
         # N vanishes at the located time (to the event-time tolerance) and is positive just
         # before it: a run stopping 1e-6 s earlier has no event.
-        from saddle_env import _kernels as K
+        from saddle_env import kernels as K
         from saddle_env.simulate import drive_row
 
         y = np.zeros(K.STATE_WIDTH)

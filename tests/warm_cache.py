@@ -87,7 +87,7 @@ def _full_kernels() -> None:
         sc = se.Scene()
         start = se.initial_state(sc, 0.003, 0.002)
         se.simulate(sc, start, 0.05, omega=20.0, dt_out=0.01)
-        drives = np.zeros((2, 1, se._kernels.DRIVE_WIDTH))
+        drives = np.zeros((2, 1, se.kernels.DRIVE_WIDTH))
         drives[:, :, 0] = 20.0
         se.predict_batch(sc.model_code, np.repeat(sc.params()[None], 2, 0),
                          np.repeat(start[None], 2, 0), drives, np.full((2, 1), 0.05), 0.01)

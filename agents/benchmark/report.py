@@ -7,7 +7,7 @@ probability of improvement) per level and across levels; `python -m agents.bench
 uniform random actions score 0 and the upper reference scores 1:
 (T − T_random) / (T_upper − T_random). T_random, T_best-const and T_mpc are the
 leaderboard's (the same 1,000 test episodes, docs/leaderboard.json); the upper reference is
-the clairvoyant controller where ``benchmark/references.json`` has it for the level, else
+the clairvoyant controller where ``benchmark_data/references.json`` has it for the level, else
 ``mpc`` (the report says which).
 """
 
@@ -24,10 +24,10 @@ from typing import Any
 
 import numpy as np
 
-from ..paths import BENCHMARK_DIR, DOCS_DIR, REPO_ROOT
+from ..paths import BENCHMARK_DATA, DOCS_DIR, REPO_ROOT
 
 DOCS = DOCS_DIR
-REFERENCES = BENCHMARK_DIR / "references.json"
+REFERENCES = BENCHMARK_DATA / "references.json"
 REPS = 5000           # bootstrap replications (intervals stable to ~0.01 at 3-5 seeds)
 PROFILE_TAUS = np.linspace(-0.25, 1.25, 61)
 
@@ -325,7 +325,7 @@ def _reference_lines(data: dict[str, Any], shown: list[str]) -> list[str]:
               "leaderboard; the clairvoyant controller (`agents/control/clairvoyant.py`: it knows the "
               "ball and the future disturbances and plans with the true simulator, never "
               "keeping a ball shorter than mpc or the shipped agent) from "
-              "`benchmark/references.json` (`python -m agents.benchmark.headroom`). *Doomed*: the share "
+              "`benchmark_data/references.json` (`python -m agents.benchmark.headroom`). *Doomed*: the share "
               "of starts the clairvoyant still loses (Wilson score 95 % interval, a binomial "
               "interval), an estimate of "
               "what no controller can win.", "",
@@ -434,7 +434,7 @@ def _running_lines(seeds: tuple[int, ...]) -> list[str]:
               "python -m agents.benchmark --report --json        # the same data as JSON",
               "```", "",
               f"The default cells are every non-calm level x every row x seeds "
-              f"{', '.join(map(str, seeds))}. A cell writes `benchmark/results/<level>/<algo>/"
+              f"{', '.join(map(str, seeds))}. A cell writes `benchmark_data/results/<level>/<algo>/"
               "seed<s>.json` when it finishes (atomically): the test-set trapping time with its "
               "interval, kept share, return, every episode's trapping time, the budget, the "
               "wall time, the library versions and the machine. A killed suite rerun skips "

@@ -37,11 +37,11 @@ from saddle_env.envs import LEVELS, get_level
 from saddle_env.jobs.files import write_text_atomically
 from saddle_env.jobs.signals import SignalRecord, sigterm_interrupts
 
-from ..paths import BENCHMARK_DIR
+from ..paths import BENCHMARK_DATA
 from ..seeds import TEST_SEED
 from ..training.recipes import HYPERPARAMS_DIR
 
-RESULTS = BENCHMARK_DIR / "results"
+RESULTS = BENCHMARK_DATA / "results"
 TEST_EPISODES = 1000          # the leaderboard's frozen test set
 SEEDS = (0, 1, 2)
 CALM = "SaddleTrap-v0"        # every sensible policy keeps every ball: not benchmarked
@@ -331,7 +331,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, default=TEST_EPISODES,
                    help=f"test episodes per run (default {TEST_EPISODES})")
     p.add_argument("--out", default=str(RESULTS), metavar="DIR",
-                   help="result files (default benchmark/results)")
+                   help="result files (default benchmark_data/results)")
     p.add_argument("--address", default=None, metavar="HOST:PORT",
                    help="run the cells as tasks on this Ray cluster (the [rllib] extra's Ray); "
                         "'local' starts a local Ray of two CPUs")

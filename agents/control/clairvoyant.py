@@ -62,7 +62,7 @@ from typing import Any
 import numpy as np
 
 from saddle_env.envs import EnvConfig
-from saddle_env.envs import _step as S
+from saddle_env.envs import control_step as S
 from saddle_env.envs.engine import TrapEngine
 from saddle_env.linear import critical_omega
 from saddle_env.simulate import SimulationError

@@ -14,7 +14,7 @@ from typing import Any
 import numba as nb
 import numpy as np
 
-from saddle_env import _kernels as Kn
+from saddle_env import kernels as Kn
 from saddle_env.envs import EnvConfig
 from saddle_env.envs.observation import VELOCITY_SCALE, states_from_observations
 from saddle_env.integrators import state_scale

@@ -13,7 +13,7 @@ state at t − obs_delay), while the ``omega``, ``voltage`` and ``theta`` column
   the track's first modelled instant (fitted per track; read against the ``omega`` column
   when there is one).
 
-The saddle's angle θ is integrated from that Ω (`_kernels.angle_at`) from θ₀ at the track's
+The saddle's angle θ is integrated from that Ω (`kernels.angle_at`) from θ₀ at the track's
 first modelled instant (fitted per track), or, with a ``theta`` column, restarted from the
 encoder at every segment's start. The ball's centre, turned by θ into the laboratory and
 shifted by the axis offset (x0, y0), is what the camera measured.
@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
-from .. import _kernels as K
+from .. import kernels as K
 from ..envs.config import EnvConfig
 from ..prediction import predict_batch
 from ..scene import COULOMB, ROLLING, Scene

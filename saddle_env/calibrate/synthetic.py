@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from ..envs import _step as S
+from ..envs import control_step as S
 from ..envs.config import EnvConfig
 from ..envs.levels import get_level
 from ..envs.saddle_trap import SaddleTrapEnv

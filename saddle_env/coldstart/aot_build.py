@@ -110,8 +110,8 @@ def _integrate_segments(lo, hi, models, P, scales, Y, drives, durations, sample,
 
 # module whose JIT copy an export calls → {export name: its thin caller}
 _EXPORTS: dict[str, dict[str, Callable[..., Any]]] = {
-    "saddle_env.envs._step": {"place": _place, "step_scalar": _step_scalar,
-                              "step_serial": _step_serial, "step_parallel": _step_parallel},
+    "saddle_env.envs.control_step": {"place": _place, "step_scalar": _step_scalar,
+                                     "step_serial": _step_serial, "step_parallel": _step_parallel},
     "saddle_env.integrators": {"integrate_h": _integrate_h, "integrate_batch": _integrate_batch},
     "saddle_env.prediction": {"integrate_segments": _integrate_segments},
 }
@@ -148,7 +148,7 @@ class BuildSpec(TypedDict):
 
 
 def planned_builds() -> dict[tuple[str, ...], BuildSpec]:
-    """Each module to build, by its `_kernels.variant_flags`: the contact models, the
+    """Each module to build, by its `kernels.variant_flags`: the contact models, the
     resistance flag, the environment whose first step uses them (``[id, options]``: a
     registered level, or ``SaddleTrap-v0`` given one contact model where no level has it
     alone), a contact model whose `simulate` does (None if none), whether a batch mixes
@@ -201,7 +201,7 @@ def _warm_env(spec: BuildSpec, out_dir: str, module_name: str, exports: dict[str
     import gymnasium as gym
 
     from ..compilation import aot_threads
-    from ..envs import _step
+    from ..envs import control_step
     from ..lockstep import LANES
     from .profile import first_step
 
@@ -209,12 +209,12 @@ def _warm_env(spec: BuildSpec, out_dir: str, module_name: str, exports: dict[str
     env_id, options = spec["env"]
     first_step(gym.make(env_id, **options))
     # the vector env below 2 x LANES balls (training's 64): SIMD blocks in one thread
-    first_step(gym.make_vec(env_id, num_envs=_step.MIN_BLOCK, **options))
+    first_step(gym.make_vec(env_id, num_envs=control_step.MIN_BLOCK, **options))
     # and from 2 x LANES on: numba's threads, reached through `aot_threads`'s forwarders
     first_step(gym.make_vec(env_id, num_envs=2 * LANES, **options))
-    exports["saddle_env.envs._step"] = ["place", "step_scalar", "step_serial",
-                                        "step_parallel"]
-    threaded.append("saddle_env.envs._step.step_parallel")
+    exports["saddle_env.envs.control_step"] = ["place", "step_scalar", "step_serial",
+                                               "step_parallel"]
+    threaded.append("saddle_env.envs.control_step.step_parallel")
     shims.append(aot_threads.write_shim(out_dir, module_name))
 
 
@@ -247,7 +247,7 @@ def _warm_simulator(spec: BuildSpec, exports: dict[str, list[str]]) -> None:
     # types are predict_batch's own, whatever the values
     rows = np.array([sc.model_code for sc in scenes] * 2)
     P = np.array([sc.params() for sc in scenes] * 2)
-    from .._kernels import DRIVE_W0, DRIVE_WIDTH
+    from ..kernels import DRIVE_W0, DRIVE_WIDTH
 
     drives = np.zeros((len(rows), 2, DRIVE_WIDTH))
     drives[:, :, DRIVE_W0] = 30.0
@@ -270,9 +270,9 @@ def _export(cc: Any, spec: BuildSpec, exports: dict[str, list[str]],
     """Each listed function's one compiled signature exported by ``cc`` through a thin
     caller; its argument types recorded in ``argtypes``."""
     from .. import integrators, prediction
-    from ..envs import _step
+    from ..envs import control_step
 
-    modules = {"saddle_env.envs._step": _step, "saddle_env.integrators": integrators,
+    modules = {"saddle_env.envs.control_step": control_step, "saddle_env.integrators": integrators,
                "saddle_env.prediction": prediction}
     for mod_name, names in exports.items():
         space = specialise(frozenset(spec["models"]), bool(spec["resist"]), modules[mod_name])

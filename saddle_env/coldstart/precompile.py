@@ -43,7 +43,7 @@ VECTOR = "vector:"
 def _vector(env_id: str) -> None:
     import gymnasium as gym
 
-    from ..envs._step import MIN_BLOCK
+    from ..envs.control_step import MIN_BLOCK
     from ..lockstep import LANES
     from .profile import first_step
 

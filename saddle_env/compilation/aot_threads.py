@@ -1,5 +1,5 @@
 """numba's threads inside an ahead-of-time module: what lets the install's build hold the
-vector environment's threaded step (`envs._step.step_parallel`, a ``prange`` loop).
+vector environment's threaded step (`envs.control_step.step_parallel`, a ``prange`` loop).
 
 numba compiles a ``prange`` loop into calls of its threading layer (OpenMP, TBB or its
 workqueue: ``numba_parallel_for``, ``get_num_threads``, the scheduler's functions). The JIT

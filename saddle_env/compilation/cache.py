@@ -3,16 +3,16 @@
 numba checks a cached function against its *own* source file only (numba 0.68: a hash of
 the file's content; earlier versions its time stamp and size). Our compiled functions call
 functions of other files, and numba links the callees' code into each caller's cached
-object: after an edit of `_kernels.py` alone the cached callers in `integrators`,
-`lockstep`, `envs._step` and `agents` would keep running the old physics. They also freeze
+object: after an edit of `kernels.py` alone the cached callers in `integrators`,
+`lockstep`, `envs.control_step` and `agents` would keep running the old physics. They also freeze
 module constants (`scene.P_A`, ...) as they compile.
 
 So on import, every module of the package gets a digest of its own source and of every
 module it imports from the package, directly or not. A module whose digest changed since
 the stamp was written has its cache files removed; the others keep theirs. An upgrade, or
 a ``git pull``, that changes one kernel file then recompiles what depends on it and nothing
-else: a change to `envs/_step.py` recompiles only the environment's step, one to
-`_kernels.py` everything compiled, since everything calls it (tests/test_cache.py).
+else: a change to `envs/control_step.py` recompiles only the environment's step, one to
+`kernels.py` everything compiled, since everything calls it (tests/test_cache.py).
 
 Another package whose compiled functions call the kernels (`agents.control`'s look-ahead)
 calls `refresh` for its own tree on its import, naming this package's tree as one it

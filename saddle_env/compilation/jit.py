@@ -57,7 +57,7 @@ def ir_inline(f):
 
 def jit_per_constant(f):
     """`jit` that keeps numba's compile per constant argument, for a copy loop whose length
-    is a constant at each call (`envs._step._load`, `_store`: `ROW_WIDTH` or
+    is a constant at each call (`envs.control_step._load`, `_store`: `ROW_WIDTH` or
     `STATE_WIDTH`): compiled per constant, the loop has a fixed length the compiler unrolls.
     Typed plain (`one_signature`), the vector env steps slower."""
     d: Any = _jit(f)  # Any: carries our own mark, which numba's Dispatcher does not declare

@@ -1,7 +1,7 @@
 """State and episode logic shared by the single and the vector environment.
 
 `TrapEngine` holds n balls as arrays, places them at reset (randomised from the caller's
-generator), steps them through the compiled control step (`_step`) and exposes the
+generator), steps them through the compiled control step (`control_step`) and exposes the
 observations, rewards and events. The single environment is an engine with n = 1; the
 vector environment adds autoreset on top. Physics is never duplicated here.
 """
@@ -16,7 +16,7 @@ from typing import Literal, TypedDict, cast
 import numba
 import numpy as np
 
-from .. import _kernels as K
+from .. import kernels as K
 from ..compilation.specialise import checked, specialise
 from ..compilation.threads import threads_usable
 from ..integrators import (
@@ -31,7 +31,7 @@ from ..integrators import (
 )
 from ..scene import N_PARAMS, P_RESIST, Scene
 from ..simulate import SimulationError, default_max_step
-from . import _step as S
+from . import control_step as S
 from .config import EnvConfig
 from .observation import VELOCITY_SCALE, layout
 
@@ -129,7 +129,7 @@ class TrapEngine:
         self.method = METHODS[config.method]
         self.tableau = self.method.tableau
         self.control = self._build_control(config)
-        # what the compiled step takes for the two records (see `_step.step_serial`)
+        # what the compiled step takes for the two records (see `control_step.step_serial`)
         self._record_fields = (tuple(self.tableau), tuple(self.control))
         self.cfg = self._build_cfg(config)
         self.models = np.zeros(self.n, dtype=np.int64)
@@ -174,7 +174,7 @@ class TrapEngine:
 
     def _entry(self, name: str, args: tuple):
         """``self._S``'s entry point ``name`` for ``args``, checked once
-        (`_kernels.checked`: an ahead-of-time one only for exactly its argument types). The
+        (`kernels.checked`: an ahead-of-time one only for exactly its argument types). The
         engine's arguments keep their types from call to call: its own arrays are made once
         and never rebound, and the caller's indices, actions and flags are made int64,
         float64 and bool vectors (`_per_ball`)."""
@@ -229,7 +229,7 @@ class TrapEngine:
         self._covered = np.zeros(self.n)
         self._seg_active = np.zeros(self.n, dtype=bool)
         # One configuration vector per segment: its length as the period, the actions given
-        # as Ω̇ (`_step.C_GIVEN`); the effort is charged once per period on the command.
+        # as Ω̇ (`control_step.C_GIVEN`); the effort is charged once per period on the command.
         self._seg_cfgs = []
         for lo, hi in plan.segments:
             cfg = self.cfg.copy()
@@ -297,7 +297,7 @@ class TrapEngine:
         idx = np.ascontiguousarray(np.atleast_1d(idx), dtype=np.int64)
         k = idx.size
         # Draws per ball, from its own generator and in a fixed order; the states follow
-        # in one compiled call (`_step.place`).
+        # in one compiled call (`control_step.place`).
         x, y, vx, vy = np.zeros(k), np.zeros(k), np.zeros(k), np.zeros(k)
         lab_rest = np.zeros(k, dtype=np.bool_)
         placed = "x" in opts or "y" in opts

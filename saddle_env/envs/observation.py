@@ -1,7 +1,7 @@
 """The observation's layout, declared once: which column holds what, the declared box, and the
 inverse a controller needs (reading the speed or the saddle angle back out of a batch).
 
-The compiled step (`_step.observe_one`) writes the columns at the indices this module puts
+The compiled step (`control_step.observe_one`) writes the columns at the indices this module puts
 into the configuration vector, so the layout lives here only; `states_from_observations`
 reads them back into physics states (the model-predictive controller's state estimate).
 
@@ -38,7 +38,7 @@ import numba as nb
 import numpy as np
 from gymnasium import spaces
 
-from .. import _kernels as K
+from .. import kernels as K
 from ..scene import P_A, P_B, P_R
 from .config import EnvConfig
 

@@ -13,8 +13,8 @@ from collections import deque
 import numpy as np
 from gymnasium.error import DependencyNotInstalled
 
-from .. import _kernels as K
-from . import _step as S
+from .. import kernels as K
+from . import control_step as S
 from .config import EnvConfig
 
 WIDTH, HEIGHT = 600, 400

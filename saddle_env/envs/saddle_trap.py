@@ -9,7 +9,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from . import _step as S
+from . import control_step as S
 from .config import EnvConfig
 from .engine import TrapEngine
 from .observation import observation_space

@@ -17,7 +17,7 @@ from gymnasium.utils import seeding
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices
 
 from . import DEFAULT_EPISODE_STEPS
-from . import _step as S
+from . import control_step as S
 from .config import EnvConfig
 from .engine import TrapEngine
 from .saddle_trap import action_space, check_actions, observation_space

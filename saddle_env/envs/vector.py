@@ -10,7 +10,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from . import DEFAULT_EPISODE_STEPS
-from . import _step as S
+from . import control_step as S
 from .config import EnvConfig
 from .engine import TrapEngine
 from .saddle_trap import action_space, check_actions, observation_space

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import _kernels as K
+from .. import kernels as K
 from ..linear import critical_omega, eigenfrequencies, linear_trajectory
 from ..runner import Start
 from ..scene import P_A, P_B, P_R, Scene

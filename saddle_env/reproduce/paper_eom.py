@@ -1,6 +1,6 @@
 """The paper's approximate equation of motion (its Eq. EOM), as a comparison tool only.
 
-This module is **not** the product dynamics (those are `saddle_env._kernels`, the exact
+This module is **not** the product dynamics (those are `saddle_env.kernels`, the exact
 Newton–Euler model). It exists so that `saddle-reproduce` can say how much the seed paper's
 own nonlinear equation differs from the exact one.
 

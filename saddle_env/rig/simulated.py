@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from ..envs import EnvConfig, SaddleTrapEnv, level_config
-from ..envs import _step as S
+from ..envs import control_step as S
 from ..envs.observation import layout
 from .clock import Clock, MonotonicClock
 from .interface import Frame

@@ -1,4 +1,4 @@
-"""python -m saddle_env.bench"""
+"""python -m saddle_env.workprecision"""
 
 import sys
 

@@ -2,10 +2,10 @@
 
 This module is *not* used by the simulator. It is the peer that `saddle-bench` hands to
 ``scipy.integrate.solve_ivp`` (the baseline the compiled integrators are measured
-against), and a third, independent cross-check of the kernels (``tests/test_bench.py``
-checks that it agrees with ``saddle_env._kernels.rhs`` to ~1e-12).
+against), and a third, independent cross-check of the kernels (``tests/test_workprecision.py``
+checks that it agrees with ``saddle_env.kernels.rhs`` to ~1e-12).
 
-It is deliberately written from docs/physics.md, not from ``_kernels.py``: vectors are numpy
+It is deliberately written from docs/physics.md, not from ``kernels.py``: vectors are numpy
 arrays, cross products are ``np.cross``, the 3×3 spin system and the 2×2 tangent system
 are solved with ``np.linalg.solve`` (the kernels invert them in closed form), and the
 second derivative of the unit normal comes from the chain rule on n = m/|m| (the kernels

@@ -2,7 +2,7 @@
 
 Every measurement is one row (a dict with the columns of `COLUMNS`); `saddle-bench`
 appends rows to a CSV as they complete, and the figures and the summary are made from the
-CSV alone (`saddle_env.bench.report`), so a finished run can be re-plotted and checked
+CSV alone (`saddle_env.workprecision.report`), so a finished run can be re-plotted and checked
 without re-running it.
 
 Error definitions (the issue's):
@@ -27,7 +27,7 @@ from typing import Literal, TypeVar, cast
 
 import numpy as np
 
-from .. import _kernels as K
+from .. import kernels as K
 from ..accuracy import IntegratorKwargs
 from ..integrators import STATUS_DONE
 from ..linear import abcd, linear_trajectory

@@ -142,7 +142,7 @@ def _version(name: str) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The command line of ``python -m saddle_env.bench``."""
+    """The command line of ``python -m saddle_env.workprecision``."""
     ap = argparse.ArgumentParser(
         prog="saddle-bench",
         description="Work-precision benchmark: wall time per simulated second against the "

@@ -7,12 +7,12 @@ import json
 
 import pytest
 
-from saddle_env.envs import benchmark
+from saddle_env.envs import throughput
 
 
 def test_benchmark_writes_json_csv_and_figure(tmp_path, capsys):
     out = tmp_path / "env"
-    rc = benchmark.main(["--seconds", "0.05", "--sizes", "4,8", "--num-envs", "8",
+    rc = throughput.main(["--seconds", "0.05", "--sizes", "4,8", "--num-envs", "8",
                          "--skip-cold", "--out", str(out)])
     assert rc == 0
     data = json.loads((out / "throughput.json").read_text())
@@ -32,6 +32,6 @@ def test_benchmark_writes_json_csv_and_figure(tmp_path, capsys):
                                   ["--sizes", "16,x"], ["--sizes", "0,4"], ["--bogus"]])
 def test_benchmark_rejects_bad_arguments(args, capsys):
     with pytest.raises(SystemExit) as e:
-        benchmark.main(args)
+        throughput.main(args)
     assert e.value.code == 2
     assert "error" in capsys.readouterr().err

@@ -1,6 +1,6 @@
 """Throughput of SaddleTrap-v0 against CartPole-v1, measured in the same run.
 
-    python -m saddle_env.envs.benchmark [--seconds S] [--num-envs N] [--sizes 16,64,...]
+    python -m saddle_env.envs.throughput [--seconds S] [--num-envs N] [--sizes 16,64,...]
                                         [--out DIR] [--skip-cold] [--no-figure]
 
 Measures steps per second through ``gym.make`` (wrappers included) for both environments,
@@ -208,7 +208,7 @@ def run(args: argparse.Namespace) -> dict[str, object]:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
-    ap = argparse.ArgumentParser(prog="python -m saddle_env.envs.benchmark",
+    ap = argparse.ArgumentParser(prog="python -m saddle_env.envs.throughput",
                                  description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=3.0, help="timing window per measurement")
     ap.add_argument("--num-envs", type=int, default=1024, help="the headline batch size")

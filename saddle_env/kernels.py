@@ -73,7 +73,7 @@ DYNAMICS_WIDTH = 7
 # The slots a row holds in use: every model but coulomb ends at its work slot (slot 5 at
 # most). The hot loops that copy the other models' rows stop there, with this constant as
 # their length (the environment's step, `integrators.integrate_h`): the slots coulomb
-# needs then cost those balls nothing (see `envs._step._step_range` for what they cost
+# needs then cost those balls nothing (see `envs.control_step._step_range` for what they cost
 # when they did).
 ROW_WIDTH = 6
 # A coulomb ball's phase, in the last slot: never integrated, switched by the integrator's

@@ -1,6 +1,6 @@
 """How long one lifetime curve takes, and what the integrator's tolerance buys.
 
-``python -m saddle_env.lifetimes.bench`` simulates the curve the validation asks to be fast
+``python -m saddle_env.lifetimes.timing`` simulates the curve the validation asks to be fast
 (15 speeds × 24 releases of a 19 mm steel ball on the lab's P2 saddle, each until the ball
 leaves or 120 s, the shipped calibration) at several relative tolerances, alternating them
 over rounds, and prints each tolerance's median time as a ratio to the model's own (rtol
@@ -28,8 +28,8 @@ SADDLE = (2.67, 2.51)  # the lab's P2, c₊ and c₋ [1/m]
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    """The parsed command line of ``python -m saddle_env.lifetimes.bench``."""
-    p = argparse.ArgumentParser(prog="python -m saddle_env.lifetimes.bench",
+    """The parsed command line of ``python -m saddle_env.lifetimes.timing``."""
+    p = argparse.ArgumentParser(prog="python -m saddle_env.lifetimes.timing",
                                 description="Time one lifetime curve (15 speeds × 24 releases) "
                                             "at several integrator tolerances.")
     p.add_argument("--rounds", type=int, default=3, help="alternating rounds (>= 1)")
@@ -72,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     write_text_atomically(args.out, json.dumps({
         "curve": f"{len(SPEEDS)} speeds x {args.releases} releases, 19 mm steel on P2, "
                  f"t_max {model.t_max:g} s", "rounds": args.rounds, "rows": rows,
-        "command": "python -m saddle_env.lifetimes.bench"}, indent=1) + "\n")
+        "command": "python -m saddle_env.lifetimes.timing"}, indent=1) + "\n")
     return 0
 
 

@@ -4,7 +4,7 @@ single environment and the vector environment both call it; nothing here re-impl
 the physics.
 
 Within a control step the motor ramps Ω linearly (finite Ω̇, so the Euler force is
-defined) or, driven by a voltage, relaxes exponentially to K·V (`_kernels.omega_at`),
+defined) or, driven by a voltage, relaxes exponentially to K·V (`kernels.omega_at`),
 optionally with a sinusoidal ripple, and an optional lab-fixed force acts. The engine may
 split a control period into segments (delays, `engine.DelayPlan`): it then calls the step
 once per segment with ``C_DT`` the segment's length and ``C_GIVEN`` set, the actions being
@@ -17,7 +17,7 @@ ball, and any lane whose step `integrate_h` would reject or end with an event, g
 `integrators.integrate_h`. Both give bit-identical results (tests/test_lockstep.py).
 
 The engine keeps each ball in rows of float arrays, read and written only through the slot
-names below (the physics state ``Y`` is `_kernels`'s, the method and the step settings
+names below (the physics state ``Y`` is `kernels`'s, the method and the step settings
 travel as the records `integrators.Tableau` and `integrators.StepControl`):
 
 | array | slot | holds |
@@ -57,7 +57,10 @@ from collections import namedtuple
 import numba as nb
 import numpy as np
 
-from .._kernels import (
+from ..compilation.jit import ir_inline, jit, jit_per_constant, python_entry
+from ..compilation.specialise import COULOMB_ON, ROLLING_ON, SLIPPING_ON, specialisable
+from ..integrators import EVENT_DETACH, STATUS_DETACH, StepControl, Tableau, integrate_h, reaches
+from ..kernels import (
     DRIVE_AMP,
     DRIVE_DECAY,
     DRIVE_DECAY_RATE,
@@ -78,9 +81,6 @@ from .._kernels import (
     rhs,
     state_from_velocity,
 )
-from ..compilation.jit import ir_inline, jit, jit_per_constant, python_entry
-from ..compilation.specialise import COULOMB_ON, ROLLING_ON, SLIPPING_ON, specialisable
-from ..integrators import EVENT_DETACH, STATUS_DETACH, StepControl, Tableau, integrate_h, reaches
 from ..lockstep import (
     BLOCK_WIDTH,
     LANES,
@@ -327,7 +327,7 @@ def _carve(buf, ibuf, stages, dt):
 def _load(i, width, P, scales, Y, balls, noise, record):
     """Copy ball i's rows into the thread's private record, so the per-ball work touches
     only the thread's own memory (the shared arrays are read and written once per ball).
-    ``width``: the state slots copied, a constant at every call (`_kernels.ROW_WIDTH`, or
+    ``width``: the state slots copied, a constant at every call (`kernels.ROW_WIDTH`, or
     STATE_WIDTH for a coulomb ball)."""
     p, scale, y, ball, nz, ob, o = record
     for k in range(PARAM_WIDTH):
@@ -492,7 +492,7 @@ def _step_range_scalar(lo, hi, models, P, scales, Y, balls, cfg, actions, active
 
 
 # `_step_range`, `_step_block` and `_integrate` are typed into `step_serial`
-# (`_kernels.ir_inline`): compiled on their own, each was one more module holding all of the
+# (`kernels.ir_inline`): compiled on their own, each was one more module holding all of the
 # integrator's code, optimised and turned into machine code again (docs/coldstart.md).
 # `step_parallel` calls `_step_range` compiled on its own: numba's analysis of the reduction
 # in its parallel loop fails on the inlined body ("unexpected cycle in lookup()").

@@ -8,12 +8,17 @@ import numpy as np
 import pytest
 
 from saddle_env import OmegaProfile, Scene, initial_state, simulate, simulate_batch
-from saddle_env import _kernels as K
+from saddle_env import kernels as K
 from saddle_env.accuracy import AccuracyWarning, assess, check_tol, choose, jacobi_drift
-from saddle_env.bench import main as bench_main
-from saddle_env.bench.core import Case
-from saddle_env.bench.peer import PeerModel
-from saddle_env.bench.report import cheapest_meeting, interpolated_cost, read_rows, summarize
+from saddle_env.workprecision import main as bench_main
+from saddle_env.workprecision.core import Case
+from saddle_env.workprecision.peer import PeerModel
+from saddle_env.workprecision.report import (
+    cheapest_meeting,
+    interpolated_cost,
+    read_rows,
+    summarize,
+)
 
 
 # ----------------------------------------------------------------------------------------
@@ -107,7 +112,7 @@ def test_csv_rows_can_be_rerun(quick_run):
                if r["tier"] == "rolling" and r["method"] == "rk4")
     case = Case(a=row["a"], R=row["R"], omega=row["omega"], x0=row["x0"], y0=row["y0"],
                 t_end=row["t_end"], dt_out=row["dt_out"])
-    from saddle_env.bench.core import centre_xy, max_distance, reference
+    from saddle_env.workprecision.core import centre_xy, max_distance, reference
 
     sc = case.scene("rolling")
     with warnings.catch_warnings():
@@ -229,7 +234,7 @@ def test_blas_threads_are_one_within_the_block_and_the_callers_after():
     """The fit pins BLAS to one thread while it runs (a threaded OpenBLAS waking its workers
     on a busy machine made its SVDs 40x slower) and gives a program that called it its own
     thread count back."""
-    from saddle_env.bench.blas import _thread_controls, blas_threads
+    from saddle_env.workprecision.blas import _thread_controls, blas_threads
 
     def counts():
         return [int(get()) for _, _, get in _thread_controls() if get is not None]
