@@ -311,7 +311,10 @@ def test_no_module_is_over_900_lines():
                                        "saddle_env.coldstart.precompile"),
                                       ("saddle_env.compilation.profile",
                                        "saddle_env.coldstart.profile"),
-                                      ("saddle_env.files", "saddle_env.jobs.files")])
+                                      ("saddle_env.files", "saddle_env.jobs.files"),
+                                      ("saddle_env.bench", "saddle_env.workprecision"),
+                                      ("saddle_env._kernels", "saddle_env.kernels"),
+                                      ("saddle_env.envs._step", "saddle_env.envs.control_step")])
 def test_an_old_module_name_says_where_the_module_went(old, new):
     import importlib
     import importlib.util
