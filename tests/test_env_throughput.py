@@ -1,4 +1,5 @@
-"""The environment throughput benchmark writes its figures and rejects bad arguments."""
+"""The environment throughput measurement (``python -m saddle_env.envs.throughput``) writes its
+figures and rejects bad arguments."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import pytest
 from saddle_env.envs import throughput
 
 
-def test_benchmark_writes_json_csv_and_figure(tmp_path, capsys):
+def test_throughput_writes_json_csv_and_figure(tmp_path, capsys):
     out = tmp_path / "env"
     rc = throughput.main(["--seconds", "0.05", "--sizes", "4,8", "--num-envs", "8",
                          "--skip-cold", "--out", str(out)])
@@ -30,7 +31,7 @@ def test_benchmark_writes_json_csv_and_figure(tmp_path, capsys):
 
 @pytest.mark.parametrize("args", [["--seconds", "0"], ["--seconds", "nan"], ["--num-envs", "0"],
                                   ["--sizes", "16,x"], ["--sizes", "0,4"], ["--bogus"]])
-def test_benchmark_rejects_bad_arguments(args, capsys):
+def test_throughput_rejects_bad_arguments(args, capsys):
     with pytest.raises(SystemExit) as e:
         throughput.main(args)
     assert e.value.code == 2

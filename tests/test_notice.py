@@ -18,7 +18,8 @@ def _event(module, name="step_serial"):
 def test_a_long_compile_is_announced_once_with_its_name(caplog, monkeypatch):
     monkeypatch.setattr(_notice, "NOTICE_AFTER", 0.05)
     caplog.set_level(logging.INFO, logger="saddle_env")
-    outer, inner = _event("saddle_env.envs.control_step"), _event("saddle_env.integrators", "integrate_h")
+    outer = _event("saddle_env.envs.control_step")
+    inner = _event("saddle_env.integrators", "integrate_h")
     _notice._start(outer)
     _notice._start(inner)  # a callee compiled inside it: no second notice
     time.sleep(0.3)
