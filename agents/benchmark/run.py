@@ -258,7 +258,10 @@ def _train_recipe(level: Any, algo: Algo, seed: int, steps: int, work: Path,
         model = run_dir / "final_model.zip"
     # PPO learns whole rollouts, so it can pass the budget: the count the final model records
     steps_done = int(read_archive(run_dir / "final_model.zip").data["num_timesteps"])
-    return load_policy(model, level.config()), steps_done, settings.hyperparams_used
+    # the recipe the run trained with, as its config.json recorded it (the settings above are
+    # the command line's; train() resolves the recipe into its own frozen copy)
+    recipe = json.loads((run_dir / "config.json").read_text())["hyperparams_used"]
+    return load_policy(model, level.config()), steps_done, recipe
 
 
 def write_result(out: Path, result: dict[str, Any]) -> Path:
