@@ -22,6 +22,9 @@ def test_a_tiny_sac_run_is_split_into_its_pieces(tmp_path):
     assert rows["advantages (GAE)"]["calls"] == 0                     # off-policy: none
     assert sum(r["seconds"] for r in result["rows"]) == pytest.approx(result["wall"], abs=0.05)
     assert result["path"] == "sb3-sac" and result["total_timesteps"] >= 400
+    # the recipe and the counts the run resolved from it, as its config.json recorded them
+    assert result["n_envs"] == 4 and result["eval_freq"] == 200
+    assert result["hyperparams"]["batch_size"] == "32"
     md = P.markdown(result["rows"], result["wall"], "t")
     assert "| gradient updates |" in md
 

@@ -198,9 +198,10 @@ def _rllib_timers() -> Timers:
     return t
 
 
-def _timed_train(settings: Any, timers: Timers) -> tuple[float, int]:
+def _timed_train(settings: Any, timers: Timers) -> tuple[float, int, dict[str, Any]]:
     """Wall seconds of `agents.training.trainer.train` (no closing comparison) under ``timers``,
-    and the env steps it trained (whole rollouts or iterations: at least the budget)."""
+    the env steps it trained (whole rollouts or iterations: at least the budget) and the
+    settings the run resolved and recorded (its ``config.json``: the recipe's counts)."""
     from ..training.run_report import read_curve
     from ..training.trainer import train
 
@@ -212,7 +213,8 @@ def _timed_train(settings: Any, timers: Timers) -> tuple[float, int]:
         timers.restore()
     curve = read_curve(run_dir)
     done = int(curve["timesteps"][-1]) if curve is not None else 0
-    return wall, max(done, int(settings.total_timesteps))
+    recorded = json.loads((run_dir / "config.json").read_text())
+    return wall, max(done, int(settings.total_timesteps)), recorded
 
 
 def profile_training(env_id: str, total_timesteps: int, eval_freq: int | None,
@@ -234,10 +236,10 @@ def profile_training(env_id: str, total_timesteps: int, eval_freq: int | None,
                                  progress_bar=False, compare_episodes=0).validate()
         timers = (_rllib_timers() if backend == "rllib" else _sbx_timers()
                   if backend == "sbx" else _sb3_timers(algo))
-        wall, steps = _timed_train(settings, timers)
-        used = dict(settings.hyperparams_used)
+        wall, steps, recorded = _timed_train(settings, timers)
+        used = dict(recorded["hyperparams_used"])
     return {"path": f"{backend}-{algo}", "env_id": env_id, "total_timesteps": steps,
-            "eval_freq": settings.eval_freq, "n_envs": settings.n_envs,
+            "eval_freq": recorded["eval_freq"], "n_envs": recorded["n_envs"],
             "hyperparams": {k: str(v) for k, v in used.items()},
             "wall": wall, "steps_per_s": steps / wall, "rows": timers.table(wall)}
 
