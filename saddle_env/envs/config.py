@@ -52,6 +52,11 @@ def _range(name: str, value: object, lo: float = -math.inf) -> tuple[float, floa
     return low, high
 
 
+# Integrator steps in one control step before it counts as failed (the engine's limit); a
+# fixed substep must fit a control period within it.
+MAX_STEPS_PER_CONTROL_STEP = 100_000
+
+
 @dataclass(frozen=True)
 class EnvConfig:
     """Options of `SaddleTrapEnv` (all are constructor keywords of the environment).
@@ -120,7 +125,8 @@ class EnvConfig:
     and ``ripple_freq`` [rad/s], a sinusoidal ripple of the motor's speed with random phase.
 
     Integration: ``method`` (a name in ``saddle_env.METHODS``), ``rtol`` for adaptive
-    methods or ``substep`` [s] for fixed steps.
+    methods or ``substep`` [s] for fixed steps (at least ``control_period`` / 100,000: the
+    integrator's step limit in one control step).
     """
 
     # The scene's fields (`SCENE_FIELDS`), with the Scene's own defaults and checks (the
@@ -315,6 +321,11 @@ class EnvConfig:
             raise ValueError(f"method must be one of {sorted(METHODS)}, got {self.method!r}")
         if self.substep is not None:
             self._set("substep", _positive("substep", self.substep))
+            shortest = self.control_period / MAX_STEPS_PER_CONTROL_STEP
+            if self.substep < shortest:  # every control step would hit the step limit
+                raise ValueError(f"substep must be >= control_period / "
+                                 f"{MAX_STEPS_PER_CONTROL_STEP:,} = {shortest:.3g} s, "
+                                 f"got {self.substep!r}")
             if self.rtol is not None and METHODS[self.method].adaptive:
                 self._set("rtol", None)
         elif not METHODS[self.method].adaptive:

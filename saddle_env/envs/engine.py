@@ -32,7 +32,7 @@ from ..integrators import (
 from ..scene import N_PARAMS, P_RESIST, Scene
 from ..simulate import SimulationError, default_max_step
 from . import control_step as S
-from .config import EnvConfig
+from .config import MAX_STEPS_PER_CONTROL_STEP, EnvConfig
 from .observation import VELOCITY_SCALE, layout
 
 
@@ -82,7 +82,6 @@ def _whole_and_fraction(delay: float, period: float) -> tuple[int, float]:
 
 
 RESET_OPTION_KEYS = ("x", "y", "vx", "vy", "omega", "R", "a", "contact", "start", "spin_normal")
-MAX_STEPS_PER_CONTROL_STEP = 100_000  # integrator steps before a control step counts as failed
 
 
 class ResetOptions(TypedDict, total=False):
