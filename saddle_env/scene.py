@@ -43,12 +43,21 @@ def _finite_number(name: str, value: object) -> float:
     return value
 
 
-def _non_negative(name: str, value: object, unit: str) -> float:
-    """A finite number >= 0 as a float, or a ValueError that names ``name`` and its unit."""
+def _non_negative(name: str, value: object, unit: str, most: float = math.inf) -> float:
+    """A finite number in [0, most] as a float, or a ValueError that names ``name``, its
+    unit and its range."""
     v = _finite_number(name, value)
     if v < 0:
         raise ValueError(f"{name} must be >= 0 ({unit}), got {v}")
+    if v > most:
+        raise ValueError(f"{name} must satisfy 0 <= {name} <= {most:g} ({unit}), got {v:g}")
     return v
+
+
+# The largest dissipation rate a scene takes [1/s; 1/m for the quadratic drag, a rate at
+# 1 m/s]: a relaxation within a microsecond is a constraint, not a friction, and much faster
+# ones leave no step the integrator can take (overflow, or the step limit every step).
+MAX_RATE = 1e6
 
 
 @dataclass(frozen=True)
@@ -91,7 +100,8 @@ class Scene:
     drilling_friction : float
         Rate [1/s] at which friction about the contact normal relaxes the spin about the
         normal toward the saddle's own rate (the paper's ω_z → 0). Acts on rolling balls only
-        (a slipping ball has no friction by definition). ``0`` disables it.
+        (a slipping ball has no friction by definition). ``0`` disables it. At most
+        ``MAX_RATE`` (1e6), as ``drag_linear``, ``drag_quadratic`` and ``surface_drag`` are.
     drag_linear : float
         Linear air drag [1/s]: a force per unit mass ``-drag_linear · u`` on the ball's
         centre, where ``u`` is the centre's velocity relative to still air in the laboratory.
@@ -167,11 +177,11 @@ class Scene:
         rim = float(rim)
         if not (rim > 0) or math.isnan(rim):
             raise ValueError(f"rim_radius must be > 0 (metres, or math.inf), got {rim}")
-        drill = _non_negative("drilling_friction", self.drilling_friction, "1/s")
-        drag_linear = _non_negative("drag_linear", self.drag_linear, "1/s")
-        drag_quadratic = _non_negative("drag_quadratic", self.drag_quadratic, "1/m")
+        drill = _non_negative("drilling_friction", self.drilling_friction, "1/s", MAX_RATE)
+        drag_linear = _non_negative("drag_linear", self.drag_linear, "1/s", MAX_RATE)
+        drag_quadratic = _non_negative("drag_quadratic", self.drag_quadratic, "1/m", MAX_RATE)
         resist = _non_negative("rolling_resistance", self.rolling_resistance, "dimensionless")
-        surface_drag = _non_negative("surface_drag", self.surface_drag, "1/s")
+        surface_drag = _non_negative("surface_drag", self.surface_drag, "1/s", MAX_RATE)
         if not isinstance(self.rim_shape, str) or self.rim_shape not in RIM_SHAPES:
             raise ValueError(f"rim_shape must be one of {RIM_SHAPES}, got {self.rim_shape!r}")
         tilt = _finite_number("tilt", self.tilt)

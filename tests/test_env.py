@@ -307,6 +307,8 @@ def test_out_of_range_actions_are_clipped():
     # a substep that no control step could finish within the step limit (hypothesis found
     # 9e-98 s failing mid-step with "non-finite")
     (dict(substep=8.97e-98), "substep must be >= control_period / 100,000"),
+    (dict(drilling_friction=1e308), "drilling_friction must satisfy"),  # overflowed mid-step
+    (dict(drag_quadratic=1e7), "drag_quadratic must satisfy"),
     (dict(init_offset=0.2), "init_offset"),
     (dict(init_speed=10.0), "init_speed must be <= omega_max"),
     (dict(wind=1.0), "unknown SaddleTrap option"),
