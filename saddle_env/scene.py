@@ -58,6 +58,7 @@ def _non_negative(name: str, value: object, unit: str, most: float = math.inf) -
 # 1 m/s]: a relaxation within a microsecond is a constraint, not a friction, and much faster
 # ones leave no step the integrator can take (overflow, or the step limit every step).
 MAX_RATE = 1e6
+MAX_G = 1000.0  # [m/s^2] about 100 Earth gravities
 
 
 @dataclass(frozen=True)
@@ -168,9 +169,7 @@ class Scene:
         alpha = _finite_number("alpha", self.alpha)
         if not 0 < alpha <= 1:
             raise ValueError(f"alpha must satisfy 0 < alpha <= 1 (I = alpha m R^2), got {alpha}")
-        g = _finite_number("g", self.g)
-        if g < 0:
-            raise ValueError(f"g must be >= 0 (m/s^2), got {g}")
+        g = _non_negative("g", self.g, "m/s^2", MAX_G)
         rim = self.rim_radius
         if isinstance(rim, bool) or not isinstance(rim, (int, float, np.integer, np.floating)):
             raise ValueError(f"rim_radius must be a real number, got {rim!r}")
@@ -180,7 +179,8 @@ class Scene:
         drill = _non_negative("drilling_friction", self.drilling_friction, "1/s", MAX_RATE)
         drag_linear = _non_negative("drag_linear", self.drag_linear, "1/s", MAX_RATE)
         drag_quadratic = _non_negative("drag_quadratic", self.drag_quadratic, "1/m", MAX_RATE)
-        resist = _non_negative("rolling_resistance", self.rolling_resistance, "dimensionless")
+        resist = _non_negative("rolling_resistance", self.rolling_resistance, "dimensionless",
+                               1.0)  # a torque beyond R N: no ball rolls against that
         surface_drag = _non_negative("surface_drag", self.surface_drag, "1/s", MAX_RATE)
         if not isinstance(self.rim_shape, str) or self.rim_shape not in RIM_SHAPES:
             raise ValueError(f"rim_shape must be one of {RIM_SHAPES}, got {self.rim_shape!r}")

@@ -309,6 +309,12 @@ def test_out_of_range_actions_are_clipped():
     (dict(substep=8.97e-98), "substep must be >= control_period / 100,000"),
     (dict(drilling_friction=1e308), "drilling_friction must satisfy"),  # overflowed mid-step
     (dict(drag_quadratic=1e7), "drag_quadratic must satisfy"),
+    # each of these used to overflow in the first step instead (a sweep of every option at 1e30)
+    (dict(g=1e30), "g must satisfy"),
+    (dict(rolling_resistance=2.0), "rolling_resistance must satisfy"),
+    (dict(omega_max=1e30), "omega_max must be <= 1000"),
+    (dict(air_force=1e30), "air_force must be <= 1000"),
+    (dict(ripple_amp=1e30), "ripple_amp must be <= omega_max"),
     (dict(init_offset=0.2), "init_offset"),
     (dict(init_speed=10.0), "init_speed must be <= omega_max"),
     (dict(wind=1.0), "unknown SaddleTrap option"),

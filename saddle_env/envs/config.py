@@ -55,6 +55,10 @@ def _range(name: str, value: object, lo: float = -math.inf) -> tuple[float, floa
 # Integrator steps in one control step before it counts as failed (the engine's limit); a
 # fixed substep must fit a control period within it.
 MAX_STEPS_PER_CONTROL_STEP = 100_000
+# Upper ends of options that only have a lower one in physics: beyond them the integration
+# overflows instead of answering.
+MAX_OMEGA = 1000.0  # [rad/s] about 160 revolutions per second
+MAX_AIR_FORCE = 1000.0  # [m/s^2] about 100 g
 
 
 @dataclass(frozen=True)
@@ -229,6 +233,9 @@ class EnvConfig:
             raise ValueError(f"control_period must be <= 1 s, got {self.control_period}")
         self._set("max_accel", _positive("max_accel", self.max_accel))
         self._set("omega_max", _positive("omega_max", self.omega_max))
+        if self.omega_max > MAX_OMEGA:
+            raise ValueError(f"omega_max must be <= {MAX_OMEGA:g} rad/s (a saddle far past any "
+                             f"detachment speed), got {self.omega_max:g}")
         if self.action_mode not in ACTION_MODES:
             raise ValueError(f"action_mode must be one of {ACTION_MODES}, got {self.action_mode!r}")
         for name in ("voltage_max", "motor_gain", "motor_tau"):
@@ -268,6 +275,12 @@ class EnvConfig:
                      "air_force", "ripple_amp", "ripple_freq", "position_quantum"):
             self._set(name, _positive(name, getattr(self, name), allow_zero=True))
         self._set("air_force_tau", _positive("air_force_tau", self.air_force_tau))
+        if self.air_force > MAX_AIR_FORCE:
+            raise ValueError(f"air_force must be <= {MAX_AIR_FORCE:g} m/s^2 (a draught, not a "
+                             f"blast), got {self.air_force:g}")
+        if self.ripple_amp > self.omega_max:
+            raise ValueError(f"ripple_amp must be <= omega_max = {self.omega_max:g} rad/s, "
+                             f"got {self.ripple_amp:g}")
         if self.init_speed > self.max_start_speed:
             raise ValueError(f"init_speed must be <= omega_max * rim_radius = "
                              f"{self.max_start_speed:g} m/s, got {self.init_speed}")
