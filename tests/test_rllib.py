@@ -271,13 +271,14 @@ def test_a_killed_env_runner_is_replaced_and_training_goes_on(tmp_path):
 
     hyper = tmp_path / "small.yml"
     hyper.write_text(SMALL)
+    recipe = load_hyperparams("ppo", "SaddleTrap-v0", hyper)
     settings = TrainSettings(backend="rllib", env_id="SaddleTrap-v0", num_env_runners=2,
-                             num_cpus=2, hyperparams=str(hyper), n_envs=4).validate()
+                             num_cpus=2, hyperparams=str(hyper), n_envs=4
+                             ).validate().with_recipe(recipe)
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     rb.init_ray(None, 2)
     try:
-        algo = rb.build_config(settings, load_hyperparams("ppo", "SaddleTrap-v0", hyper)
-                               ).build_algo()
+        algo = rb.build_config(settings, recipe).build_algo()
         algo.train()
         before = rb.lifetime_steps(algo)
         weights = algo.learner_group.get_weights()
