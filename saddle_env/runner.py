@@ -757,9 +757,10 @@ class BatchResult:
     Attributes
     ----------
     t : (m,) output times.  state : (n, m, k) states padded to k = 5 (7 when the batch has a
-    coulomb ball); rows after a ball's last output are NaN.  n_out : (n,) outputs reached per
+    coulomb ball); rows after a ball's last output, and a ball's slots past its own state
+    (a rolling ball's in a batch padded to 7), are NaN.  n_out : (n,) outputs reached per
     ball.  status : (n,) STATUS_* codes.  t_final : (n,) time of each final state (event time
-    where one fired).  final_state : (n, k) state at t_final.  work : (n, m) work of the dissipative forces
+    where one fired).  final_state : (n, k) state at t_final, padded as ``state``.  work : (n, m) work of the dissipative forces
     per unit mass [J/kg] since t = 0 (`Trajectory.work`), NaN after a ball's last output.
     """
 
@@ -835,8 +836,13 @@ def run_batch_checked(inputs: BatchInputs, settings: Settings) -> BatchResult:
     in_threads(batch, n, *args, simulated_s=n * float(t_out[-1]))
     work = np.array([Y_out[i, :, sc.state_size] for i, sc in enumerate(scene_list)])
     width = padded_width(models)
-    return BatchResult(t_out, Y_out[..., :width], stats[:, 3].copy(), status, t_final,
-                       Y[:, :width], stats, settings.describe(), work)
+    state, final = Y_out[..., :width], Y[:, :width].copy()
+    for i, sc in enumerate(scene_list):
+        # a narrower ball's slots past its own state hold the kernel's work and scratch
+        state[i, :, sc.state_size:] = np.nan
+        final[i, sc.state_size:] = np.nan
+    return BatchResult(t_out, state, stats[:, 3].copy(), status, t_final, final, stats,
+                       settings.describe(), work)
 
 
 def check_angles(angle: object, n: int) -> np.ndarray:

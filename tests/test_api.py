@@ -63,6 +63,21 @@ def test_batch_mixes_contact_models():
         assert np.array_equal(batch.state[i, : len(single.t), : sc.state_size], single.state)
 
 
+def test_a_narrower_balls_padding_in_a_mixed_batch_is_nan_not_the_kernels_scratch():
+    # A dissipating rolling ball beside a Coulomb ball: the batch is 7 wide, the rolling
+    # ball's state 5; its slots 5 and 6 (where the kernel keeps the work and scratch) read
+    # NaN, in the outputs and in the final state of a ball stopped by an event.
+    rolling, coulomb = Scene(contact="rolling", drag_linear=0.5), Scene(contact="coulomb", mu=0.05)
+    states = np.zeros((2, 7))
+    states[0, :5] = initial_state(rolling, 0.05, 0.0)
+    states[1] = initial_state(coulomb, 0.01, 0.0)
+    batch = simulate_batch([rolling, coulomb], states, 3.0, omega=5.0, dt_out=0.1)
+    assert batch.event(0) is not None and np.any(batch.work[0, 1:batch.n_out[0]] != 0.0)
+    assert np.all(np.isnan(batch.state[0, :, 5:])) and np.all(np.isnan(batch.final_state[0, 5:]))
+    assert np.all(np.isfinite(batch.final_state[0, :5]))
+    assert np.all(np.isfinite(batch.final_state[1])) and np.all(np.isfinite(batch.state[1, 0]))
+
+
 def test_repeated_runs_are_bit_identical():
     sc = Scene()
     s = initial_state(sc, 0.01, 0.002)
