@@ -84,3 +84,22 @@ def test_the_sb3_batch_env_takes_the_checked_config_without_checking_it_again(mo
     # options alone are still checked, with the config's own message
     with pytest.raises(ValueError, match="obs_frame"):
         SaddleTrapSB3VecEnv(num_envs=1, obs_frame="sideways")
+
+
+def test_a_checkpoints_recorded_settings_carry_the_recipe_it_trained_with(tmp_path):
+    from agents.training.runs import recorded_settings
+
+    run = TrainSettings(env_id="SaddleTrap-v0", log_dir=str(tmp_path), run_name="r",
+                        total_timesteps=4000).validate().with_recipe({"learning_rate": 1e-3,
+                                                                     "n_envs": 8})
+    folder = run.open_run_folder()
+    (folder / "final_model.zip").write_bytes(b"")
+    recorded = recorded_settings(folder / "final_model.zip")
+    assert recorded.hyperparams_used == {"learning_rate": 1e-3, "n_envs": 8}
+    assert (recorded.n_envs, recorded.total_timesteps) == (8, 4000)
+    # a config.json from elsewhere whose recipe is not a mapping is refused by name
+    (folder / "config.json").write_text((folder / "config.json").read_text().replace(
+        '"hyperparams_used": {', '"hyperparams_used": [{').replace('"n_envs": 8\n  }',
+                                                                    '"n_envs": 8\n  }]'))
+    with pytest.raises(ValueError, match="hyperparams_used"):
+        recorded_settings(folder / "final_model.zip")

@@ -175,9 +175,9 @@ def test_shorter_budgets_with_reselection_pick_the_best_of_the_top_few_on_fresh_
         "100,1.0,5.0,1.0\n200,2.0,9.0,2.0\n300,3.0,8.0,2.5\n400,4.0,7.0,1.5\n500,5.0,9.5,3.0\n")
     for steps in (100, 200, 300, 400, 500):
         (run / "checkpoints" / f"checkpoint_{steps}_steps.zip").write_bytes(b"")
-    settings = runs.TrainSettings(env_id="SaddleTrap-v0", eval_episodes=4,
-                                  max_episode_steps=10).validate()
-    monkeypatch.setattr(runs, "settings_for_resume", lambda path: settings)
+    settings = runs.TrainSettings(env_id="SaddleTrap-v0", eval_episodes=4, max_episode_steps=10,
+                                  log_dir=str(tmp_path), run_name="r_seed0").validate()
+    settings.open_run_folder()  # the run's config.json, which the reselection reads
     fresh = {200: 6.0, 300: 7.5, 400: 7.0}
     scored = []
 

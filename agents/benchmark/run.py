@@ -241,6 +241,7 @@ def _train_recipe(level: Any, algo: Algo, seed: int, steps: int, work: Path,
     raises KeyboardInterrupt (no result)."""
     from ..evaluation.model_files import read_archive
     from ..evaluation.policies import load_policy
+    from ..training.runs import recorded_settings
     from ..training.trainer import TrainSettings, train
 
     settings = TrainSettings(algo="ppo", env_id=level.id, seed=seed, total_timesteps=steps,
@@ -260,7 +261,7 @@ def _train_recipe(level: Any, algo: Algo, seed: int, steps: int, work: Path,
     steps_done = int(read_archive(run_dir / "final_model.zip").data["num_timesteps"])
     # the recipe the run trained with, as its config.json recorded it (the settings above are
     # the command line's; train() resolves the recipe into its own frozen copy)
-    recipe = json.loads((run_dir / "config.json").read_text())["hyperparams_used"]
+    recipe = dict(recorded_settings(model).hyperparams_used)
     return load_policy(model, level.config()), steps_done, recipe
 
 

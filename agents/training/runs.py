@@ -241,8 +241,14 @@ def settings_for_resume(checkpoint: str | Path, total_timesteps: int | None = No
 
 def recorded_settings(checkpoint: str | Path) -> RunSettings:
     """The settings a checkpoint's run trained with, from its ``config.json``, which
-    recorded every count the recipe gave (the recipe itself is not re-read)."""
-    return settings_for_resume(checkpoint).with_recipe({})
+    recorded every count the recipe gave and the recipe itself (``hyperparams_used``; the
+    recipe file is not re-read: it may have changed since)."""
+    config = run_folder_of(checkpoint) / "config.json"
+    recipe = json.loads(config.read_text()).get("hyperparams_used", {})
+    if not isinstance(recipe, dict) or not all(isinstance(k, str) for k in recipe):
+        raise ValueError(f"{config}: hyperparams_used must be a mapping of names to values, "
+                         f"got {type(recipe).__name__}")
+    return settings_for_resume(checkpoint).with_recipe(recipe)
 
 
 class Stop(BaseException):
