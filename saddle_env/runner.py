@@ -760,8 +760,9 @@ class BatchResult:
     coulomb ball); rows after a ball's last output, and a ball's slots past its own state
     (a rolling ball's in a batch padded to 7), are NaN.  n_out : (n,) outputs reached per
     ball.  status : (n,) STATUS_* codes.  t_final : (n,) time of each final state (event time
-    where one fired).  final_state : (n, k) state at t_final, padded as ``state``.  work : (n, m) work of the dissipative forces
-    per unit mass [J/kg] since t = 0 (`Trajectory.work`), NaN after a ball's last output.
+    where one fired).  final_state : (n, k) state at t_final, padded as ``state``.
+    work : (n, m) work of the dissipative forces per unit mass [J/kg] since t = 0
+    (`Trajectory.work`), NaN after a ball's last output.
     """
 
     t: np.ndarray

@@ -108,6 +108,32 @@ def test_a_level_rigid_ball_stays_trapped_above_the_threshold():
     assert np.all(pred.lifetimes == 5.0)
 
 
+
+def test_a_speed_error_lifts_some_releases_over_the_threshold_and_moves_no_other_draw():
+    # A droplet on a level symmetric saddle, stated 2 % below the mass point's lower band
+    # edge: at the stated speed every release falls off; with the true speed spread by 5 %,
+    # the releases drawn above the edge (about a third) stay the whole t_max.
+    from saddle_env.lifetimes.model import release_times
+    from saddle_env.linear import mass_point_band
+
+    edge_rps = mass_point_band(1 / 2.5, 1 / 2.5, 9.81)[0] / (2 * math.pi)
+    exact = LabModel(t_max=10.0)
+    spread = exact.with_(speed_spread=0.05)
+    stated = np.array([0.98 * edge_rps])
+    at_stated = release_times(exact, 2.5, 2.5, "ln2", None, stated, 40, 7)
+    blurred = release_times(spread, 2.5, 2.5, "ln2", None, stated, 40, 7)
+    assert np.all(at_stated < 10.0)
+    assert 5 <= np.sum(blurred == 10.0) <= 25
+    # speed_spread = 0 is the model without it: the release points and kicks do not move
+    assert np.array_equal(at_stated, release_times(LabModel(t_max=10.0, speed_spread=0.0),
+                                                   2.5, 2.5, "ln2", None, stated, 40, 7))
+
+
+@pytest.mark.parametrize("value", [-0.01, 0.25, math.nan])
+def test_a_speed_spread_out_of_range_is_named(value):
+    with pytest.raises(ValueError, match="speed_spread"):
+        LabModel(speed_spread=value)
+
 @pytest.mark.parametrize("argv, flag", [
     (["--c-plus", "0", "--c-minus", "2", "--object", "ln2", "--rps", "1"], "--c-plus"),
     (["--c-plus", "2", "--c-minus", "-1", "--object", "ln2", "--rps", "1"], "--c-minus"),

@@ -8,7 +8,7 @@
   (σ_lab² + σ_sim² + 0.1²), where σ_lab and σ_sim are the standard errors of the log of the
   lab's and the simulation's mean, and 0.1 stands for the model's own error (a tenth of a
   lifetime). A steel ball's rolling resistance and a droplet's surface drag and evaporation
-  are its own; the tilt and the launcher's spread are shared by all series;
+  are its own; the tilt, the launcher's spread and the speed's are shared by all series;
 * gives **intervals** by bootstrap: each speed's releases are drawn again from the lab's and
   the fit repeated (the 2.5th and 97.5th percentiles of the grid values chosen);
 * checks the **prediction** series by series (leave-one-series-out): calibrated on the others,
@@ -47,9 +47,9 @@ COMMAND = "python -m saddle_env.lifetimes.fit --out runs/lifetimes --ship"
 
 # The restricted models of the validation table: which grid values each may use.
 VARIANTS: dict[str, dict[str, Any]] = {
-    "rigid ball": dict(tilt=(0.0,), own=False, evaporation=(math.inf,)),
-    "+ tilt": dict(own=False, evaporation=(math.inf,)),
-    "+ dissipation": dict(tilt=(0.0,)),
+    "rigid ball": dict(tilt=(0.0,), speed_spread=(0.0,), own=False, evaporation=(math.inf,)),
+    "+ tilt, speed error": dict(own=False, evaporation=(math.inf,)),
+    "+ dissipation": dict(tilt=(0.0,), speed_spread=(0.0,)),
     "calibrated": {},
 }
 
@@ -61,6 +61,7 @@ class Choice:
     tilt: float
     launch_spread: float
     launch_speed_spread: float
+    speed_spread: float
     rolling_resistance: float
     rolling_drag: float
     film_drag: float
@@ -73,7 +74,7 @@ class Choice:
         finite = math.isfinite(self.evaporation_mean)
         return LabModel(tilt=self.tilt, launch_spread=self.launch_spread,
                         launch_speed_spread=self.launch_speed_spread,
-                        rolling_resistance=self.rolling_resistance,
+                        speed_spread=self.speed_spread, rolling_resistance=self.rolling_resistance,
                         rolling_drag=self.rolling_drag, film_drag=self.film_drag,
                         evaporation_mean=self.evaporation_mean,
                         evaporation_spread=self.evaporation_fraction * self.evaporation_mean
@@ -83,7 +84,8 @@ class Choice:
         """The grid point of the object ``obj`` ("steel" or a liquid-nitrogen drop)."""
         own = ((self.rolling_resistance, self.rolling_drag) if obj == "steel"
                else (self.film_drag, 0.0))
-        return (self.tilt, self.launch_spread, self.launch_speed_spread, *own)
+        return (self.tilt, self.launch_spread, self.launch_speed_spread, self.speed_spread,
+                *own)
 
 
 def _evaporations(allowed: dict) -> list[tuple[float, float]]:
@@ -154,7 +156,8 @@ class Fitter:
 
         best: Choice | None = None
         for shared in G.shared_points():
-            if shared[0] not in allowed.get("tilt", G.TILTS):
+            if (shared[0] not in allowed.get("tilt", G.TILTS)
+                    or shared[3] not in allowed.get("speed_spread", G.SPEED_SPREADS)):
                 continue
             total, parts = 0.0, {"steel": (0.0, 0.0, math.inf, 0.0),
                                  "ln2": (0.0, 0.0, math.inf, 0.0)}
@@ -248,7 +251,7 @@ def _interval(values: list[float]) -> list[float | None]:
 def calibration_record(fitter: Fitter, best: Choice, draws: list[Choice], releases: int,
                        seed: int) -> dict[str, object]:
     """The calibration as ``calibration.json`` holds it: the best fit and bootstrap intervals."""
-    names = ("tilt", "launch_spread", "launch_speed_spread", "rolling_resistance",
+    names = ("tilt", "launch_spread", "launch_speed_spread", "speed_spread", "rolling_resistance",
              "rolling_drag", "film_drag", "evaporation_mean")
     intervals = {n: _interval([getattr(c, n) for c in draws]) for n in names} if draws else {}
     if draws:
@@ -265,7 +268,7 @@ def calibration_record(fitter: Fitter, best: Choice, draws: list[Choice], releas
         "series": [s.name for s in fitter.series],
         "releases_per_speed": releases, "seed": seed, "bootstrap_draws": len(draws),
         "grid": {"tilt": G.TILTS, "launch_spread": G.LAUNCH_SPREADS,
-                 "launch_speed_spread": G.LAUNCH_SPEED_SPREADS,
+                 "launch_speed_spread": G.LAUNCH_SPEED_SPREADS, "speed_spread": G.SPEED_SPREADS,
                  "rolling_resistance": G.ROLLING_RESISTANCES, "rolling_drag": G.ROLLING_DRAGS,
                  "film_drag": G.FILM_DRAGS,
                  "evaporation_mean": [m if math.isfinite(m) else None

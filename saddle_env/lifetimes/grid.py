@@ -22,26 +22,28 @@ from ..jobs.signals import sigterm_interrupts
 from .data import Series
 from .model import LabModel, release_times
 
-# The grid [SI units]. A point is (tilt, launch spread, launch speed spread) shared by every
-# series, then the object's own dissipation: a steel ball's (rolling resistance, rolling
+# The grid [SI units]. A point is (tilt, launch spread, launch speed spread, speed spread)
+# shared by every series, then the object's own dissipation: a steel ball's (rolling resistance, rolling
 # drag), a droplet's (film drag, 0). Zeros included, so the rigid-ball model and each
 # effect alone are points of it. A droplet's evaporation (mean [s], spread as a fraction of
 # the mean) is chosen afterwards, without simulating again.
 TILTS = (0.0, 1e-3, 2e-3, 3e-3, 4e-3)
 LAUNCH_SPREADS = (5e-4, 1e-3, 2e-3, 3e-3)
 LAUNCH_SPEED_SPREADS = (0.0, 0.01, 0.02)
+SPEED_SPREADS = (0.0, 0.01, 0.02, 0.03, 0.05)  # fractions of the stated speed
 ROLLING_RESISTANCES = (0.0, 5e-4, 1e-3, 1.5e-3)
 ROLLING_DRAGS = (0.0, 0.03, 0.05, 0.07, 0.1)
 FILM_DRAGS = (0.0, 0.2, 0.3, 0.4, 0.5, 0.6)
 EVAPORATION_MEANS = (math.inf, 12.0, 15.0, 18.0, 21.0, 24.0, 28.0, 35.0)
 EVAPORATION_SPREADS = (0.15, 0.3, 0.45)  # fractions of the mean
 
-Point = tuple[float, float, float, float, float]
+Point = tuple[float, float, float, float, float, float]
 
 
-def shared_points() -> list[tuple[float, float, float]]:
-    """The grid of the parameters every object shares (tilt and the launcher's spreads)."""
-    return list(itertools.product(TILTS, LAUNCH_SPREADS, LAUNCH_SPEED_SPREADS))
+def shared_points() -> list[tuple[float, float, float, float]]:
+    """The grid of the parameters every object shares (the tilt, the launcher's spreads and
+    the speed's)."""
+    return list(itertools.product(TILTS, LAUNCH_SPREADS, LAUNCH_SPEED_SPREADS, SPEED_SPREADS))
 
 
 def own_points(obj: str) -> list[tuple[float, float]]:
@@ -58,8 +60,9 @@ def grid_points(obj: str) -> list[Point]:
 
 def point_model(obj: str, point: Point) -> LabModel:
     """The model of a grid point (without evaporation)."""
-    tilt, spread, speed_spread, first, second = point
-    common = dict(tilt=tilt, launch_spread=spread, launch_speed_spread=speed_spread)
+    tilt, spread, launch_speed_spread, speed_spread, first, second = point
+    common = dict(tilt=tilt, launch_spread=spread, launch_speed_spread=launch_speed_spread,
+                  speed_spread=speed_spread)
     if obj == "steel":
         return LabModel(rolling_resistance=first, rolling_drag=second, **common)
     return LabModel(film_drag=first, **common)

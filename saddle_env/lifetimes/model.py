@@ -1,8 +1,8 @@
 """A real saddle's releases, simulated: the lab's objects, its launcher and its imperfections.
 
 `LabModel` holds what a real rig adds to the rigid-ball model, one frozen, validated
-dataclass: the saddle's tilt, its square outline, the launcher's spread, the steel ball's
-rolling resistance and the droplet's vapour-film drag and evaporation. `release_times`
+dataclass: the saddle's tilt, its square outline, the launcher's spread, the drive's speed
+error, the steel ball's rolling resistance and the droplet's vapour-film drag and evaporation. `release_times`
 simulates releases like the lab's (at rest in the laboratory near the centre, at a random
 turn of the saddle) until each ball leaves the saddle; `predict_lifetimes` turns them into
 mean trapping times, with a droplet's evaporation on top.
@@ -31,6 +31,9 @@ MAX_RPS = 20.0  # revolutions per second: far above any saddle's detachment spee
 STEEL_ALPHA = 0.4  # a solid ball, I = 2/5 m R²
 REFERENCE_DIAMETER_MM = 19.0  # the ball `LabModel.rolling_drag` is given for
 CALIBRATION_FILE = "calibration.json"
+# The drive's speed error, as a fraction: 0.2 keeps every drawn speed positive (5 standard
+# deviations) and is far beyond any rig a speed is quoted for.
+MAX_SPEED_SPREAD = 0.2
 
 
 @dataclass(frozen=True)
@@ -57,6 +60,11 @@ class LabModel:
     launch_speed_spread : float
         Standard deviation [m/s] of each horizontal component of the release velocity,
         about rest in the laboratory; the ball does not spin in the laboratory.
+    speed_spread : float
+        Relative standard deviation of the saddle's true speed about the stated one, drawn
+        once per release (a speed set by hand and read off a meter is known to a percent or
+        so): a release at a stated Ω turns at Ω·(1 + speed_spread·z), z standard normal,
+        at most 0.2.
     evaporation_mean, evaporation_spread : float
         A droplet's life before it has evaporated [s]: normal with this mean and standard
         deviation (drawn again below 0.1 s). Its trapping time is the shorter of that and
@@ -77,6 +85,7 @@ class LabModel:
     film_drag: float = 0.0
     launch_spread: float = 1e-3
     launch_speed_spread: float = 0.0
+    speed_spread: float = 0.0
     evaporation_mean: float = math.inf
     evaporation_spread: float = 0.0
     half_width: float = 0.08
@@ -91,6 +100,10 @@ class LabModel:
             if math.isnan(value) or value < 0:
                 raise ValueError(f"{f.name} must be >= 0, got {value}")
             object.__setattr__(self, f.name, value)
+        if self.speed_spread > MAX_SPEED_SPREAD:
+            raise ValueError(f"speed_spread must satisfy 0 <= speed_spread <= "
+                             f"{MAX_SPEED_SPREAD} (a fraction of the speed), got "
+                             f"{self.speed_spread:g}")
         if self.tilt > MAX_TILT:
             raise ValueError(f"tilt must satisfy 0 <= tilt <= {MAX_TILT} rad, got {self.tilt:g}")
         for name in ("half_width", "g", "t_max", "rtol", "evaporation_mean"):
@@ -207,6 +220,9 @@ def release_times(model: LabModel, c_plus: float, c_minus: float, obj: str,
     angle = rng.uniform(0.0, 2.0 * math.pi, size=n)
     kick = rng.normal(0.0, 1.0, size=(n, 2)) * model.launch_speed_spread
     omega = np.repeat(2.0 * math.pi * np.asarray(rps, dtype=float), releases)
+    # The speed error has its own stream of the seed: the other draws do not move with it.
+    omega = omega * np.maximum(1.0 + model.speed_spread
+                               * np.random.default_rng([seed, 2]).standard_normal(n), 1e-3)
     point = scene.with_(R=0.0, contact="point", rolling_resistance=0.0, surface_drag=0.0)
     states = np.zeros((n, scene.state_size))
     for i in range(n):

@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import math
 
-VARIANT_NAMES = {"rigid ball": "rigid ball, level", "+ tilt": "+ tilt",
+VARIANT_NAMES = {"rigid ball": "rigid ball, level", "+ tilt, speed error": "+ tilt, speed error",
                  "+ dissipation": "+ dissipation", "calibrated": "calibrated model"}
 PARAMETERS = (
     ("tilt", "tilt of the saddle's axis", 1e3, "mrad"),
     ("launch_spread", "launcher: spread of the release point (each axis)", 1e3, "mm"),
     ("launch_speed_spread", "launcher: spread of the release velocity (each axis)", 1e3, "mm/s"),
+    ("speed_spread", "drive: spread of the true speed about the stated one", 1e2, "%"),
     ("rolling_resistance", "steel: rolling-resistance coefficient c_rr", 1e3, "× 10⁻³"),
     ("rolling_drag", "steel: rolling drag, 19 mm ball (∝ 1/diameter²)", 1.0, "1/s"),
     ("film_drag", "droplet: vapour-film drag", 1.0, "1/s"),
