@@ -42,7 +42,7 @@ import numpy as np
 from . import kernels as K
 from .omega import OmegaProfile
 from .runner import RunInputs, Settings, check_run, drive_row, output_times, run, run_checked
-from .scene import Scene, _finite_number
+from .scene import Scene, finite_number
 
 if TYPE_CHECKING:
     from typing_extensions import Unpack  # typing.Unpack from Python 3.11
@@ -123,7 +123,7 @@ def check_tol(tol: object) -> float:
     ValueError
         Not a finite number in that range.
     """
-    tol = _finite_number("tol", tol)
+    tol = finite_number("tol", tol)
     if not TOL_FLOOR <= tol <= TOL_CEIL:
         raise ValueError(f"tol must satisfy {TOL_FLOOR:g} <= tol <= {TOL_CEIL:g} metres (the "
                          f"largest position error allowed over the run), got {tol:g}")
@@ -223,7 +223,7 @@ def choose(scenes: Scene | Sequence[Scene], states: Sequence[np.ndarray], t_end:
     ValueError
         ``tol`` or ``t_end`` out of range, or no candidate reaches ``tol``.
     """
-    t_end = _finite_number("t_end", t_end)
+    t_end = finite_number("t_end", t_end)
     if t_end <= 0:
         raise ValueError(f"t_end must be > 0 seconds, got {t_end}")
     scene_list = [scenes] * len(states) if isinstance(scenes, Scene) else list(scenes)

@@ -50,7 +50,7 @@ from .linear import (
 )
 from .omega import OmegaProfile
 from .runner import integrator_loop
-from .scene import ION_PAUL, ION_RRF, N_PARAMS, P_RIM, Scene, _finite_number
+from .scene import ION_PAUL, ION_RRF, N_PARAMS, P_RIM, Scene, finite_number
 from .simulate import Settings, SimulationError, default_max_step, drive_row
 
 # Most output samples one run may ask for (as saddle_env.simulate).
@@ -63,7 +63,7 @@ MAX_STRENGTH = 1e18
 
 
 def _rate(name: str, value: object, positive: bool = False) -> float:
-    v = _finite_number(name, value)
+    v = finite_number(name, value)
     if positive and not v > 0:
         raise ValueError(f"{name} must be > 0 rad/s, got {v:g}")
     if abs(v) > MAX_RATE:
@@ -72,7 +72,7 @@ def _rate(name: str, value: object, positive: bool = False) -> float:
 
 
 def _strength(name: str, value: object, nonnegative: bool = False) -> float:
-    v = _finite_number(name, value)
+    v = finite_number(name, value)
     if nonnegative and v < 0:
         raise ValueError(f"{name} must be >= 0 (1/s^2; a negative amplitude is the same drive "
                          f"half a period later: change phase by pi), got {v:g}")
@@ -92,12 +92,12 @@ def _radius(value: object) -> float:
 
 def _output_times(t_end: object, dt_out: object) -> np.ndarray:
     """0, dt_out, 2 dt_out, ... ≤ t_end (multiples, no drift); [0, t_end] when dt_out is None."""
-    t_end = _finite_number("t_end", t_end)
+    t_end = finite_number("t_end", t_end)
     if t_end <= 0:
         raise ValueError(f"t_end must be > 0 seconds, got {t_end}")
     if dt_out is None:
         return np.array([0.0, t_end])
-    dt_out = _finite_number("dt_out", dt_out)
+    dt_out = finite_number("dt_out", dt_out)
     if dt_out <= 0:
         raise ValueError(f"dt_out must be > 0 seconds, got {dt_out}")
     ratio = t_end / dt_out * (1 + 1e-12)
@@ -108,10 +108,10 @@ def _output_times(t_end: object, dt_out: object) -> np.ndarray:
 
 
 def _voltage_factor(e_over_m: object, r0: object) -> tuple[float, float]:
-    em = _finite_number("e_over_m", e_over_m)
+    em = finite_number("e_over_m", e_over_m)
     if em == 0:
         raise ValueError("e_over_m must be non-zero (C/kg; negative for a negative charge)")
-    r = _finite_number("r0", r0)
+    r = finite_number("r0", r0)
     if not r > 0:
         raise ValueError(f"r0 must be > 0 (electrode radius in metres), got {r:g}")
     return em, r
@@ -163,14 +163,14 @@ class RRFTrap:
         voltage Vt [V] acting over the length d [m] (κ_t = (e/m)·Vt/d²: the potential
         Vt (2z² − x² − y²)/(2d²)). The escape radius is r0."""
         em, r = _voltage_factor(e_over_m, r0)
-        V0 = _finite_number("V0", V0)
-        B = _finite_number("B", B)
-        Vt = _finite_number("Vt", Vt)
+        V0 = finite_number("V0", V0)
+        B = finite_number("B", B)
+        Vt = finite_number("Vt", Vt)
         kt = 0.0
         if Vt != 0.0:
             if d is None:
                 raise ValueError("d (end-cap distance in metres) is needed when Vt != 0")
-            d = _finite_number("d", d)
+            d = finite_number("d", d)
             if not d > 0:
                 raise ValueError(f"d must be > 0 metres, got {d:g}")
             kt = em * Vt / d ** 2
@@ -236,7 +236,7 @@ def mathieu_first_region(q: float) -> tuple[float, float]:
     """
     from scipy.special import mathieu_a, mathieu_b
 
-    q = abs(_finite_number("q", q))
+    q = abs(finite_number("q", q))
     if q > 1e3:
         raise ValueError(f"|q| must be <= 1000 (the first region has closed long before), got {q:g}")
     return float(mathieu_a(0, q)), float(mathieu_b(1, q))
@@ -271,7 +271,7 @@ class PaulTrap:
         object.__setattr__(self, "omega", _rate("omega", self.omega, positive=True))
         object.__setattr__(self, "kappa", _strength("kappa", self.kappa, nonnegative=True))
         object.__setattr__(self, "kappa_dc", _strength("kappa_dc", self.kappa_dc))
-        object.__setattr__(self, "phase", _finite_number("phase", self.phase))
+        object.__setattr__(self, "phase", finite_number("phase", self.phase))
         object.__setattr__(self, "r0", _radius(self.r0))
 
     @classmethod
@@ -280,8 +280,8 @@ class PaulTrap:
         """From SI quantities: e/m [C/kg], AC amplitude V0 [V], DC voltage U0 [V], electrode
         radius r0 [m] (κ = (e/m)V0/r0², κ_dc = (e/m)U0/r0²; the escape radius is r0)."""
         em, r = _voltage_factor(e_over_m, r0)
-        V0 = _finite_number("V0", V0)
-        U0 = _finite_number("U0", U0)
+        V0 = finite_number("V0", V0)
+        U0 = finite_number("U0", U0)
         return cls(omega=omega, kappa=abs(em * V0) / r ** 2,
                    kappa_dc=em * U0 * (1.0 if em * V0 >= 0 else -1.0) / r ** 2,
                    phase=phase, r0=r)
@@ -377,7 +377,7 @@ def lab_rest_state(trap: RRFTrap | PaulTrap, x: float, y: float) -> np.ndarray:
     """State of an ion at (x, y) at rest in the laboratory at t = 0 (for an RRF trap the
     rotating-frame velocity is −Ω k × r)."""
     _check_trap(trap)
-    x, y = _finite_number("x", x), _finite_number("y", y)
+    x, y = finite_number("x", x), finite_number("y", y)
     if isinstance(trap, PaulTrap):
         return np.array([x, y, 0.0, 0.0])
     return np.array([x, y, trap.omega * y, -trap.omega * x])

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .scene import Scene, _finite_number
+from .scene import Scene, finite_number
 
 # Beyond this the coefficients (∝ Ω²) leave floating point range in the quartic.
 MAX_RATE = 1e12
@@ -69,8 +69,8 @@ def abcd(scene: Scene, omega: float, spin_z: float = 0.0) -> ABCD:
         The coefficients.
     """
     _check_scene(scene)
-    W = _finite_number("omega", omega)
-    wz = _finite_number("spin_z", spin_z)
+    W = finite_number("omega", omega)
+    wz = finite_number("spin_z", spin_z)
     if abs(W) > MAX_RATE or abs(wz) > MAX_RATE:
         raise ValueError(f"omega and spin_z must lie within ±{MAX_RATE:g} rad/s, got {W:g}, {wz:g}")
     assert scene.b is not None  # Scene.__post_init__ sets b (None means b = a)
@@ -251,7 +251,7 @@ def mass_point_band(a: float, b: float, g: float = 9.8) -> tuple[float, float] |
     (float, float) or None
         The band [rad/s]; Ω_high = inf when b ≥ a.
     """
-    a, b, g = (_finite_number(k, v) for k, v in (("a", a), ("b", b), ("g", g)))
+    a, b, g = (finite_number(k, v) for k, v in (("a", a), ("b", b), ("g", g)))
     if a <= 0 or b <= 0 or g < 0:
         raise ValueError(f"mass_point_band needs a > 0, b > 0, g >= 0; got a={a}, b={b}, g={g}")
     low = math.sqrt(2 * g / a)
@@ -333,7 +333,7 @@ def _bands_where(holds: Callable[[float], bool], scene: Scene, omega_max: float 
         raise ValueError(f"n_grid must be an integer in [10, 1e7], got {n_grid!r}")
     assert scene.b is not None  # Scene.__post_init__ sets b (None means b = a)
     ref = math.sqrt(2 * max(scene.g, 1e-12) / min(scene.a, scene.b))
-    top = 100.0 * ref if omega_max is None else _finite_number("omega_max", omega_max)
+    top = 100.0 * ref if omega_max is None else finite_number("omega_max", omega_max)
     if top <= 0:
         raise ValueError(f"omega_max must be > 0, got {top}")
     grid = np.unique(np.concatenate([np.linspace(top * 1e-4, ref * 4, n_grid // 2),

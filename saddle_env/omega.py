@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .scene import _finite_number
+from .scene import finite_number
 
 
 @dataclass(frozen=True)
@@ -46,7 +46,7 @@ class OmegaProfile:
     def __post_init__(self) -> None:
         for name in ("w0", "rate", "amp", "freq", "phase"):
             label = {"w0": "omega"}.get(name, f"omega {name}")
-            object.__setattr__(self, name, _finite_number(label, getattr(self, name)))
+            object.__setattr__(self, name, finite_number(label, getattr(self, name)))
 
     @classmethod
     def coerce(cls, omega: object) -> OmegaProfile:
@@ -58,7 +58,7 @@ class OmegaProfile:
                 raise ValueError("omega as a sequence must be (w0[, rate[, amp[, freq[, phase]]]]), "
                                  f"got {len(omega)} values")
             return cls(*omega)
-        return cls(_finite_number("omega", omega))
+        return cls(finite_number("omega", omega))
 
     def array(self) -> np.ndarray:
         """The profile packed as the compiled kernels read it."""

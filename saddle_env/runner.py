@@ -47,7 +47,7 @@ from .integrators import (
     workspace,
 )
 from .omega import OmegaProfile
-from .scene import COULOMB, P_RESIST, Scene, _finite_number
+from .scene import COULOMB, P_RESIST, Scene, finite_number
 
 # Default accuracy: DOP853 at this tolerance (see docs/accuracy.md).
 DEFAULT_METHOD = "dop853"
@@ -104,11 +104,11 @@ def initial_state(scene: Scene, x: float, y: float, vx: float = 0.0, vy: float =
     """
     if not isinstance(scene, Scene):
         raise ValueError(f"scene must be a saddle_env.Scene, got {type(scene).__name__}")
-    x = _finite_number("x", x)
-    y = _finite_number("y", y)
-    vx = _finite_number("vx", vx)
-    vy = _finite_number("vy", vy)
-    spin_normal = _finite_number("spin_normal", spin_normal)
+    x = finite_number("x", x)
+    y = finite_number("y", y)
+    vx = finite_number("vx", vx)
+    vy = finite_number("vy", vy)
+    spin_normal = finite_number("spin_normal", spin_normal)
     profile = OmegaProfile.coerce(omega)
     if start is not None:
         if start not in ("rotating-rest", "lab-rest"):
@@ -125,7 +125,7 @@ def initial_state(scene: Scene, x: float, y: float, vx: float = 0.0, vy: float =
     if spin is not None:
         if not isinstance(spin, (tuple, list, np.ndarray)) or len(spin) != 3:
             raise ValueError(f"spin must be a triple (wx, wy, wz) in rad/s, got {spin!r}")
-        out[2:5] = [_finite_number(f"spin {c}", w) for c, w in zip(("wx", "wy", "wz"), spin)]
+        out[2:5] = [finite_number(f"spin {c}", w) for c, w in zip(("wx", "wy", "wz"), spin)]
     if not np.all(np.isfinite(out)):
         raise ValueError(f"initial state is not finite for x = {x:g}, y = {y:g}, vx = {vx:g}, "
                          f"vy = {vy:g} m: the position or velocity is too large for the saddle")
@@ -144,7 +144,7 @@ def check_force(force: object) -> tuple[float, float]:
     if not isinstance(force, (tuple, list, np.ndarray)) or len(force) != 2:
         raise ValueError(f"force must be a pair (fx, fy) of lab-frame accelerations [m/s^2], "
                          f"got {force!r}")
-    return _finite_number("force fx", force[0]), _finite_number("force fy", force[1])
+    return finite_number("force fx", force[0]), finite_number("force fy", force[1])
 
 
 def drive_row(profile: OmegaProfile, force: tuple[float, float] = (0.0, 0.0),
@@ -255,7 +255,7 @@ class Settings:
             raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
         m = METHODS[name]
         if dt is not None:
-            dt = _finite_number("dt", dt)
+            dt = finite_number("dt", dt)
             if dt <= 0:
                 raise ValueError(f"dt must be > 0 seconds, got {dt}")
             if rtol is not None or atol is not None:
@@ -265,7 +265,7 @@ class Settings:
                 raise ValueError(f"method {name!r} has no error estimate: give dt, not rtol")
             dt = DEFAULT_FIXED_DT
         rtol_v = DEFAULT_RTOL if rtol is None else check_rtol(rtol)
-        atol_v = rtol_v if atol is None else _finite_number("atol", atol)
+        atol_v = rtol_v if atol is None else finite_number("atol", atol)
         if not 0 < atol_v < 1:
             raise ValueError(f"atol must satisfy 0 < atol < 1 (relative to the saddle size), "
                              f"got {atol_v}")
@@ -280,7 +280,7 @@ class Settings:
                 raise ValueError(f"events must be a subset of {sorted(EVENT_NAMES)}, got {e!r}")
             mask |= EVENT_NAMES[e]
         if max_step is not None:
-            max_step = _finite_number("max_step", max_step)
+            max_step = finite_number("max_step", max_step)
             if max_step <= 0:
                 raise ValueError(f"max_step must be > 0 seconds, got {max_step}")
         if isinstance(max_steps, bool) or not isinstance(max_steps, (int, np.integer)) \
@@ -348,12 +348,12 @@ def output_times(t_end: float, dt_out: float | None) -> np.ndarray:
     ValueError
         A time that is not a finite positive number, or too many outputs.
     """
-    t_end = _finite_number("t_end", t_end)
+    t_end = finite_number("t_end", t_end)
     if t_end <= 0:
         raise ValueError(f"t_end must be > 0 seconds, got {t_end}")
     if dt_out is None:
         return np.array([0.0, t_end])
-    dt_out = _finite_number("dt_out", dt_out)
+    dt_out = finite_number("dt_out", dt_out)
     if dt_out <= 0:
         raise ValueError(f"dt_out must be > 0 seconds, got {dt_out}")
     ratio = t_end / dt_out * (1 + 1e-12)
@@ -387,7 +387,7 @@ def check_rtol(rtol: object) -> float:
     ValueError
         Out of range or not a finite number.
     """
-    r = _finite_number("rtol", rtol)
+    r = finite_number("rtol", rtol)
     if not RTOL_MIN <= r < 1:
         raise ValueError(f"rtol must satisfy {RTOL_MIN:g} <= rtol < 1, got {r}")
     return r
@@ -855,7 +855,7 @@ def check_angles(angle: object, n: int) -> np.ndarray:
             raise ValueError(f"angle must be a finite number or an array of shape ({n},) of "
                              f"finite angles [rad], got an array of shape {angle.shape}")
         return angle.astype(float)
-    return np.full(n, _finite_number("angle", angle))
+    return np.full(n, finite_number("angle", angle))
 
 
 def omega_rows(omega: object, n: int) -> np.ndarray:

@@ -33,7 +33,7 @@ RIM_SHAPES: tuple[RimShape, ...] = ("circle", "square")
 MAX_TILT = 0.2
 
 
-def _finite_number(name: str, value: object) -> float:
+def finite_number(name: str, value: object) -> float:
     """Return ``value`` as a float, or raise a ValueError that names ``name``."""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ValueError(f"{name} must be a real number, got {value!r} ({type(value).__name__})")
@@ -46,7 +46,7 @@ def _finite_number(name: str, value: object) -> float:
 def _non_negative(name: str, value: object, unit: str, most: float = math.inf) -> float:
     """A finite number in [0, most] as a float, or a ValueError that names ``name``, its
     unit and its range."""
-    v = _finite_number(name, value)
+    v = finite_number(name, value)
     if v < 0:
         raise ValueError(f"{name} must be >= 0 ({unit}), got {v}")
     if v > most:
@@ -148,15 +148,15 @@ class Scene:
     surface_drag: float = 0.0
 
     def __post_init__(self) -> None:
-        a = _finite_number("a", self.a)
+        a = finite_number("a", self.a)
         if a <= 0:
             raise ValueError(f"a must be > 0 (saddle length in metres), got {a}")
-        b = a if self.b is None else _finite_number("b", self.b)
+        b = a if self.b is None else finite_number("b", self.b)
         if b <= 0:
             raise ValueError(f"b must be > 0 (saddle length in metres), got {b}")
         if not isinstance(self.contact, str) or self.contact not in CONTACT_MODELS:
             raise ValueError(f"contact must be one of {CONTACT_MODELS}, got {self.contact!r}")
-        R = _finite_number("R", self.R)
+        R = finite_number("R", self.R)
         if self.contact != "point":
             limit = min(a, b) / 2
             if not 0 < R < limit:
@@ -166,7 +166,7 @@ class Scene:
                 )
         elif R < 0:
             raise ValueError(f"R must be >= 0, got {R}")
-        alpha = _finite_number("alpha", self.alpha)
+        alpha = finite_number("alpha", self.alpha)
         if not 0 < alpha <= 1:
             raise ValueError(f"alpha must satisfy 0 < alpha <= 1 (I = alpha m R^2), got {alpha}")
         g = _non_negative("g", self.g, "m/s^2", MAX_G)
@@ -184,7 +184,7 @@ class Scene:
         surface_drag = _non_negative("surface_drag", self.surface_drag, "1/s", MAX_RATE)
         if not isinstance(self.rim_shape, str) or self.rim_shape not in RIM_SHAPES:
             raise ValueError(f"rim_shape must be one of {RIM_SHAPES}, got {self.rim_shape!r}")
-        tilt = _finite_number("tilt", self.tilt)
+        tilt = finite_number("tilt", self.tilt)
         if not 0 <= tilt <= MAX_TILT:
             raise ValueError(f"tilt must satisfy 0 <= tilt <= {MAX_TILT} (rad, the axis's angle "
                              f"from the vertical), got {tilt:g}")
@@ -210,7 +210,7 @@ class Scene:
             raise ValueError("contact='coulomb' needs mu, the kinetic friction coefficient "
                              "(>= 0; e.g. Scene(contact='coulomb', mu=0.3))")
         mu = _non_negative("mu", self.mu, "kinetic friction coefficient")
-        mu_static = mu if self.mu_static is None else _finite_number("mu_static", self.mu_static)
+        mu_static = mu if self.mu_static is None else finite_number("mu_static", self.mu_static)
         if mu_static < mu:
             raise ValueError(f"mu_static must be >= mu = {mu:g} (static friction is at least "
                              f"the kinetic), got {mu_static:g}")
@@ -265,8 +265,8 @@ class Scene:
         """A scene on the saddle z = c₊x² − c₋y², as experimenters measure it: ``a = 1/c₊``,
         ``b = 1/c₋`` [m] (``c_plus``, ``c_minus`` in 1/m, both > 0). Other parameters as
         keywords."""
-        cp = _finite_number("c_plus", c_plus)
-        cm = _finite_number("c_minus", c_minus)
+        cp = finite_number("c_plus", c_plus)
+        cm = finite_number("c_minus", c_minus)
         for name, c in (("c_plus", cp), ("c_minus", cm)):
             if c <= 0:
                 raise ValueError(f"{name} must be > 0 (saddle curvature in 1/m), got {c:g}")

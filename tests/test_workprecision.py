@@ -234,7 +234,7 @@ def test_blas_threads_are_one_within_the_block_and_the_callers_after():
     """The fit pins BLAS to one thread while it runs (a threaded OpenBLAS waking its workers
     on a busy machine made its SVDs 40x slower) and gives a program that called it its own
     thread count back."""
-    from saddle_env.workprecision.blas import _thread_controls, blas_threads
+    from saddle_env.jobs.blas import _thread_controls, blas_threads
 
     def counts():
         return [int(get()) for _, _, get in _thread_controls() if get is not None]

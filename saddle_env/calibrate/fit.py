@@ -503,7 +503,7 @@ def fit_tracks(tracks: Sequence[Track], config: EnvConfig, fit: Sequence[str], *
                          f"{MAX_UNKNOWNS:,}; fit fewer or shorter tracks, or longer segments")
     # The fit's linear algebra is a few hundred columns while numba integrates in threads: a
     # threaded OpenBLAS waking its workers on a busy machine took 4 s per SVD instead of 0.1.
-    from ..workprecision.blas import blas_threads
+    from ..jobs.blas import blas_threads
     with blas_threads(1):   # back to the caller's count after
         n_frames = sum(len(p.t) for p in plans)
         say(f"fitting {list(names)} to {len(tracks)} track(s), {n_frames} frames, drive "

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..integrators import METHODS
 from ..runner import check_rtol
-from ..scene import CONTACT_MODELS, Scene, _finite_number
+from ..scene import CONTACT_MODELS, Scene, finite_number
 
 # The paper's three polyfoam balls [m].
 PAPER_BALL_RADII = (0.0223, 0.0265, 0.0330)
@@ -37,7 +37,7 @@ ObsFrame = Literal["rotating", "lab"]
 
 
 def _positive(name: str, value: object, allow_zero: bool = False) -> float:
-    v = _finite_number(name, value)
+    v = finite_number(name, value)
     if v < 0 or (v == 0 and not allow_zero):
         raise ValueError(f"{name} must be {'>= 0' if allow_zero else '> 0'}, got {v}")
     return v
@@ -46,7 +46,7 @@ def _positive(name: str, value: object, allow_zero: bool = False) -> float:
 def _range(name: str, value: object, lo: float = -math.inf) -> tuple[float, float]:
     if not isinstance(value, (tuple, list)) or len(value) != 2:
         raise ValueError(f"{name} must be a (low, high) pair, got {value!r}")
-    low, high = (_finite_number(f"{name}[{i}]", v) for i, v in enumerate(value))
+    low, high = (finite_number(f"{name}[{i}]", v) for i, v in enumerate(value))
     if not lo <= low <= high:
         raise ValueError(f"{name} must satisfy {lo:g} <= low <= high, got ({low:g}, {high:g})")
     return low, high

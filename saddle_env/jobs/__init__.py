@@ -1,3 +1,3 @@
-"""What the project's long jobs share so that nothing is lost when they are stopped:
-result files written whole (`files`) and SIGTERM taken as Ctrl-C, never dropped
-(`signals`)."""
+"""What the project's long jobs share: result files written whole (`files`), SIGTERM taken
+as Ctrl-C, never dropped (`signals`), so that nothing is lost when they are stopped, and
+BLAS pinned to one thread where numba or the job itself owns the cores (`blas`)."""

@@ -19,7 +19,7 @@ from typing import Any, Literal
 import numpy as np
 
 from ..runner import initial_state, run_batch
-from ..scene import MAX_TILT, Scene, _finite_number
+from ..scene import MAX_TILT, Scene, finite_number
 
 LabObject = Literal["steel", "ln2"]
 OBJECTS: tuple[LabObject, ...] = ("steel", "ln2")
@@ -95,7 +95,7 @@ class LabModel:
 
     def __post_init__(self) -> None:
         for f in fields(self):
-            value = _finite_number(f.name, getattr(self, f.name)) \
+            value = finite_number(f.name, getattr(self, f.name)) \
                 if f.name != "evaporation_mean" else float(getattr(self, f.name))
             if math.isnan(value) or value < 0:
                 raise ValueError(f"{f.name} must be >= 0, got {value}")
@@ -169,8 +169,8 @@ def check_request(c_plus: object, c_minus: object, obj: object, diameter_mm: obj
                   rps: object, releases: object) -> tuple[float, float, str, float | None,
                                                           np.ndarray, int]:
     """Validate a prediction's inputs; a ValueError names the parameter and its range."""
-    cp = _finite_number("c_plus", c_plus)
-    cm = _finite_number("c_minus", c_minus)
+    cp = finite_number("c_plus", c_plus)
+    cm = finite_number("c_minus", c_minus)
     for name, c in (("c_plus", cp), ("c_minus", cm)):
         if c <= 0:
             raise ValueError(f"{name} must be > 0 (curvature in 1/m), got {c:g}")
@@ -181,7 +181,7 @@ def check_request(c_plus: object, c_minus: object, obj: object, diameter_mm: obj
         if diameter_mm is None:
             raise ValueError("diameter_mm is required for a steel ball (mm, "
                              f"{DIAMETER_RANGE_MM[0]:g}-{DIAMETER_RANGE_MM[1]:g})")
-        d = _finite_number("diameter_mm", diameter_mm)
+        d = finite_number("diameter_mm", diameter_mm)
         lo, hi = DIAMETER_RANGE_MM
         limit = 1000.0 / max(cp, cm)  # R < min(a, b)/2, in mm of diameter
         if not lo <= d <= hi or d >= limit:
@@ -324,7 +324,7 @@ def predict_lifetimes(c_plus: float, c_minus: float, object: str,  # noqa: A002
         raise ValueError(f"seed must be a non-negative whole number, got {seed!r}")
     base = load_calibration()[0] if model is None else model
     if tilt is not None:
-        base = base.with_(tilt=_finite_number("tilt", tilt))
+        base = base.with_(tilt=finite_number("tilt", tilt))
     escapes = release_times(base, cp, cm, obj, d, speeds, n, int(seed))
     life = lifetimes_of(base, obj, escapes, int(seed))
     record: dict[str, Any] = {

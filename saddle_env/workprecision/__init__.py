@@ -27,7 +27,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from ..accuracy import AccuracyWarning
-from .blas import limit_blas_threads
+from ..jobs.blas import limit_blas_threads
 from .core import COLUMNS, MODEL_TIERS, TIERS, Case, measure_jacobi, reference, tasks, warm_up
 from .peer import PeerModel
 from .report import Summary, plot, read_rows, summarize

@@ -2,9 +2,10 @@
 does, for the OpenBLAS builds in numpy's and scipy's wheels, without the dependency).
 
 On a small shared machine an OpenBLAS call on a 4×4 matrix can spend milliseconds waking
-its worker threads, far longer than the computation itself takes on one. The benchmark times
-tiny linear algebra (the peer's 3×3 solves, the linearised tier's matrix exponential) and
-runs its own parallelism through numba, so it pins BLAS to one thread for fairness.
+its worker threads, far longer than the computation itself takes on one. The simulator's
+benchmark (`saddle_env.workprecision`) times tiny linear algebra and runs its own
+parallelism through numba, and `saddle-fit` runs many small least-squares solves: both pin
+BLAS to one thread.
 """
 
 from __future__ import annotations
