@@ -108,6 +108,11 @@ def _variant(rows: list[dict[str, Any]], variant: str) -> list[dict[str, Any]]:
     return [r for r in rows if r["variant"] == variant]
 
 
+def _peak_ratio(row: dict[str, Any]) -> float:
+    """A series' longest predicted mean over the lab's longest."""
+    return row["max_predicted_s"] / max(row["lab_mean_s"])
+
+
 def _least_and_most(values: Any) -> list[float]:
     values = list(values)
     return [min(values), max(values)]
@@ -166,6 +171,28 @@ DERIVED: dict[str, Any] = {
         r["median_abs_log_ratio"] for r in _variant(rows, "rigid ball"))),
     "lifetimes-rigid-series-above-2": lambda rows: sum(
         math.exp(r["median_abs_log_ratio"]) > 2 for r in _variant(rows, "rigid ball")),
+    # the steel ball's window on P4: how much earlier than the lab's the model closes it
+    # [rev/s], and its longest mean over the lab's longest
+    "lifetimes-p4-cutoff-early": lambda rows: next(
+        r["lab_cutoff_rps"] - r["cutoff_rps"] for r in _variant(rows, "calibrated")
+        if "P4 steel" in r["series"]),
+    "lifetimes-p4-peak-ratio": lambda rows: next(
+        _peak_ratio(r) for r in _variant(rows, "calibrated") if "P4 steel" in r["series"]),
+    # the 6.3 mm ball's plateau, predicted over measured (the longest means)
+    "lifetimes-small-ball-plateau-ratio": lambda rows: next(
+        _peak_ratio(r) for r in _variant(rows, "calibrated") if "6.3 mm" in r["series"]),
+    # just below the lab's onset: the largest predicted / measured mean over every series
+    "lifetimes-below-onset-worst-ratio": lambda rows: max(
+        p / m for r in _variant(rows, "calibrated")
+        for f, p, m in zip(r["rps"], r["predicted_s"], r["lab_mean_s"])
+        if f < r["lab_onset_rps"]),
+    # droplets on P4, which the lab never kept: the held-out model's longest mean [s], and
+    # the same without the tilt and the speed error ("+ dissipation")
+    "lifetimes-p4-droplets-longest": lambda rows: next(
+        r["max_predicted_s"] for r in _variant(rows, "calibrated") if "P4 LN2" in r["series"]),
+    "lifetimes-p4-droplets-longest-level": lambda rows: next(
+        r["max_predicted_s"] for r in _variant(rows, "+ dissipation")
+        if "P4 LN2" in r["series"]),
     # saddle-reproduce's summary.json (docs/figures/reproduce_summary.json): the precession's
     # excess over linear theory's limit at the 1 mm and the 0.125 mm release, degrees
     "reproduce-precession-excess-1mm": lambda summary: _precession_excess(summary, 0.001),

@@ -213,10 +213,14 @@ def test_the_shipped_validation_meets_the_targets():
     assert max(r["median_abs_log_ratio"] for r in rigid) > math.log(2)
 
 
-@pytest.mark.xfail(strict=True, reason="missed: the held-out model keeps droplets on P4 5.3 s "
-                   "at 1.16 rev/s, where the target is under 5 s (docs/validation.md)")
 def test_droplets_on_p4_stay_under_5_s_when_held_out():
+    # The lab never kept a droplet on P4 (2.5 s at most, on average): held out, the model
+    # must not keep them either, at any of the lab's speeds; the same model level and at the
+    # exact speed ("+ dissipation") does, just above the mass point's threshold.
     assert _held_out()["2021-02-13 P4 LN2 droplets"]["max_predicted_s"] < 5.0
+    level = next(r for r in json.loads(VALIDATION.read_text())
+                 if r["variant"] == "+ dissipation" and "P4 LN2" in r["series"])
+    assert level["max_predicted_s"] >= 5.0
 
 
 def test_the_shipped_calibration_is_the_fit_on_every_series():

@@ -30,8 +30,8 @@ from .model import LabModel, release_times
 TILTS = (0.0, 1e-3, 2e-3, 3e-3, 4e-3)
 LAUNCH_SPREADS = (5e-4, 1e-3, 2e-3, 3e-3)
 LAUNCH_SPEED_SPREADS = (0.0, 0.01, 0.02)
-SPEED_SPREADS = (0.0, 0.01, 0.02, 0.03, 0.05)  # fractions of the stated speed
-ROLLING_RESISTANCES = (0.0, 5e-4, 1e-3, 1.5e-3)
+SPEED_SPREADS = (0.0, 0.01, 0.02, 0.03, 0.05, 0.07, 0.1)  # fractions of the stated speed
+ROLLING_RESISTANCES = (0.0, 5e-4, 1e-3, 1.5e-3, 2e-3)
 ROLLING_DRAGS = (0.0, 0.03, 0.05, 0.07, 0.1)
 FILM_DRAGS = (0.0, 0.2, 0.3, 0.4, 0.5, 0.6)
 EVAPORATION_MEANS = (math.inf, 12.0, 15.0, 18.0, 21.0, 24.0, 28.0, 35.0)
