@@ -25,7 +25,7 @@ from typing import NamedTuple, Protocol, runtime_checkable
 class Frame(NamedTuple):
     """One camera frame with the readings of the same moment.
 
-    Parameters
+    Attributes
     ----------
     t : float
         When the picture was taken [s], on the loop's clock (a frame read now shows the ball
