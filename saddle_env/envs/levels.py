@@ -177,7 +177,9 @@ LEVELS: tuple[Level, ...] = (
         "motor ripple as in the gusty level. Against real saddles (docs/validation.md): the "
         "level is level and loses nothing at the contact, where real balls show thresholds a "
         "few per cent later and, from a rolling drag, lifetimes of tens of seconds; over the "
-        "episode's 10 s that matters only near Ω_crt. The lab's calibration is for steel balls "
+        "episode's 10 s that matters only near Ω_crt. The lab's drive turned only within a "
+        "few per cent of its stated speed, by the calibration; the level's controller reads "
+        "its speed to 0.2 rad/s, about 1 %. The lab's calibration is for steel balls "
         "and droplets on PETG, not for the paper's polyfoam balls, so the level does not take "
         "it over.",
         "Everything the controller sees is 30 ms old, and it must estimate velocities from "
