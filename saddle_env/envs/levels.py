@@ -179,7 +179,7 @@ LEVELS: tuple[Level, ...] = (
         "few per cent later and, from a rolling drag, lifetimes of tens of seconds; over the "
         "episode's 10 s that matters only near Ω_crt. The lab's drive turned only within a "
         "few per cent of its stated speed, by the calibration; the level's controller reads "
-        "its speed to 0.2 rad/s, about 1 %. The lab's calibration is for steel balls "
+        "its speed to its tachometer's 0.2 rad/s. The lab's calibration is for steel balls "
         "and droplets on PETG, not for the paper's polyfoam balls, so the level does not take "
         "it over.",
         "Everything the controller sees is 30 ms old, and it must estimate velocities from "
