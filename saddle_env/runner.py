@@ -838,10 +838,10 @@ def run_batch_checked(inputs: BatchInputs, settings: Settings) -> BatchResult:
     work = np.array([Y_out[i, :, sc.state_size] for i, sc in enumerate(scene_list)])
     width = padded_width(models)
     state, final = Y_out[..., :width], Y[:, :width].copy()
-    for i, sc in enumerate(scene_list):
-        # a narrower ball's slots past its own state hold the kernel's work and scratch
-        state[i, :, sc.state_size:] = np.nan
-        final[i, sc.state_size:] = np.nan
+    # a narrower ball's slots past its own state hold the kernel's work and scratch
+    padding = np.arange(width) >= np.array([sc.state_size for sc in scene_list])[:, None]
+    state[np.broadcast_to(padding[:, None, :], state.shape)] = np.nan
+    final[padding] = np.nan
     return BatchResult(t_out, state, stats[:, 3].copy(), status, t_final, final, stats,
                        settings.describe(), work)
 

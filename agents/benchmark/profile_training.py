@@ -50,7 +50,10 @@ import sys
 import tempfile
 import time
 from collections import defaultdict
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from ..training.runs import RunSettings
 
 CATEGORIES = ("env stepping", "policy forward", "advantages (GAE)", "gradient updates",
               "evaluation + selection", "mpc queries", "warm start", "start-up", "other")
@@ -198,11 +201,12 @@ def _rllib_timers() -> Timers:
     return t
 
 
-def _timed_train(settings: Any, timers: Timers) -> tuple[float, int, dict[str, Any]]:
+def _timed_train(settings: Any, timers: Timers) -> tuple[float, int, RunSettings]:
     """Wall seconds of `agents.training.trainer.train` (no closing comparison) under ``timers``,
     the env steps it trained (whole rollouts or iterations: at least the budget) and the
     settings the run resolved and recorded (its ``config.json``: the recipe's counts)."""
     from ..training.run_report import read_curve
+    from ..training.runs import settings_of_run
     from ..training.trainer import train
 
     start = time.perf_counter()
@@ -213,8 +217,7 @@ def _timed_train(settings: Any, timers: Timers) -> tuple[float, int, dict[str, A
         timers.restore()
     curve = read_curve(run_dir)
     done = int(curve["timesteps"][-1]) if curve is not None else 0
-    recorded = json.loads((run_dir / "config.json").read_text())
-    return wall, max(done, int(settings.total_timesteps)), recorded
+    return wall, max(done, int(settings.total_timesteps)), settings_of_run(run_dir)
 
 
 def profile_training(env_id: str, total_timesteps: int, eval_freq: int | None,
@@ -237,9 +240,9 @@ def profile_training(env_id: str, total_timesteps: int, eval_freq: int | None,
         timers = (_rllib_timers() if backend == "rllib" else _sbx_timers()
                   if backend == "sbx" else _sb3_timers(algo))
         wall, steps, recorded = _timed_train(settings, timers)
-        used = dict(recorded["hyperparams_used"])
+        used = dict(recorded.hyperparams_used)
     return {"path": f"{backend}-{algo}", "env_id": env_id, "total_timesteps": steps,
-            "eval_freq": recorded["eval_freq"], "n_envs": recorded["n_envs"],
+            "eval_freq": recorded.eval_freq, "n_envs": recorded.n_envs,
             "hyperparams": {k: str(v) for k, v in used.items()},
             "wall": wall, "steps_per_s": steps / wall, "rows": timers.table(wall)}
 

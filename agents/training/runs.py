@@ -239,16 +239,21 @@ def settings_for_resume(checkpoint: str | Path, total_timesteps: int | None = No
                           **overrides).validate()
 
 
-def recorded_settings(checkpoint: str | Path) -> RunSettings:
-    """The settings a checkpoint's run trained with, from its ``config.json``, which
-    recorded every count the recipe gave and the recipe itself (``hyperparams_used``; the
-    recipe file is not re-read: it may have changed since)."""
-    config = run_folder_of(checkpoint) / "config.json"
+def settings_of_run(run_dir: str | Path) -> RunSettings:
+    """The settings a run trained with, from its folder's ``config.json``, which recorded
+    every count the recipe gave and the recipe itself (``hyperparams_used``; the recipe
+    file is not re-read: it may have changed since)."""
+    config = Path(run_dir) / "config.json"
     recipe = json.loads(config.read_text()).get("hyperparams_used", {})
     if not isinstance(recipe, dict) or not all(isinstance(k, str) for k in recipe):
         raise ValueError(f"{config}: hyperparams_used must be a mapping of names to values, "
                          f"got {type(recipe).__name__}")
-    return settings_for_resume(checkpoint).with_recipe(recipe)
+    return saved_settings(TrainSettings, config).validate().with_recipe(recipe)
+
+
+def recorded_settings(checkpoint: str | Path) -> RunSettings:
+    """The settings a checkpoint's run trained with (`settings_of_run` of its folder)."""
+    return settings_of_run(run_folder_of(checkpoint))
 
 
 class Stop(BaseException):

@@ -23,10 +23,10 @@ from .data import Series
 from .model import LabModel, release_times
 
 # The grid [SI units]. A point is (tilt, launch spread, launch speed spread, speed spread)
-# shared by every series, then the object's own dissipation: a steel ball's (rolling resistance, rolling
-# drag), a droplet's (film drag, 0). Zeros included, so the rigid-ball model and each
-# effect alone are points of it. A droplet's evaporation (mean [s], spread as a fraction of
-# the mean) is chosen afterwards, without simulating again.
+# shared by every series, then the object's own dissipation: a steel ball's (rolling
+# resistance, rolling drag), a droplet's (film drag, 0). Zeros included, so the rigid-ball
+# model and each effect alone are points of it. A droplet's evaporation (mean [s], spread
+# as a fraction of the mean) is chosen afterwards, without simulating again.
 TILTS = (0.0, 1e-3, 2e-3, 3e-3, 4e-3)
 LAUNCH_SPREADS = (5e-4, 1e-3, 2e-3, 3e-3)
 LAUNCH_SPEED_SPREADS = (0.0, 0.01, 0.02)

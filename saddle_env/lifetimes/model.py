@@ -2,10 +2,11 @@
 
 `LabModel` holds what a real rig adds to the rigid-ball model, one frozen, validated
 dataclass: the saddle's tilt, its square outline, the launcher's spread, the drive's speed
-error, the steel ball's rolling resistance and the droplet's vapour-film drag and evaporation. `release_times`
-simulates releases like the lab's (at rest in the laboratory near the centre, at a random
-turn of the saddle) until each ball leaves the saddle; `predict_lifetimes` turns them into
-mean trapping times, with a droplet's evaporation on top.
+error, the steel ball's rolling resistance and the droplet's vapour-film drag and
+evaporation. `release_times` simulates releases like the lab's (at rest in the laboratory
+near the centre, at a random turn of the saddle) until each ball leaves the saddle;
+`predict_lifetimes` turns them into mean trapping times, with a droplet's evaporation on
+top.
 """
 
 from __future__ import annotations
