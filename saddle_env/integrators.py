@@ -22,7 +22,7 @@ from collections import namedtuple
 import numba as nb
 import numpy as np
 
-from .compilation.jit import inline, ir_inline, jit, python_entry
+from .compilation.jit import inline, ir_inline, jit, python_entry, unmanaged
 from .compilation.specialise import COULOMB_ON, RESIST_ON, specialisable
 from .kernels import (
     ONSET,
@@ -429,6 +429,13 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
         STATUS_FAILED or STATUS_MAX_STEPS; the time of the final state (the event time if an
         event fired); the step to continue with; N/m at the last accepted state.
     """
+    # The caller holds every array for the call, and no view of one outlives it: unmanaged,
+    # the loop's views and calls cost no atomic reference counting (`unmanaged`).
+    p, prof, y, t_out, scale = unmanaged(p), unmanaged(prof), unmanaged(y), unmanaged(t_out), \
+        unmanaged(scale)
+    Y_out, stats, work = unmanaged(Y_out), unmanaged(stats), unmanaged(work)
+    tab = Tableau(unmanaged(tab.C), unmanaged(tab.A), unmanaged(tab.B), unmanaged(tab.E),
+                  unmanaged(tab.E3), tab.err_kind, tab.err_order)
     s = tab.B.shape[0]
     K = work[:s + 1]
     want_normal = (ctl.events & EVENT_DETACH) != 0

@@ -26,7 +26,7 @@ from typing import Literal
 
 import numpy as np
 
-from . import integrators
+from . import blockstep, integrators
 from . import kernels as K
 from .compilation.specialise import entry
 from .compilation.threads import in_threads
@@ -810,9 +810,12 @@ def run_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: float,
                              Settings.build(method, rtol, atol, dt, events, max_step, max_steps))
 
 
-def run_batch_checked(inputs: BatchInputs, settings: Settings) -> BatchResult:
+def run_batch_checked(inputs: BatchInputs, settings: Settings,
+                      shared_steps: bool = False) -> BatchResult:
     """Run a batch whose inputs (`check_batch`) and settings (`Settings.build`) are checked;
-    failures do not raise, they are reported per ball in the `BatchResult`'s ``status``."""
+    failures do not raise, they are reported per ball in the `BatchResult`'s ``status``.
+    ``shared_steps``: blocks of balls share their steps (`saddle_env.blockstep`), else each
+    ball steps alone (`integrators.integrate_batch`)."""
     scene_list, profiles, t_out = inputs.scenes, inputs.omegas, inputs.t_out
     n = len(scene_list)
     Y = inputs.states.copy()
@@ -832,8 +835,10 @@ def run_batch_checked(inputs: BatchInputs, settings: Settings) -> BatchResult:
     args = (models, P, drives, Y, 0.0, t_out, m.tableau, settings.control(math.inf), scales,
             max_step_arr, np.ones(n, dtype=bool), Y_out, status, t_final, stats)
     # compiled for these balls' contact models alone, as `simulate` is for its one
-    batch = entry(np.unique(models), bool((P[:, P_RESIST] != 0.0).any()), integrators,
-                  "integrate_batch", (0, n, *args))
+    module, name = ((blockstep, "integrate_batch_shared") if shared_steps
+                    else (integrators, "integrate_batch"))
+    batch = entry(np.unique(models), bool((P[:, P_RESIST] != 0.0).any()), module, name,
+                  (0, n, *args))
     in_threads(batch, n, *args, simulated_s=n * float(t_out[-1]))
     work = np.array([Y_out[i, :, sc.state_size] for i, sc in enumerate(scene_list)])
     width = padded_width(models)

@@ -53,6 +53,7 @@ if TYPE_CHECKING:
     step_parallel: Callable[..., Any]
     integrate_h: Callable[..., Any]
     integrate_batch: Callable[..., None]
+    integrate_batch_shared: Callable[..., None]
     integrate_segments: Callable[..., None]
 
 
@@ -102,6 +103,12 @@ def _integrate_batch(lo, hi, models, P, profiles, Y, t0, t_out, tab, ctl, scales
                     scales, max_step, active, Y_out, status, t_final, stats)
 
 
+def _integrate_batch_shared(lo, hi, models, P, profiles, Y, t0, t_out, tab, ctl, scales,
+                            max_step, active, Y_out, status, t_final, stats):
+    integrate_batch_shared(lo, hi, models, P, profiles, Y, t0, t_out, tab,  # noqa: F821
+                           ctl, scales, max_step, active, Y_out, status, t_final, stats)
+
+
 def _integrate_segments(lo, hi, models, P, scales, Y, drives, durations, sample, tab, ctl,
                         t_out, Y_out, N_out, status):
     integrate_segments(lo, hi, models, P, scales, Y, drives, durations,  # noqa: F821
@@ -113,6 +120,7 @@ _EXPORTS: dict[str, dict[str, Callable[..., Any]]] = {
     "saddle_env.envs.control_step": {"place": _place, "step_scalar": _step_scalar,
                                      "step_serial": _step_serial, "step_parallel": _step_parallel},
     "saddle_env.integrators": {"integrate_h": _integrate_h, "integrate_batch": _integrate_batch},
+    "saddle_env.blockstep": {"integrate_batch_shared": _integrate_batch_shared},
     "saddle_env.prediction": {"integrate_segments": _integrate_segments},
 }
 
@@ -243,6 +251,9 @@ def _warm_simulator(spec: BuildSpec, exports: dict[str, list[str]]) -> None:
         exports["saddle_env.integrators"] = ["integrate_h"]
     simulate_batch(scenes * 2, np.concatenate([starts, starts]), 0.01, omega=30.0)
     exports.setdefault("saddle_env.integrators", []).append("integrate_batch")
+    simulate_batch(scenes * 2, np.concatenate([starts, starts]), 0.01, omega=30.0,
+                   shared_steps=True)
+    exports["saddle_env.blockstep"] = ["integrate_batch_shared"]
     # a look-ahead, as a model-predictive controller makes it (agents.control.mpc): the argument
     # types are predict_batch's own, whatever the values
     rows = np.array([sc.model_code for sc in scenes] * 2)
@@ -269,11 +280,11 @@ def _export(cc: Any, spec: BuildSpec, exports: dict[str, list[str]],
             argtypes: dict[str, list[str]]) -> None:
     """Each listed function's one compiled signature exported by ``cc`` through a thin
     caller; its argument types recorded in ``argtypes``."""
-    from .. import integrators, prediction
+    from .. import blockstep, integrators, prediction
     from ..envs import control_step
 
     modules = {"saddle_env.envs.control_step": control_step, "saddle_env.integrators": integrators,
-               "saddle_env.prediction": prediction}
+               "saddle_env.prediction": prediction, "saddle_env.blockstep": blockstep}
     for mod_name, names in exports.items():
         space = specialise(frozenset(spec["models"]), bool(spec["resist"]), modules[mod_name])
         for name in names:

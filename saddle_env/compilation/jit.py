@@ -1,12 +1,15 @@
 """How the kernels are compiled: numba's options (no fast-math, numpy's error model, cached on
 disk), one specialisation per function (`one_signature`), and the decorators the kernel
-modules use (`jit`, `inline`, `ir_inline`, `jit_per_constant`, `python_entry`)."""
+modules use (`jit`, `inline`, `ir_inline`, `jit_per_constant`, `python_entry`), and
+`unmanaged`, an array without its reference count."""
 
 from __future__ import annotations
 
 from typing import Any
 
 import numba as nb
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
 
 def one_signature(dispatcher):
@@ -75,3 +78,27 @@ def python_entry(dispatcher):
     callers. Returns the function."""
     dispatcher._python_entry = True
     return dispatcher
+
+
+@intrinsic
+def unmanaged(typingctx, arr):
+    """``arr`` without its reference count: the same data, shape and strides, with numba's
+    memory record (meminfo) left empty. Every view compiled code takes of such an array, and
+    every call it is passed to, is then free of the atomic increments and decrements a
+    managed array costs (measured: most of a single ball's compiled step went to them). Only
+    for an array that something else keeps alive for as long as the result is used, and
+    whose views do not outlive that: a compiled function's own arguments, which its caller
+    holds for the call."""
+    if not isinstance(arr, types.Array):
+        return None
+
+    def codegen(context, builder, sig, args):
+        src = context.make_array(arr)(context, builder, value=args[0])
+        dst = context.make_array(arr)(context, builder)
+        for name in ("nitems", "itemsize", "data", "shape", "strides"):
+            setattr(dst, name, getattr(src, name))
+        dst.meminfo = cgutils.get_null_value(dst.meminfo.type)
+        dst.parent = cgutils.get_null_value(dst.parent.type)
+        return dst._getvalue()
+
+    return arr(arr), codegen
