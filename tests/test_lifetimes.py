@@ -77,8 +77,10 @@ def test_json_holds_the_curve_and_every_parameter(capsys):
                            "--seed", "4", "--json"])
     assert code == 0
     out = json.loads(capsys.readouterr().out)
-    assert set(out) == {"rps", "mean_s", "std_s", "model"}
+    assert set(out) == {"rps", "mean_s", "std_s", "mean_s_95", "model"}
     assert out["rps"] == [0.6, 1.0] and len(out["mean_s"]) == len(out["std_s"]) == 2
+    assert len(out["mean_s_95"]) == 2 and all(lo < hi for lo, hi in out["mean_s_95"])
+    assert "calibration" in out["model"]["mean_s_95"]
     assert all(0 < m < 10 for m in out["mean_s"])  # below the threshold: seconds, not minutes
     model = out["model"]
     calibrated, _ = load_calibration()
@@ -151,6 +153,8 @@ def test_a_speed_spread_out_of_range_is_named(value):
       "5000"], "--releases"),
     (["--c-plus", "2", "--c-minus", "2", "--object", "ln2", "--rps", "1", "--releases", "0"],
      "--releases"),
+    (["--c-plus", "2", "--c-minus", "2", "--object", "ln2", "--rps", "1", "--releases", "1"],
+     "--releases"),
     (["--c-plus", "2", "--c-minus", "2", "--object", "ln2", "--rps", "1", "--tilt", "1"],
      "--tilt"),
     (["--c-plus", "2", "--c-minus", "2", "--object", "ln2", "--rps", "1", "--seed", "-3"],
@@ -162,6 +166,62 @@ def test_bad_input_exits_2_naming_the_flag(argv, flag, capsys):
         lifetimes_main(argv)
     assert exc.value.code == 2
     assert flag in capsys.readouterr().err
+
+
+def test_a_failed_release_exits_2_with_a_named_message(monkeypatch, capsys):
+    import saddle_env.lifetimes.model as M
+
+    def failing(*args, **kwargs):
+        raise RuntimeError("3 of 48 releases failed to integrate")
+
+    monkeypatch.setattr(M, "release_times", failing)
+    with pytest.raises(SystemExit) as exc:
+        lifetimes_main(["--c-plus", "2", "--c-minus", "2", "--object", "ln2", "--rps", "1"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2
+    assert "RuntimeError" in err and "failed to integrate" in err and "Traceback" not in err
+
+
+def test_the_spread_is_the_sample_standard_deviation():
+    # ddof 1, as the lab's spread (Series.std) and the fit's standard errors
+    pred = predict_lifetimes(2.67, 4.66, "ln2", [1.2, 2.0], releases=3, seed=2,
+                             model=LabModel(t_max=5.0))
+    assert np.allclose(pred.std_s, pred.lifetimes.std(axis=1, ddof=1))
+    assert not np.allclose(pred.std_s, pred.lifetimes.std(axis=1, ddof=0))
+
+
+def test_the_mean_interval_combines_sampling_and_calibration():
+    from saddle_env.lifetimes.model import mean_interval
+
+    rng = np.random.default_rng(0)
+    one = np.exp(rng.normal(0.0, 0.3, size=(1, 400))) * 10
+    (lo, hi), = mean_interval([one])
+    m = one.mean()
+    se = one.std(ddof=1) / (m * math.sqrt(400))  # of the log of the mean
+    assert lo == pytest.approx(m * math.exp(-1.96 * se), rel=1e-3)
+    assert hi == pytest.approx(m * math.exp(1.96 * se), rel=1e-3)
+    # two models far apart (the calibration unsure): the interval holds both means
+    (lo2, hi2), = mean_interval([one, 3 * one])
+    assert lo2 < m and 3 * m < hi2 and lo2 == pytest.approx(lo, rel=0.05)
+    # more releases, a narrower interval
+    many = np.exp(rng.normal(0.0, 0.3, size=(1, 4000))) * 10
+    (lo3, hi3), = mean_interval([many])
+    assert hi3 / lo3 < hi / lo
+
+
+def test_a_prediction_interval_holds_the_calibrations_spread():
+    # the calibrated model's interval is wider than its releases' alone, and contains the mean
+    full = predict_lifetimes(2.67, 2.51, "steel", [1.3, 2.0], diameter_mm=19, releases=6,
+                             seed=3)
+    alone = predict_lifetimes(2.67, 2.51, "steel", [1.3, 2.0], diameter_mm=19, releases=6,
+                              seed=3, calibration_models=0)
+    assert np.array_equal(full.mean_s, alone.mean_s)
+    assert np.all(full.mean_s_95[:, 0] <= alone.mean_s_95[:, 0])
+    assert np.all(full.mean_s_95[:, 1] >= alone.mean_s_95[:, 1])
+    assert np.any(np.diff(full.mean_s_95, axis=1) > np.diff(alone.mean_s_95, axis=1))
+    assert "sampling error only" in alone.model["mean_s_95"]
+    with pytest.raises(ValueError, match="calibration_models"):
+        predict_lifetimes(2.67, 2.51, "ln2", [1.3], calibration_models=-1)
 
 
 _numbers = st.one_of(st.floats(allow_nan=True, allow_infinity=True, width=32),
