@@ -420,13 +420,16 @@ def spread_models(record: dict[str, Any], base: LabModel, k: int, seed: int) -> 
     return out
 
 
-def mean_interval(curves: list[np.ndarray], level: float = 0.95) -> np.ndarray:
+def mean_interval(curves: list[np.ndarray], level: float = 0.95,
+                  extra_var: np.ndarray | None = None) -> np.ndarray:
     """A ``level`` interval for the mean lifetime per speed, shape (speeds, 2).
 
     Each curve (speeds × releases, one per model) gives the log of its mean with the
     standard error of that log, s / (mean √n); the interval holds the central ``level`` of
     the equal mixture of these normals in ln(mean): the spread between models (the
     calibration's uncertainty) and within each (the releases' sampling error) together.
+    ``extra_var`` (per speed, in ln², optional) widens every model's normal alike: the
+    coverage check uses it for what a lab's own mean of few releases adds.
     """
     from scipy.special import ndtr  # scipy only where an interval is made
 
@@ -437,6 +440,8 @@ def mean_interval(curves: list[np.ndarray], level: float = 0.95) -> np.ndarray:
     # a speed where every release lived alike (all kept to t_max) has no sampling error;
     # a floor of 1e-6 in ln keeps the mixture a distribution there
     se = np.maximum(se, 1e-6)
+    if extra_var is not None:
+        se = np.sqrt(se * se + np.asarray(extra_var, dtype=float)[None, :])
     out = np.empty((means.shape[1], 2))
     for j in range(means.shape[1]):
         for col, q in enumerate(((1 - level) / 2, (1 + level) / 2)):
