@@ -53,10 +53,11 @@ PRIORS: dict[str, dict[str, Any]] = {
         "how they were set up, so the grid stops there and an interval reaching 4 mrad is "
         "clipped by that bound")},
     "evaporation_spread_fraction": {"upper": 0.45, "why": (
-        "a droplet's evaporation time is drawn normal; with a spread above about half its "
-        "mean, more than 1 % of droplets would be drawn with no life at all (cut at 0.1 s), "
-        "which is not how a droplet put down whole evaporates, so the spread stops at 45 % "
-        "of the mean and an interval reaching it is clipped by that bound")},
+        "a droplet's evaporation time is drawn normal; at a spread of 45 % of its mean, "
+        "1.3 % of droplets are drawn with no life at all (cut at 0.1 s), and more spread "
+        "gives a droplet put down whole no life more often still, which is not how one "
+        "evaporates; so the spread stops at 45 % and an interval reaching it is clipped by "
+        "that bound (a broader, skewed evaporation law would be the way past it)")},
 }
 MODEL_ERROR = 0.1  # the model's own error in ln(lifetime), added to the standard errors
 COMMAND = "python -m saddle_env.lifetimes.fit --out runs/lifetimes --ship"
