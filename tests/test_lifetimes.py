@@ -355,3 +355,20 @@ def test_the_calibrated_prediction_is_what_the_validation_used():
                              releases=record["releases_per_speed"], seed=record["seed"])
     full = json.loads((VALIDATION.parent / "lifetimes_calibrated.json").read_text())
     assert pred.mean_s.tolist() == full[s.name]
+
+
+def test_the_install_builds_the_lifetimes_kernel_ahead_of_time():
+    # A first predict_lifetimes in a fresh process runs the install's compiled kernels (no
+    # numba compile): the calibrated steel ball's contact models and rolling resistance pick
+    # a module the install builds, warmed by a real-saddle prediction (its argument types)
+    from saddle_env.coldstart.aot_build import planned_builds
+    from saddle_env.compilation.specialise import variant_flags
+
+    model, _ = load_calibration()
+    scene = model.scene(2.67, 2.51, "steel", 19.0)
+    flags = variant_flags((scene.model_code,), scene.rolling_resistance != 0.0)
+    plan = planned_builds()
+    assert flags in plan and plan[flags]["lifetimes"]
+    droplet = model.scene(2.67, 4.66, "ln2")
+    point = variant_flags((droplet.model_code,), False)
+    assert point in plan and plan[point]["contact"] is not None  # simulate's, same kernel

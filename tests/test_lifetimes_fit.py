@@ -266,3 +266,34 @@ def test_one_held_out_row_of_the_shipped_validation_is_remade_bit_for_bit():
     want = next(r for r in shipped if r["series"] == series[i].name
                 and r["variant"] == "rigid ball")
     assert json.loads(json.dumps(row)) == want
+
+
+def test_the_real_grid_and_the_fit_read_the_same_curves(tmp_path):
+    # the real simulator on a two-point grid (a droplet below its threshold: seconds of
+    # simulated time), through simulate_grid's file and Fitter.from_table: the fit's curve
+    # is release_times' own, and the fit picks one of the grid's points
+    from saddle_env.lifetimes.model import release_times
+
+    s = Series("2000-01-01", "A", 2.5, 2.5, "ln2", None, np.array([0.6, 0.8]),
+               (np.array([1.0, 1.2, 0.9]), np.array([1.1, 1.4, 1.0])))
+    two = G.Grid(tilts=(0.0, 2e-3), launch_spreads=(1e-3,), launch_speed_spreads=(0.0,),
+                 speed_spreads=(0.0,), film_drags=(0.0,), evaporation_means=(math.inf,))
+    table = G.simulate_grid([s], tmp_path, releases=3, seed=4, progress=False, grid=two)
+    fitter = Fitter.from_table([s], table, releases=3, seed=4, grid=two)
+    p = (2e-3, 1e-3, 0.0, 0.0, 0.0, 0.0)
+    direct = release_times(G.point_model("ln2", p), 2.5, 2.5, "ln2", None, s.rps, 3, 4)
+    assert np.array_equal(fitter.escapes(0, p), direct)
+    assert fitter.fit([0]).tilt in two.tilts
+
+
+def test_the_calibration_table_says_which_intervals_a_prior_clips():
+    from saddle_env.lifetimes.report import calibration_markdown
+
+    _, record = load_calibration()
+    rows = {r.split("|")[1].strip(): r for r in calibration_markdown(record).splitlines()[2:]}
+    assert "clipped" in rows["tilt of the saddle's axis"]
+    assert "clipped" in rows["droplet: spread of that life"]
+    assert "clipped" not in rows["drive: spread of the true speed about the stated one"]
+    # a tilt inside the grid is not said to be clipped
+    inside = dict(record, model=dict(record["model"], tilt=0.002))
+    assert "clipped" not in calibration_markdown(inside).splitlines()[2]

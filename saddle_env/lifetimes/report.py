@@ -35,14 +35,36 @@ def _num(value: float | None, scale: float = 1.0) -> str:
 
 
 def calibration_markdown(record: dict) -> str:
-    """The calibrated parameters, each with its 95 % bootstrap interval."""
+    """The calibrated parameters, each with its 95 % bootstrap interval; an interval or a
+    value that reaches a bound the grid holds on purpose (`fit.PRIORS`) says so."""
+    from .fit import PRIORS  # the bounds the code states (a record of before them has none)
+
+    priors = record.get("priors") or PRIORS
     model, intervals = record["model"], record.get("intervals_95", {})
     lines = ["| parameter | calibrated | 95 % interval | unit |", "|---|---|---|---|"]
     for key, text, scale, unit in PARAMETERS:
         lo, hi = intervals.get(key, (None, None))
         interval = f"[{_num(lo, scale)}, {_num(hi, scale)}]" if lo is not None else "—"
+        bound = _prior_bound(key, model, priors, scale)
+        if bound is not None:
+            interval += f" — clipped: {bound} is the prior's bound (below)"
         lines.append(f"| {text} | {_num(model.get(key), scale)} | {interval} | {unit} |")
     return "\n".join(lines)
+
+
+def _prior_bound(key: str, model: dict, priors: dict, scale: float) -> str | None:
+    """The upper bound of ``key`` that the fitted value sits on, in words, if a prior states
+    one (the evaporation spread's is a fraction of the mean)."""
+    value = model.get(key)
+    if value is None:
+        return None
+    if key in priors and math.isclose(value, priors[key]["upper"]):
+        return _num(priors[key]["upper"], scale)
+    fraction = priors.get(key + "_fraction")
+    mean = model.get("evaporation_mean")
+    if fraction and mean and math.isclose(value, fraction["upper"] * mean):
+        return f"{100 * fraction['upper']:.0f} % of the mean"
+    return None
 
 
 def validation_markdown(rows: list[dict], coverage: dict | None = None) -> str:
