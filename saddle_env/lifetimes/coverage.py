@@ -25,6 +25,7 @@ import sys
 import time
 from datetime import date
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -93,7 +94,7 @@ def held_out_bands(rows: list[dict], record: dict, models: int = 8,
     return out
 
 
-def summary(bands: list[dict], models: int, record: dict) -> dict[str, object]:
+def summary(bands: list[dict], models: int, record: dict) -> dict[str, Any]:
     """The file ``lifetimes_coverage.json`` holds: the bands and their coverage overall."""
     inside = sum(sum(b["inside"]) for b in bands)
     total = sum(len(b["inside"]) for b in bands)
