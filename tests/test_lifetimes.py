@@ -80,7 +80,7 @@ def test_json_holds_the_curve_and_every_parameter(capsys):
     assert set(out) == {"rps", "mean_s", "std_s", "mean_s_95", "model"}
     assert out["rps"] == [0.6, 1.0] and len(out["mean_s"]) == len(out["std_s"]) == 2
     assert len(out["mean_s_95"]) == 2 and all(lo < hi for lo, hi in out["mean_s_95"])
-    assert "calibration" in out["model"]["mean_s_95"]
+    assert "calibration" in out["model"]["mean_s_95_covers"]
     assert all(0 < m < 10 for m in out["mean_s"])  # below the threshold: seconds, not minutes
     model = out["model"]
     calibrated, _ = load_calibration()
@@ -219,7 +219,7 @@ def test_a_prediction_interval_holds_the_calibrations_spread():
     assert np.all(full.mean_s_95[:, 0] <= alone.mean_s_95[:, 0])
     assert np.all(full.mean_s_95[:, 1] >= alone.mean_s_95[:, 1])
     assert np.any(np.diff(full.mean_s_95, axis=1) > np.diff(alone.mean_s_95, axis=1))
-    assert "sampling error only" in alone.model["mean_s_95"]
+    assert "sampling error only" in alone.model["mean_s_95_covers"]
     with pytest.raises(ValueError, match="calibration_models"):
         predict_lifetimes(2.67, 2.51, "ln2", [1.3], calibration_models=-1)
 

@@ -17,7 +17,13 @@
   dissipation only), so the table shows what each effect buys.
 
 It writes ``calibration.json`` (``--ship`` also copies it into the package, where
-`saddle-lifetimes` reads it), ``validation.json``, ``validation.csv`` and ``lifetimes.png``.
+`saddle-lifetimes` reads it; it keeps each bootstrap draw's model, for the predictions'
+intervals, and the grid's stated bounds, `PRIORS`), ``validation.json``, ``validation.csv``
+and ``lifetimes.png``. Any error ends it with status 2 and a message naming it.
+
+`Fitter` takes its curves from any escape-time source and its values from any `grid.Grid`:
+the command gives it the simulated grid; tests/test_lifetimes_fit.py a tiny synthetic one,
+where the answer is known.
 """
 
 from __future__ import annotations

@@ -155,7 +155,7 @@ class LifetimePrediction:
     mean_s_95 : numpy.ndarray
         Per speed, a 95 % interval for the mean trapping time [s], shape (speeds, 2): the
         simulated releases' sampling error combined with the calibration's uncertainty
-        (`mean_interval`); ``model["mean_s_95"]`` says what it covers.
+        (`mean_interval`); ``model["mean_s_95_covers"]`` says what it covers.
     """
 
     rps: np.ndarray
@@ -367,7 +367,7 @@ def predict_lifetimes(c_plus: float, c_minus: float, object: str,  # noqa: A002
         "seed": int(seed), "alpha": STEEL_ALPHA if obj == "steel" else None,
         "contact": "rolling" if obj == "steel" else "point",
         "release": "at rest in the laboratory, not spinning, at a random turn of the saddle",
-        "mean_s_95": (f"the releases' sampling error and the calibration's uncertainty "
+        "mean_s_95_covers": (f"the releases' sampling error and the calibration's uncertainty "
                       f"({len(others)} models {calibration_source(calibration)})" if others
                       else "the releases' sampling error only"),
     }
