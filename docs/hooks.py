@@ -466,7 +466,8 @@ def lifetimes_markdown(what: str) -> str:
         record = json.loads((ROOT / "saddle_env" / "lifetimes" / "calibration.json").read_text())
         return report.calibration_markdown(record)
     rows = json.loads((ROOT / "docs" / "figures" / "lifetimes_validation.json").read_text())
-    return report.validation_markdown(rows)
+    coverage = json.loads((ROOT / "docs" / "figures" / "lifetimes_coverage.json").read_text())
+    return report.validation_markdown(rows, coverage)
 
 
 def bench_markdown(what: str) -> str:

@@ -1,7 +1,8 @@
 """Build the ahead-of-time compiled kernels: the compiled code of a first `env.step` (the
 single env's, the vector env's below 2 x LANES balls on one thread, training's 64, and from
 2 x LANES on numba's threads), its `reset`, a first `simulate`, `simulate_batch` and
-`predict_batch` (a model-predictive controller's look-ahead), as a C extension module per
+`predict_batch` (a model-predictive controller's look-ahead) and a first
+`saddle_env.lifetimes.predict_lifetimes` of a steel ball, as a C extension module per
 set of contact models, so that a fresh process starts without numba's compiling (how long
 that takes: docs/coldstart.md).
 
@@ -153,6 +154,7 @@ class BuildSpec(TypedDict):
     contact: ContactModel | None
     mix: bool
     ion: bool
+    lifetimes: bool
 
 
 def planned_builds() -> dict[tuple[str, ...], BuildSpec]:
@@ -161,17 +163,20 @@ def planned_builds() -> dict[tuple[str, ...], BuildSpec]:
     registered level, or ``SaddleTrap-v0`` given one contact model where no level has it
     alone), a contact model whose `simulate` does (None if none), whether a batch mixes
     them (a level that draws several models: `simulate_batch` and `predict_batch` over its
-    balls), and whether they are the ion trap's (`iontrap.simulate_ion`)."""
+    balls), whether they are the ion trap's (`iontrap.simulate_ion`), and whether they are
+    the real-saddle model's steel ball (`lifetimes.release_times`: rolling with rolling
+    resistance, which no level draws; its droplets use the point's module, built anyway)."""
     from ..envs.engine import contact_uses
     from ..envs.levels import LEVELS
-    from ..scene import CONTACT_MODELS, ION_PAUL, ION_RRF
+    from ..scene import CONTACT_MODELS, ION_PAUL, ION_RRF, ROLLING
 
     plan: dict[tuple[str, ...], BuildSpec] = {}
 
     def module_for(models, resist: bool) -> BuildSpec:
         return plan.setdefault(variant_flags(models, resist),
                                {"models": sorted(models), "resist": resist, "env": None,
-                                "contact": None, "mix": False, "ion": False})
+                                "contact": None, "mix": False, "ion": False,
+                                "lifetimes": False})
 
     for level in LEVELS:
         models, resist = contact_uses(level.config())
@@ -184,6 +189,7 @@ def planned_builds() -> dict[tuple[str, ...], BuildSpec]:
         # an environment of this one model (``gym.make("SaddleTrap-v0", contact=...)``)
         entry["env"] = entry["env"] or [LEVELS[0].id, _one_model_options(contact)]
     module_for((ION_RRF, ION_PAUL), False)["ion"] = True   # `iontrap.simulate_ion`
+    module_for((ROLLING,), True)["lifetimes"] = True        # `lifetimes.predict_lifetimes`
     return plan
 
 
@@ -276,6 +282,17 @@ def _warm_ion(exports: dict[str, list[str]]) -> None:
     exports["saddle_env.integrators"] = ["integrate_h"]
 
 
+def _warm_lifetimes(exports: dict[str, list[str]]) -> None:
+    """A first real-saddle prediction of a steel ball (`lifetimes.release_times`, which runs
+    `runner.run_batch` with rolling resistance); its batch integrator listed for export."""
+    import numpy as np
+
+    from ..lifetimes.model import LabModel, release_times
+    release_times(LabModel(rolling_resistance=1e-3, t_max=0.05), 2.67, 2.51, "steel", 19.0,
+                  np.array([1.0]), 2, 0)
+    exports.setdefault("saddle_env.integrators", []).append("integrate_batch")
+
+
 def _export(cc: Any, spec: BuildSpec, exports: dict[str, list[str]],
             argtypes: dict[str, list[str]]) -> None:
     """Each listed function's one compiled signature exported by ``cc`` through a thin
@@ -335,6 +352,8 @@ def _build_one(flags: tuple[str, ...], spec: BuildSpec, out_dir: str) -> dict:
         _warm_simulator(spec, exports)
     if spec["ion"]:
         _warm_ion(exports)
+    if spec["lifetimes"]:
+        _warm_lifetimes(exports)
     _export(cc, spec, exports, argtypes)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # numba.pycc's deprecation notice

@@ -17,7 +17,13 @@
   dissipation only), so the table shows what each effect buys.
 
 It writes ``calibration.json`` (``--ship`` also copies it into the package, where
-`saddle-lifetimes` reads it), ``validation.json``, ``validation.csv`` and ``lifetimes.png``.
+`saddle-lifetimes` reads it; it keeps each bootstrap draw's model, for the predictions'
+intervals, and the grid's stated bounds, `PRIORS`), ``validation.json``, ``validation.csv``
+and ``lifetimes.png``. Any error ends it with status 2 and a message naming it.
+
+`Fitter` takes its curves from any escape-time source and its values from any `grid.Grid`:
+the command gives it the simulated grid; tests/test_lifetimes_fit.py a tiny synthetic one,
+where the answer is known.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ import json
 import math
 import shutil
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import date
 from pathlib import Path
@@ -40,8 +47,24 @@ from ..linear import critical_omega, mass_point_band
 from ..scene import Scene
 from . import grid as G
 from .data import Series, cutoff, load_lab_series, median_log_error, onset
-from .model import CALIBRATION_FILE, STEEL_ALPHA, LabModel, lifetimes_of
+from .model import CALIBRATION_FILE, MAX_RELEASES, STEEL_ALPHA, LabModel, lifetimes_of
 
+# Bounds the grid holds on purpose: a fitted value or an interval at one of them is clipped
+# by what is known of the rig, not by a grid too small. Each names its parameter (as
+# calibration.json's "model" and "intervals_95" do), the bound and why it is physical;
+# tests check that no shipped value sits on a grid edge without one.
+PRIORS: dict[str, dict[str, Any]] = {
+    "tilt": {"upper": 4e-3, "why": (
+        "the lab levelled its saddles to about 3 mrad; a tilt beyond 4 mrad would contradict "
+        "how they were set up, so the grid stops there and an interval reaching 4 mrad is "
+        "clipped by that bound")},
+    "evaporation_spread_fraction": {"upper": 0.45, "why": (
+        "a droplet's evaporation time is drawn normal; at a spread of 45 % of its mean, "
+        "1.3 % of droplets are drawn with no life at all (cut at 0.1 s), and more spread "
+        "gives a droplet put down whole no life more often still, which is not how one "
+        "evaporates; so the spread stops at 45 % and an interval reaching it is clipped by "
+        "that bound (a broader, skewed evaporation law would be the way past it)")},
+}
 MODEL_ERROR = 0.1  # the model's own error in ln(lifetime), added to the standard errors
 COMMAND = "python -m saddle_env.lifetimes.fit --out runs/lifetimes --ship"
 
@@ -88,9 +111,10 @@ class Choice:
                 *own)
 
 
-def _evaporations(allowed: dict) -> list[tuple[float, float]]:
-    means = allowed.get("evaporation", G.EVAPORATION_MEANS)
-    return [(m, f) for m in means for f in (G.EVAPORATION_SPREADS if math.isfinite(m) else (0.0,))]
+def _evaporations(allowed: dict, grid: G.Grid) -> list[tuple[float, float]]:
+    means = allowed.get("evaporation", grid.evaporation_means)
+    return [(m, f) for m in means
+            for f in (grid.evaporation_spreads if math.isfinite(m) else (0.0,))]
 
 
 def curve(escapes: np.ndarray, obj: str, evaporation: tuple[float, float],
@@ -118,19 +142,45 @@ def objective_share(log_p: np.ndarray, var_sim: np.ndarray, log_m: np.ndarray,
     return float(np.sum(r * r / (var_lab + var_sim + MODEL_ERROR ** 2)))
 
 
-class Fitter:
-    """Chooses grid points for a set of series (`fit`), from one simulated table."""
+Escapes = Callable[[int, G.Point], np.ndarray]
 
-    def __init__(self, series: list[Series], table: dict[str, np.ndarray], seed: int):
-        self.series, self.table, self.seed = series, table, seed
+
+class Fitter:
+    """Chooses grid points for a set of series (`fit`) among simulated curves.
+
+    Parameters
+    ----------
+    series : list of Series
+        The lab's series (their lifetimes are what the fit matches).
+    escapes : callable
+        ``escapes(i, point)``: series ``i``'s escape times at a grid point, speeds × releases
+        (`from_table` reads them from `grid.simulate_grid`'s table; a test passes a small
+        synthetic simulator).
+    seed : int
+        Seed of the droplets' evaporation times (`model.lifetimes_of`).
+    grid : Grid
+        The values the fit chooses among (default the shipped grid).
+    """
+
+    def __init__(self, series: list[Series], escapes: Escapes, seed: int,
+                 grid: G.Grid = G.DEFAULT):
+        self.series, self.escapes, self.seed, self.grid = series, escapes, seed, grid
         self._curves: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+
+    @classmethod
+    def from_table(cls, series: list[Series], table: dict[str, np.ndarray], *, releases: int,
+                   seed: int, grid: G.Grid = G.DEFAULT) -> Fitter:
+        """A fitter over `grid.simulate_grid`'s table of escape times."""
+        return cls(series, lambda i, point: G.escapes_of(table, series[i], point,
+                                                          releases=releases, seed=seed),
+                   seed, grid)
 
     def curve(self, i: int, point: G.Point,
               evaporation: tuple[float, float] = (math.inf, 0.0)) -> tuple[np.ndarray, np.ndarray]:
         """Series ``i``'s predicted curve at grid ``point`` (cached)."""
         key = (i, point, evaporation if self.series[i].obj == "ln2" else None)
         if key not in self._curves:
-            self._curves[key] = curve(G.escapes_of(self.table, i, point), self.series[i].obj,
+            self._curves[key] = curve(self.escapes(i, point), self.series[i].obj,
                                       evaporation, self.seed)
         return self._curves[key]
 
@@ -155,9 +205,10 @@ class Fitter:
             return objective_share(*self.log_curve(i, point, ev), *labs[i])
 
         best: Choice | None = None
-        for shared in G.shared_points():
-            if (shared[0] not in allowed.get("tilt", G.TILTS)
-                    or shared[3] not in allowed.get("speed_spread", G.SPEED_SPREADS)):
+        grid = self.grid
+        for shared in grid.shared_points():
+            if (shared[0] not in allowed.get("tilt", grid.tilts)
+                    or shared[3] not in allowed.get("speed_spread", grid.speed_spreads)):
                 continue
             total, parts = 0.0, {"steel": (0.0, 0.0, math.inf, 0.0),
                                  "ln2": (0.0, 0.0, math.inf, 0.0)}
@@ -165,8 +216,9 @@ class Fitter:
                 members = [i for i in use if self.series[i].obj == obj]
                 if not members:
                     continue
-                owns = G.own_points(obj) if allowed.get("own", True) else [(0.0, 0.0)]
-                evaporations = _evaporations(allowed) if obj == "ln2" else [(math.inf, 0.0)]
+                owns = grid.own_points(obj) if allowed.get("own", True) else [(0.0, 0.0)]
+                evaporations = _evaporations(allowed, grid) if obj == "ln2" \
+                    else [(math.inf, 0.0)]
                 options = []
                 for own in owns:
                     for ev in evaporations:
@@ -214,26 +266,29 @@ def bootstrap(fitter: Fitter, draws: int, seed: int) -> list[Choice]:
 
 def validate(fitter: Fitter) -> list[dict[str, object]]:
     """Leave-one-series-out rows: every series under every variant."""
-    rows = []
-    for i, s in enumerate(fitter.series):
-        others = [j for j in range(len(fitter.series)) if j != i]
-        lab_on, lab_cut = onset(s.rps, s.mean), cutoff(s.rps, s.mean)
-        for name, allowed in VARIANTS.items():
-            choice = fitter.fit(others, allowed)
-            pred = fitter.predicted(i, choice)
-            rows.append({
-                "series": s.name, "variant": name, "lab_onset_rps": lab_on,
-                "theory_threshold_rps": theory_threshold(s),
-                "onset_rps": onset(s.rps, pred), "lab_cutoff_rps": lab_cut,
-                "cutoff_rps": cutoff(s.rps, pred),
-                "median_abs_log_ratio": median_log_error(pred, s.mean),
-                "max_predicted_s": float(pred.max()),
-                "predicted_s": [float(v) for v in pred],
-                "rps": [float(v) for v in s.rps], "lab_mean_s": [float(v) for v in s.mean],
-                "lab_std_s": [float(v) for v in s.std],
-                "fitted_on_others": _choice_dict(choice),
-            })
-    return rows
+    return [validation_row(fitter, i, name) for i in range(len(fitter.series))
+            for name in VARIANTS]
+
+
+def validation_row(fitter: Fitter, i: int, variant: str) -> dict[str, object]:
+    """Series ``i`` predicted by the model ``variant`` fitted on every other series: the fit
+    never sees series ``i``'s lifetimes (only `predicted` and the row's comparison do)."""
+    s = fitter.series[i]
+    others = [j for j in range(len(fitter.series)) if j != i]
+    choice = fitter.fit(others, VARIANTS[variant])
+    pred = fitter.predicted(i, choice)
+    return {
+        "series": s.name, "variant": variant, "lab_onset_rps": onset(s.rps, s.mean),
+        "theory_threshold_rps": theory_threshold(s),
+        "onset_rps": onset(s.rps, pred), "lab_cutoff_rps": cutoff(s.rps, s.mean),
+        "cutoff_rps": cutoff(s.rps, pred),
+        "median_abs_log_ratio": median_log_error(pred, s.mean),
+        "max_predicted_s": float(pred.max()),
+        "predicted_s": [float(v) for v in pred],
+        "rps": [float(v) for v in s.rps], "lab_mean_s": [float(v) for v in s.mean],
+        "lab_std_s": [float(v) for v in s.std],
+        "fitted_on_others": _choice_dict(choice),
+    }
 
 
 def _choice_dict(c: Choice) -> dict[str, float | None]:
@@ -267,15 +322,22 @@ def calibration_record(fitter: Fitter, best: Choice, draws: list[Choice], releas
                                  "log of a mean lifetime"),
         "series": [s.name for s in fitter.series],
         "releases_per_speed": releases, "seed": seed, "bootstrap_draws": len(draws),
-        "grid": {"tilt": G.TILTS, "launch_spread": G.LAUNCH_SPREADS,
-                 "launch_speed_spread": G.LAUNCH_SPEED_SPREADS, "speed_spread": G.SPEED_SPREADS,
-                 "rolling_resistance": G.ROLLING_RESISTANCES, "rolling_drag": G.ROLLING_DRAGS,
-                 "film_drag": G.FILM_DRAGS,
-                 "evaporation_mean": [m if math.isfinite(m) else None
-                                      for m in G.EVAPORATION_MEANS],
-                 "evaporation_spread_fraction": G.EVAPORATION_SPREADS},
+        # each draw's fitted parameters, so a prediction can carry the calibration's
+        # uncertainty (`model.predict_lifetimes`'s mean_s_95) without refitting
+        "bootstrap_models": [_choice_dict(c) for c in draws],
+        "grid": _grid_record(fitter.grid),
+        "priors": PRIORS,
         "command": COMMAND, "date": date.today().isoformat(),
     }
+
+
+def _grid_record(grid: G.Grid) -> dict[str, list[float | None]]:
+    g = grid.as_dict()
+    return {"tilt": g["tilts"], "launch_spread": g["launch_spreads"],
+            "launch_speed_spread": g["launch_speed_spreads"], "speed_spread": g["speed_spreads"],
+            "rolling_resistance": g["rolling_resistances"], "rolling_drag": g["rolling_drags"],
+            "film_drag": g["film_drags"], "evaporation_mean": g["evaporation_means"],
+            "evaporation_spread_fraction": g["evaporation_spreads"]}
 
 
 def write_validation(rows: list[dict[str, object]], out: Path) -> None:
@@ -307,8 +369,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                    help="copy calibration.json into the package (what saddle-lifetimes uses)")
     p.add_argument("--no-progress", action="store_true", help="print no progress lines")
     args = p.parse_args(argv)
-    if not 1 <= args.releases <= 2000:
-        p.error(f"--releases must lie in [1, 2000], got {args.releases}")
+    if not 2 <= args.releases <= MAX_RELEASES:
+        p.error(f"--releases must lie in [2, {MAX_RELEASES}] (a spread needs two), got "
+                f"{args.releases}")
     if args.bootstrap < 0:
         p.error(f"--bootstrap must be >= 0, got {args.bootstrap}")
     if args.seed < 0:
@@ -317,12 +380,21 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the exit status."""
+    """Run the command line; returns the exit status (2 with a named message on an error)."""
     args = parse_args(argv)
+    try:
+        return _run(args)
+    except (ValueError, RuntimeError, OSError) as exc:  # a stale grid, a failed release, a disk
+        print(f"python -m saddle_env.lifetimes.fit: error: {type(exc).__name__}: {exc}",
+              file=sys.stderr)
+        return 2
+
+
+def _run(args: argparse.Namespace) -> int:
     series = load_lab_series()
     table = G.simulate_grid(series, args.out, releases=args.releases, seed=args.seed,
                             progress=not args.no_progress)
-    fitter = Fitter(series, table, args.seed)
+    fitter = Fitter.from_table(series, table, releases=args.releases, seed=args.seed)
     best = fitter.fit(list(range(len(series))))
     draws = bootstrap(fitter, args.bootstrap, args.seed + 1)
     record = calibration_record(fitter, best, draws, args.releases, args.seed)

@@ -146,11 +146,16 @@ class LifetimePrediction:
     mean_s : numpy.ndarray
         Per speed, the mean trapping time over the releases [s].
     std_s : numpy.ndarray
-        Per speed, the standard deviation over the releases [s].
+        Per speed, the sample standard deviation over the releases [s] (ddof 1, as the lab's
+        spread and the fit's).
     lifetimes : numpy.ndarray
         Each release's trapping time [s], shape (speeds, releases).
     model : dict
         The model's parameters, as ``--json`` prints them.
+    mean_s_95 : numpy.ndarray
+        Per speed, a 95 % interval for the mean trapping time [s], shape (speeds, 2): the
+        simulated releases' sampling error combined with the calibration's uncertainty
+        (`mean_interval`); ``model["mean_s_95_covers"]`` says what it covers.
     """
 
     rps: np.ndarray
@@ -158,12 +163,16 @@ class LifetimePrediction:
     std_s: np.ndarray
     lifetimes: np.ndarray
     model: dict[str, object]
+    mean_s_95: np.ndarray
 
     def as_json(self) -> dict[str, object]:
-        """What ``saddle-lifetimes --json`` prints: rps, mean_s, std_s and the model."""
+        """What ``saddle-lifetimes --json`` prints: rps, mean_s, std_s, mean_s_95 (a
+        [low, high] pair per speed) and the model."""
         return {"rps": [float(f) for f in self.rps],
                 "mean_s": [float(m) for m in self.mean_s],
-                "std_s": [float(s) for s in self.std_s], "model": self.model}
+                "std_s": [float(s) for s in self.std_s],
+                "mean_s_95": [[float(lo), float(hi)] for lo, hi in self.mean_s_95],
+                "model": self.model}
 
 
 def check_request(c_plus: object, c_minus: object, obj: object, diameter_mm: object,
@@ -202,8 +211,9 @@ def check_request(c_plus: object, c_minus: object, obj: object, diameter_mm: obj
                          f"{speeds.tolist()}")
     if isinstance(releases, bool) or not isinstance(releases, (int, np.integer)):
         raise ValueError(f"releases must be a whole number, got {releases!r}")
-    if not 1 <= int(releases) <= MAX_RELEASES:
-        raise ValueError(f"releases must lie in [1, {MAX_RELEASES}] per speed, got {releases}")
+    if not 2 <= int(releases) <= MAX_RELEASES:
+        raise ValueError(f"releases must lie in [2, {MAX_RELEASES}] per speed (a spread needs "
+                         f"two), got {releases}")
     return cp, cm, obj, d, speeds, int(releases)
 
 
@@ -296,8 +306,8 @@ def load_calibration() -> tuple[LabModel, dict[str, object]]:
 def predict_lifetimes(c_plus: float, c_minus: float, object: str,  # noqa: A002
                       rps: float | list[float] | np.ndarray, *,
                       diameter_mm: float | None = None, releases: int = 24, seed: int = 0,
-                      tilt: float | None = None, model: LabModel | None = None
-                      ) -> LifetimePrediction:
+                      tilt: float | None = None, model: LabModel | None = None,
+                      calibration_models: int = 8) -> LifetimePrediction:
     """Mean trapping times of releases like the lab's on a real saddle.
 
     Parameters
@@ -319,21 +329,37 @@ def predict_lifetimes(c_plus: float, c_minus: float, object: str,  # noqa: A002
         Overrides the model's tilt [rad]; 0 is a level saddle.
     model : LabModel, optional
         The imperfections; by default the project's calibration (`load_calibration`).
+    calibration_models : int
+        Models of the calibration's uncertainty simulated for ``mean_s_95`` (`spread_models`;
+        0: the releases' sampling error only). A ``model`` given carries no calibration
+        uncertainty, so then none is simulated.
 
     Returns
     -------
     LifetimePrediction
-        ``model`` holds every parameter used, the object and the saddle included.
+        ``model`` holds every parameter used, the object and the saddle included;
+        ``mean_s_95`` the 95 % interval of each mean.
     """
     cp, cm, obj, d, speeds, n = check_request(c_plus, c_minus, object, diameter_mm, rps,
                                               releases)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative whole number, got {seed!r}")
-    base = load_calibration()[0] if model is None else model
+    if isinstance(calibration_models, bool) or not isinstance(calibration_models, int) \
+            or not 0 <= calibration_models <= 64:
+        raise ValueError("calibration_models must be a whole number in [0, 64], got "
+                         f"{calibration_models!r}")
+    if model is None:
+        base, calibration = load_calibration()
+    else:
+        base, calibration = model, {}
     if tilt is not None:
         base = base.with_(tilt=finite_number("tilt", tilt))
-    escapes = release_times(base, cp, cm, obj, d, speeds, n, int(seed))
-    life = lifetimes_of(base, obj, escapes, int(seed))
+    life = _lifetimes(base, cp, cm, obj, d, speeds, n, int(seed))
+    # The calibration's uncertainty: the same releases under models that span it (the tilt,
+    # if given, is not uncertain). A model of the user's own carries none.
+    others = [m if tilt is None else m.with_(tilt=base.tilt)
+              for m in spread_models(calibration, base, calibration_models, int(seed))]
+    curves = [life] + [_lifetimes(m, cp, cm, obj, d, speeds, n, int(seed)) for m in others]
     record: dict[str, Any] = {
         **{k: (None if isinstance(v, float) and math.isinf(v) else v)
            for k, v in base.as_dict().items()},
@@ -341,5 +367,90 @@ def predict_lifetimes(c_plus: float, c_minus: float, object: str,  # noqa: A002
         "seed": int(seed), "alpha": STEEL_ALPHA if obj == "steel" else None,
         "contact": "rolling" if obj == "steel" else "point",
         "release": "at rest in the laboratory, not spinning, at a random turn of the saddle",
+        "mean_s_95_covers": (f"the releases' sampling error and the calibration's uncertainty "
+                      f"({len(others)} models {calibration_source(calibration)})" if others
+                      else "the releases' sampling error only"),
     }
-    return LifetimePrediction(speeds, life.mean(axis=1), life.std(axis=1), life, record)
+    return LifetimePrediction(speeds, life.mean(axis=1), life.std(axis=1, ddof=1), life, record,
+                              mean_interval(curves))
+
+
+def _lifetimes(model: LabModel, cp: float, cm: float, obj: str, d: float | None,
+               speeds: np.ndarray, n: int, seed: int) -> np.ndarray:
+    return lifetimes_of(model, obj, release_times(model, cp, cm, obj, d, speeds, n, seed), seed)
+
+
+def calibration_source(record: dict[str, Any]) -> str:
+    """Where `spread_models` takes its models from, in words."""
+    if record.get("bootstrap_models"):
+        return "of the calibration's bootstrap"
+    return "drawn from the calibration's 95 % bootstrap intervals, each parameter on its own"
+
+
+def spread_models(record: dict[str, Any], base: LabModel, k: int, seed: int) -> list[LabModel]:
+    """``k`` models that span the calibration's uncertainty (none if ``record`` has none).
+
+    The bootstrap's own fitted models where the calibration keeps them (``bootstrap_models``,
+    ``k`` of them chosen by the seed); otherwise, for a calibration that kept only its
+    intervals, each parameter drawn on its own among the grid values inside its 95 %
+    interval (uniformly between the ends where the grid has none there). The second ignores
+    how the parameters move together, so it errs towards a wider interval.
+    """
+    if k == 0:
+        return []
+    rng = np.random.default_rng([seed, 3])
+    known = {f.name for f in fields(LabModel)}
+    kept = record.get("bootstrap_models") or []
+    if kept:
+        chosen = rng.choice(len(kept), size=min(k, len(kept)), replace=False)
+        return [base.with_(**{n: (math.inf if v is None else float(v))
+                              for n, v in kept[int(i)].items() if n in known})
+                for i in sorted(chosen)]
+    intervals, grid = record.get("intervals_95") or {}, record.get("grid") or {}
+    out = []
+    for _ in range(k):
+        changes: dict[str, float] = {}
+        for name, bounds in intervals.items():
+            if name not in known or None in bounds:  # an open end (no evaporation): kept
+                continue
+            lo, hi = (float(b) for b in bounds)
+            inside = [float(v) for v in grid.get(name) or () if v is not None and lo <= v <= hi]
+            changes[name] = float(rng.choice(inside)) if inside else float(rng.uniform(lo, hi))
+        out.append(base.with_(**changes))
+    return out
+
+
+def mean_interval(curves: list[np.ndarray], level: float = 0.95,
+                  extra_var: np.ndarray | None = None) -> np.ndarray:
+    """A ``level`` interval for the mean lifetime per speed, shape (speeds, 2).
+
+    Each curve (speeds × releases, one per model) gives the log of its mean with the
+    standard error of that log, s / (mean √n); the interval holds the central ``level`` of
+    the equal mixture of these normals in ln(mean): the spread between models (the
+    calibration's uncertainty) and within each (the releases' sampling error) together.
+    ``extra_var`` (per speed, in ln², optional) widens every model's normal alike: the
+    coverage check uses it for what a lab's own mean of few releases adds.
+    """
+    from scipy.special import ndtr  # scipy only where an interval is made
+
+    means = np.array([c.mean(axis=1) for c in curves])  # models × speeds
+    n = curves[0].shape[1]
+    se = np.array([c.std(axis=1, ddof=1) for c in curves]) / (means * math.sqrt(n))
+    mu = np.log(means)
+    # a speed where every release lived alike (all kept to t_max) has no sampling error;
+    # a floor of 1e-6 in ln keeps the mixture a distribution there
+    se = np.maximum(se, 1e-6)
+    if extra_var is not None:
+        se = np.sqrt(se * se + np.asarray(extra_var, dtype=float)[None, :])
+    out = np.empty((means.shape[1], 2))
+    for j in range(means.shape[1]):
+        for col, q in enumerate(((1 - level) / 2, (1 + level) / 2)):
+            lo, hi = float(np.min(mu[:, j] - 8 * se[:, j])), float(np.max(mu[:, j] + 8 * se[:, j]))
+            for _ in range(60):  # bisection on the mixture's distribution function
+                mid = 0.5 * (lo + hi)
+                if float(np.mean(ndtr((mid - mu[:, j]) / se[:, j]))) < q:
+                    lo = mid
+                else:
+                    hi = mid
+            out[j, col] = math.exp(0.5 * (lo + hi))
+    return out

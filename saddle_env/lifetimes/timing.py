@@ -6,14 +6,22 @@ leaves or 120 s, the shipped calibration) at several relative tolerances, altern
 over rounds, and prints each tolerance's median time as a ratio to the model's own (rtol
 1e-7), with how far its mean lifetimes lie from the tightest tolerance's. Results go to
 ``--out`` as JSON.
+
+``--first-call`` times instead what a user waits for first: the validation page's example
+`predict_lifetimes` call in a fresh interpreter with an empty numba cache (a new temporary
+``NUMBA_CACHE_DIR``), so only the install's ahead-of-time kernels can spare it a compile,
+and prints the import's and the call's seconds and whether those kernels were in use.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -36,15 +44,43 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--releases", type=int, default=24, help="releases per speed (>= 1)")
     p.add_argument("--out", type=Path, default=Path("bench_results/lifetimes.json"),
                    help="JSON file for the results")
+    p.add_argument("--first-call", action="store_true",
+                   help="time a first predict_lifetimes in a fresh interpreter, empty numba "
+                        "cache (print JSON; --out unused)")
     args = p.parse_args(argv)
     if args.rounds < 1 or args.releases < 1:
         p.error("--rounds and --releases must be >= 1")
     return args
 
 
+# The validation page's example call, timed in a fresh interpreter.
+_FIRST_CALL = """
+import json, time
+t0 = time.perf_counter()
+from saddle_env.lifetimes import predict_lifetimes
+from saddle_env.compilation import aot
+t1 = time.perf_counter()
+predict_lifetimes(2.67, 4.66, "steel", [1.3, 2.0], diameter_mm=19, releases=8)
+t2 = time.perf_counter()
+print(json.dumps({"import_s": t1 - t0, "first_call_s": t2 - t1, "aot": aot.status()}))
+"""
+
+
+def first_call() -> dict[str, object]:
+    """The seconds of a fresh interpreter's import and first `predict_lifetimes` call."""
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        out = subprocess.run([sys.executable, "-c", _FIRST_CALL], env=env, check=True,
+                             capture_output=True, text=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
     args = parse_args(argv)
+    if args.first_call:
+        print(json.dumps(first_call()))
+        return 0
     model, _ = load_calibration()
     times: dict[float, list[float]] = {tol: [] for tol in TOLERANCES}
     means: dict[float, np.ndarray] = {}
