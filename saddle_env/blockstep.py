@@ -140,10 +140,14 @@ def _step(model, m, d, t, h, tab, ctl, ws, dragged, work, shared):
 
 
 @jit
-def _leave(q, i, k, t, h, models, P, profiles, Y, t_out, tab, ctl, scales, max_step, ws,
-           Y_out, status, t_final, stats):
-    """Ball i (lane q) leaves the block at time t, before output k: the scalar loop finishes
-    it from the lane's state there, trying a step of ``h`` first."""
+def _leave(q, i, k, t, h, steps, rejected, live, models, P, profiles, Y, t_out, tab, ctl,
+           scales, max_step, ws, Y_out, status, t_final, stats):
+    """Ball i (lane q) leaves the block at time t, before output k, having shared ``steps``
+    accepted and ``rejected`` steps: the scalar loop finishes it from the lane's state there,
+    trying a step of ``h`` first. Returns 1 (the live lanes it takes away)."""
+    live[q] = False
+    _count(stats[i], steps, rejected, tab.B.shape[0])
+    stats[i, 3] += k  # the outputs the block wrote for it
     y = Y[i]
     for j in range(BLOCK_WIDTH):
         y[j] = ws.Y0[j, q]
@@ -151,6 +155,7 @@ def _leave(q, i, k, t, h, models, P, profiles, Y, t_out, tab, ctl, scales, max_s
     res = integrate_h(models[i], P[i], profiles[i], y, t, t_out[k:], tab, own, scales[i],
                       Y_out[i, k:], stats[i], h if ctl.dt <= 0.0 else 0.0, workspace(tab))
     status[i], t_final[i] = res.status, res.t_final
+    return 1
 
 
 @jit
@@ -239,10 +244,8 @@ def _run_block(model, idx, m, models, P, profiles, Y, t0, t_out, tab, ctl, scale
     # An event at the start, or a start that is not finite: the scalar loop reports it.
     for q in range(m):
         if not _starts_clean(q, d, ctl.events, ws):
-            live[q] = False
-            n_live -= 1
-            _leave(q, idx[q], 0, t, h, models, P, profiles, Y, t_out, tab, ctl, scales,
-                   max_step, ws, Y_out, status, t_final, stats)
+            n_live -= _leave(q, idx[q], 0, t, h, 0, 0, live, models, P, profiles, Y, t_out,
+                             tab, ctl, scales, max_step, ws, Y_out, status, t_final, stats)
     k = 0
     while k < t_out.shape[0] and t_out[k] <= t0:  # outputs at the start
         for q in range(m):
@@ -264,24 +267,27 @@ def _run_block(model, idx, m, models, P, profiles, Y, t0, t_out, tab, ctl, scale
         worst = 0.0
         if adaptive:
             for q in range(m):
-                if live[q]:
-                    e = ws.Err[q]
-                    worst = e if (e > worst or not e == e) else worst
+                if live[q] and not math.isfinite(ws.Err[q]):
+                    # a step this ball cannot take at all (it left the model's range): its
+                    # own loop shrinks it, not the block's
+                    n_live -= _leave(q, idx[q], k, t, hstep, steps, rejected, live, models, P,
+                                     profiles, Y, t_out, tab, ctl, scales, max_step, ws, Y_out,
+                                     status, t_final, stats)
+                elif live[q]:
+                    worst = max(worst, ws.Err[q])
+            if n_live == 0:
+                break
             if not worst <= 1.0:  # some ball rejects it: shrink for the worst and retry
-                h = hstep * (MIN_FACTOR if not math.isfinite(worst)
-                             else max(MIN_FACTOR, SAFETY * worst ** exponent))
+                h = hstep * max(MIN_FACTOR, SAFETY * worst ** exponent)
                 rejected += 1
                 continue
         steps += 1
         # A ball the step cannot be accepted for as it stands leaves for the scalar loop.
         for q in range(m):
             if live[q] and not accepted(q, model, d, adaptive, ctl.events, ws):
-                live[q] = False
-                n_live -= 1
-                _count(stats[idx[q]], steps - 1, rejected, s)
-                stats[idx[q], 3] += k  # the outputs the block wrote for it
-                _leave(q, idx[q], k, t, hstep, models, P, profiles, Y, t_out, tab, ctl,
-                       scales, max_step, ws, Y_out, status, t_final, stats)
+                n_live -= _leave(q, idx[q], k, t, hstep, steps - 1, rejected, live, models, P,
+                                 profiles, Y, t_out, tab, ctl, scales, max_step, ws, Y_out,
+                                 status, t_final, stats)
         t = target if clipped else t + hstep
         for j in range(BLOCK_WIDTH):
             for q in range(m):
