@@ -51,6 +51,24 @@ from collections.abc import Callable
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def clone_first_on_path() -> None:
+    """Put the clone's folder first on ``sys.path``.
+
+    The hooks read the clone's own ``agents/`` folder as the package ``agents`` (the figure
+    store, the command lines' parsers) and its ``train.py``; an install names that folder
+    ``saddle_agents``, and only ``python -m mkdocs`` run from the clone's root would have put
+    the clone on the path. With the clone first, the ``mkdocs`` console script, run from any
+    folder (``-f path/mkdocs.yml``), documents this clone's code. Called on import (the tests
+    import these functions) and again in ``on_config``: mkdocs restores ``sys.path`` after it
+    has loaded a hook file.
+    """
+    if sys.path[:1] != [str(ROOT)]:
+        sys.path.insert(0, str(ROOT))
+
+
+clone_first_on_path()
 MARKER = re.compile(r"^<!-- generated: (?P<what>[\w-]+)(?: (?P<arg>[^>]*?))? -->$", re.MULTILINE)
 
 
@@ -85,12 +103,7 @@ def _from_main(module: str) -> Callable[[], argparse.ArgumentParser]:
 
 def _build_parser(module: str) -> Callable[[], argparse.ArgumentParser]:
     def build() -> argparse.ArgumentParser:
-        if module == "train":
-            sys.path.insert(0, str(ROOT))
-            try:
-                return importlib.import_module("train").build_parser()
-            finally:
-                sys.path.remove(str(ROOT))
+        # `train` is the clone's train.py: ROOT is on the path (above)
         return importlib.import_module(module).build_parser()
 
     return build
@@ -489,6 +502,11 @@ def expand(markdown: str, page_dir: str = "") -> str:
 
 # The notes' weight in the search ranking (the user pages' is 1): still found, listed after.
 NOTES_SEARCH_BOOST = 0.1
+
+
+def on_config(config):
+    clone_first_on_path()
+    return config
 
 
 def on_page_markdown(markdown, page, config, files):

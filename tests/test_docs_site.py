@@ -2,10 +2,11 @@
 CI runs them; tests/test_docs.py checks the pages' links, anchors and navigation in the
 default suite).
 
-* `mkdocs build --strict`: a broken link or anchor, a page missing from the navigation, a
-  missing API object (mkdocstrings) or an undocumented `EnvConfig` option (docs/hooks.py)
-  fails it;
-* the built site, served on localhost, opened in Debian's headless Chromium through
+* `mkdocs build --strict`, the console script run from another folder with `-f`: a broken
+  link or anchor, a page missing from the navigation, a missing API object (mkdocstrings) or
+  an undocumented `EnvConfig` option (docs/hooks.py) fails it;
+* the site as the README's `mkdocs serve` serves it from the clone's root, on localhost,
+  opened in Debian's headless Chromium through
   its chromedriver (selenium): the home page, the environment reference and the physics
   page render, the equations are typeset by the bundled KaTeX (no raw TeX left), nothing is
   requested from another host, a search for "critical speed" lists the physics page, and one for
@@ -15,15 +16,14 @@ default suite).
 
 from __future__ import annotations
 
-import functools
-import http.server
 import os
 import shutil
+import socket
 import subprocess
 import sys
 import tempfile
-import threading
 import time
+import urllib.request
 from pathlib import Path
 
 import pytest
@@ -34,16 +34,36 @@ pytest.importorskip("mkdocs", reason="the [docs] extra is not installed")
 pytest.importorskip("material", reason="the [docs] extra is not installed")
 
 
-def _build(site: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--quiet",
+# The docs' commands as the README and CONTRIBUTING give them: the `mkdocs` console script of
+# this interpreter's environment, not `python -m mkdocs` (which puts the current folder on the
+# path and so hid a hook that imported a package the install does not have).
+MKDOCS = str(Path(sys.executable).with_name("mkdocs"))
+
+
+def _clean_env() -> dict[str, str]:
+    """The environment without PYTHONPATH: nothing but the hooks themselves may put the clone
+    on the path."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    return {**env, "NO_MKDOCS_2_WARNING": "1"}
+
+
+def _build(site: Path, cwd: Path = ROOT) -> subprocess.CompletedProcess:
+    """`mkdocs build --strict`, run in ``cwd``; from any folder but the clone's, with
+    ``-f`` naming the clone's mkdocs.yml."""
+    config = [] if cwd == ROOT else ["-f", str(ROOT / "mkdocs.yml")]
+    return subprocess.run([MKDOCS, "build", "--strict", "--quiet", *config,
                            "--site-dir", str(site)],
-                          check=False, cwd=ROOT, capture_output=True, text=True, timeout=600,
-                          env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
+                          check=False, cwd=cwd, capture_output=True, text=True, timeout=600,
+                          env=_clean_env())
 
 
 @pytest.mark.slow  # 14-18 s on the 2-core machine; tests/test_docs.py checks links and anchors fast
 def test_the_site_builds_with_warnings_as_errors(tmp_path):
-    done = _build(tmp_path / "site")
+    # from another folder, as `mkdocs build --strict -f path/to/mkdocs.yml`; the browser test
+    # below runs `mkdocs serve` from the clone's root
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    done = _build(tmp_path / "site", cwd=elsewhere)
     assert done.returncode == 0, f"mkdocs build --strict failed:\n{done.stdout}\n{done.stderr}"
     site = tmp_path / "site"
     for page in ("index.html", "environment/index.html", "physics/index.html",
@@ -75,26 +95,42 @@ CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver")
 
 
-class _Quiet(http.server.SimpleHTTPRequestHandler):
-    def log_message(self, *args):
-        pass
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 @pytest.fixture
 def served_site(tmp_path):
-    """The site built and served on 127.0.0.1 (a free port) for the test's length."""
-    site = tmp_path / "site"
-    done = _build(site)
-    assert done.returncode == 0, done.stderr
-    server = http.server.ThreadingHTTPServer(
-        ("127.0.0.1", 0), functools.partial(_Quiet, directory=str(site)))
-    thread = threading.Thread(target=server.serve_forever, daemon=True)
-    thread.start()
+    """The README's command, `mkdocs serve` in the clone's root, on 127.0.0.1 (a free port)
+    for the test's length."""
+    port = _free_port()
+    log = (tmp_path / "serve.log").open("w")
+    server = subprocess.Popen([MKDOCS, "serve", "--strict", "-a", f"127.0.0.1:{port}"],
+                              cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env=_clean_env())
+    url = f"http://127.0.0.1:{port}"
+
+    def up() -> bool:
+        if server.poll() is not None:
+            raise AssertionError(f"mkdocs serve stopped:\n{(tmp_path / 'serve.log').read_text()}")
+        try:
+            with urllib.request.urlopen(url + "/", timeout=2) as answer:
+                return answer.status == 200
+        except OSError:
+            return False
+
     try:
-        yield f"http://127.0.0.1:{server.server_address[1]}"
+        _wait(up, seconds=300, what="mkdocs serve to answer")
+        yield url
     finally:
-        server.shutdown()
-        server.server_close()
+        server.terminate()
+        try:
+            server.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            server.kill()
+            server.wait()
+        log.close()
 
 
 @pytest.fixture
