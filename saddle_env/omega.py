@@ -49,16 +49,31 @@ class OmegaProfile:
             object.__setattr__(self, name, finite_number(label, getattr(self, name)))
 
     @classmethod
-    def coerce(cls, omega: object) -> OmegaProfile:
-        """Accept a profile, a number (constant speed) or a (w0, rate, amp, freq, phase) tuple."""
+    def coerce(cls, omega: object, name: str = "omega") -> OmegaProfile:
+        """One ball's Ω: a profile, or a number (constant speed [rad/s]).
+
+        A sequence is one entry per ball, so for one ball it holds exactly one (a number or
+        a profile). A ramp or a ripple is only ever an `OmegaProfile`: a sequence's length
+        never chooses between "speeds" and "a profile's parameters".
+
+        Raises
+        ------
+        ValueError
+            Naming ``name``: not a finite number, not a profile, or a sequence of more or
+            fewer than one entry.
+        """
         if isinstance(omega, OmegaProfile):
             return omega
-        if isinstance(omega, (tuple, list)):
-            if not 1 <= len(omega) <= 5:
-                raise ValueError("omega as a sequence must be (w0[, rate[, amp[, freq[, phase]]]]), "
-                                 f"got {len(omega)} values")
-            return cls(*omega)
-        return cls(finite_number("omega", omega))
+        if isinstance(omega, (tuple, list)) or (isinstance(omega, np.ndarray) and omega.ndim):
+            shape = np.shape(omega) if isinstance(omega, np.ndarray) else (len(omega),)
+            if shape != (1,):
+                raise ValueError(
+                    f"{name} for one ball must be a number [rad/s], an OmegaProfile or a "
+                    f"sequence of exactly 1 of them (one per ball), got a "
+                    f"{type(omega).__name__} of shape {shape}; a ramp or a ripple is "
+                    "OmegaProfile(w0, rate, amp, freq, phase)")
+            return cls.coerce(omega[0], name)
+        return cls(finite_number(name, omega))
 
     def array(self) -> np.ndarray:
         """The profile packed as the compiled kernels read it."""
