@@ -504,6 +504,47 @@ def expand(markdown: str, page_dir: str = "") -> str:
 NOTES_SEARCH_BOOST = 0.1
 
 
+# A page of the docs named by its path in the repository, as help strings, docstrings and
+# the levels' descriptions name them (they are read in a terminal too): ``docs/X.md``, with
+# an optional anchor. Not when it is part of a longer path or already a link's target.
+_DOC_REF = re.compile(r"(?<![\w/.-])docs/(?P<path>[\w./-]+?\.md)(?P<anchor>#[\w-]+)?(?![\w/-])")
+_TAG = re.compile(r"(<[^>]*>)")
+# Where a reference stays text: inside a link already, and in code blocks (commands to copy).
+_NO_LINK_TAGS = frozenset({"a", "pre", "script", "style", "textarea", "title"})
+
+
+def link_doc_references(html: str, page, files) -> str:
+    """Every ``docs/X.md`` in the page's text made a link to page X of the site (its code
+    spans included: a link around the path's own text). A path that names no page of the
+    site fails the build, as a broken Markdown link does under ``--strict``."""
+
+    def link(m: re.Match) -> str:
+        target = files.get_file_from_path(m.group("path"))
+        if target is None:
+            raise RuntimeError(f"{page.file.src_uri}: docs/{m.group('path')} names no page "
+                               "of the site")
+        href = target.url_relative_to(page.file) + (m.group("anchor") or "")
+        return f'<a href="{href}">{m.group(0)}</a>'
+
+    out: list[str] = []
+    inside = 0  # depth of the tags of _NO_LINK_TAGS around this text
+    for part in _TAG.split(html):
+        if part.startswith("<"):
+            tag = re.match(r"<(/?)\s*([A-Za-z][\w-]*)", part)
+            if tag and tag.group(2).lower() in _NO_LINK_TAGS and not part.endswith("/>"):
+                inside += -1 if tag.group(1) else 1
+            out.append(part)
+        elif inside or "docs/" not in part:
+            out.append(part)
+        else:
+            out.append(_DOC_REF.sub(link, part))
+    return "".join(out)
+
+
+def on_page_content(html, page, config, files):
+    return link_doc_references(html, page, files)
+
+
 def on_config(config):
     clone_first_on_path()
     return config

@@ -17,6 +17,7 @@ default suite).
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -24,6 +25,7 @@ import sys
 import tempfile
 import time
 import urllib.request
+from html.parser import HTMLParser
 from pathlib import Path
 
 import pytest
@@ -57,15 +59,22 @@ def _build(site: Path, cwd: Path = ROOT) -> subprocess.CompletedProcess:
                           env=_clean_env())
 
 
-@pytest.mark.slow  # 14-18 s on the 2-core machine; tests/test_docs.py checks links and anchors fast
-def test_the_site_builds_with_warnings_as_errors(tmp_path):
-    # from another folder, as `mkdocs build --strict -f path/to/mkdocs.yml`; the browser test
-    # below runs `mkdocs serve` from the clone's root
-    elsewhere = tmp_path / "elsewhere"
+@pytest.fixture(scope="module")
+def built_site(tmp_path_factory) -> Path:
+    """The site built once for this module's checks, from another folder, as `mkdocs build
+    --strict -f path/to/mkdocs.yml` (the browser test below runs `mkdocs serve` from the
+    clone's root)."""
+    where = tmp_path_factory.mktemp("docs-build")
+    elsewhere = where / "elsewhere"
     elsewhere.mkdir()
-    done = _build(tmp_path / "site", cwd=elsewhere)
+    done = _build(where / "site", cwd=elsewhere)
     assert done.returncode == 0, f"mkdocs build --strict failed:\n{done.stdout}\n{done.stderr}"
-    site = tmp_path / "site"
+    return where / "site"
+
+
+@pytest.mark.slow  # 14-18 s on the 2-core machine; tests/test_docs.py checks links and anchors fast
+def test_the_site_builds_with_warnings_as_errors(built_site):
+    site = built_site
     for page in ("index.html", "environment/index.html", "physics/index.html",
                  "reference/cli/index.html", "reference/api/index.html",
                  "notes/index.html", "search/search_index.json", "changelog/index.html",
@@ -87,6 +96,105 @@ def test_the_site_builds_with_warnings_as_errors(tmp_path):
         for remote in ("cdn.jsdelivr", "unpkg.com", "fonts.googleapis", "fonts.gstatic",
                        "cdnjs", "polyfill.io"):
             assert remote not in text, f"{html.relative_to(site)} loads from {remote}"
+
+
+# -- the API page as rendered -------------------------------------------------------------------
+
+class _Tables(HTMLParser):
+    """Every table of a page as rows of cell texts (whitespace collapsed)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.tables: list[list[list[str]]] = []
+        self._row: list[str] | None = None
+        self._cell: list[str] | None = None
+
+    def handle_starttag(self, tag, attrs):
+        if tag == "table":
+            self.tables.append([])
+        elif tag == "tr" and self.tables:
+            self._row = []
+            self.tables[-1].append(self._row)
+        elif tag in ("td", "th") and self._row is not None:
+            self._cell = []
+
+    def handle_endtag(self, tag):
+        if tag in ("td", "th") and self._cell is not None and self._row is not None:
+            self._row.append(" ".join("".join(self._cell).split()))
+            self._cell = None
+
+    def handle_data(self, data):
+        if self._cell is not None:
+            self._cell.append(data)
+
+
+def _api_rows(site: Path, column: str) -> list[tuple[str, str]]:
+    """(name, cell of ``column``) for every row of the API page's parameter, attribute and
+    return tables."""
+    parser = _Tables()
+    parser.feed((site / "reference" / "api" / "index.html").read_text())
+    rows = []
+    for table in parser.tables:
+        if table and column in table[0] and "Name" in table[0]:
+            i = table[0].index(column)
+            rows += [(r[0], r[i]) for r in table[1:] if len(r) > i]
+    return rows
+
+
+def _is_sentence(text: str) -> bool:
+    """A description, not a type: a full stop, a dash or a colon between words, or more
+    words than the longest type written here ("sequence of str or (str, policy) pairs")."""
+    return (text.endswith(".") or ". " in text or " — " in text or " : " in text
+            or len(text.split()) > 8)
+
+
+@pytest.mark.slow
+def test_no_type_cell_of_the_api_page_holds_a_sentence(built_site):
+    # the one-line `x, y : float — description` form put its description in the Type column
+    rows = _api_rows(built_site, "Type")
+    assert len(rows) > 100, f"the API page has {len(rows)} typed rows"
+    assert _is_sentence("float — contact point [m], rotating (saddle) coordinates.")
+    sentences = [(name, cell) for name, cell in rows if _is_sentence(cell)]
+    assert not sentences, f"Type cells holding a description: {sentences}"
+
+
+@pytest.mark.slow
+def test_scene_b_default_agrees_in_the_signature_and_the_table(built_site):
+    html = (built_site / "reference" / "api" / "index.html").read_text()
+    start = html.index('id="saddle_env.Scene"')
+    parser = _Tables()
+    parser.feed(html[start:html.index("</table>", start)])
+    table = parser.tables[0]
+    default = table[0].index("Default")
+    rows = {r[0]: r[default] for r in table[1:]}
+    assert rows["a"] == "0.159" and rows["b"] == "None", rows
+    signature = html[html.index("doc-signature", start):]
+    signature = re.sub(r"<[^>]+>", "", signature[:signature.index("</pre>")])
+    assert re.search(r"\bb: float \| None = None", signature), signature
+
+
+@pytest.mark.slow
+def test_long_signatures_wrap(built_site):
+    # the [docs] extra brings the formatter (ruff) that wraps them at mkdocs.yml's width
+    html = (built_site / "reference" / "api" / "index.html").read_text()
+    start = html.index('id="saddle_env.simulate.simulate"')
+    block = html[html.index("doc-signature", start):]
+    text = re.sub(r"<[^>]+>", "", block[:block.index("</pre>")])
+    lines = text.strip().splitlines()
+    assert len(lines) > 10 and max(map(len, lines)) <= 88, lines
+
+
+@pytest.mark.slow
+def test_every_docs_page_reference_is_a_link(built_site):
+    # help strings (the command-line page), docstrings (the API page) and the levels'
+    # descriptions name pages as docs/X.md: on the site each is a link to X
+    levels = (built_site / "levels" / "index.html").read_text()
+    assert '<a href="../leaderboard/">docs/leaderboard.md</a>' in levels
+    for html in built_site.rglob("*.html"):
+        text = re.sub(r"<pre.*?</pre>|<a\b.*?</a>", "", html.read_text(), flags=re.DOTALL)
+        text = re.sub(r"<[^>]+>", "", text)
+        bare = re.findall(r"docs/[\w./-]+\.md", text)
+        assert not bare, f"{html.relative_to(built_site)}: {bare} not links"
 
 
 # -- in a browser (slow) -----------------------------------------------------------------------

@@ -65,7 +65,10 @@ def synthetic_tracks(env_id: str = "SaddleTrap-Lab-v0", n_tracks: int = 3,
 
     Returns
     -------
-    (tracks, config) : the tracks (``Track.source`` names the episode) and the `EnvConfig`.
+    tracks : list of Track
+        The tracks (``Track.source`` names the episode).
+    config : EnvConfig
+        The level's options the tracks were made with.
     """
     level = get_level(env_id)
     if not (isinstance(n_tracks, int) and 1 <= n_tracks <= MAX_TRACKS):
