@@ -332,6 +332,21 @@ def test_the_site_renders_in_a_browser(served_site, browser, capsys):
     browser.execute_script("arguments[0].scrollIntoView({block: 'center'});", crt)
     browser.save_screenshot(str(shots / "physics-equations.png"))
 
+    # a figure drawn wider than the column opens at its own size on a click
+    # (docs/assets/javascripts/enlarge.js): the validation page's eight panels
+    visit("/validation/", "Real saddles", "validation.png")
+    figure = _wait(lambda: browser.find_elements(By.CSS_SELECTOR, "article img.figure-enlargeable"),
+                   what="an enlargeable figure on the validation page")[0]
+    browser.execute_script("arguments[0].scrollIntoView({block: 'center'});", figure)
+    figure.click()
+    big = _wait(lambda: browser.find_elements(By.CSS_SELECTOR, ".figure-enlarged img"),
+                what="the enlarged figure")[0]
+    assert big.size["width"] > 1.5 * figure.size["width"], (big.size, figure.size)
+    browser.save_screenshot(str(shots / "validation-figure-enlarged.png"))
+    browser.find_element(By.CSS_SELECTOR, ".figure-enlarged").click()
+    _wait(lambda: not browser.find_elements(By.CSS_SELECTOR, ".figure-enlarged"),
+          what="the enlarged figure to close")
+
     # search, in the browser's own index (no server): "critical speed" (Ω_crt) lists the
     # physics page
     browser.get(served_site + "/")
@@ -370,4 +385,4 @@ def test_the_site_renders_in_a_browser(served_site, browser, capsys):
 
     hosts = _hosts_requested(browser)
     assert hosts <= {"127.0.0.1"}, f"the site requested other hosts: {hosts}"
-    assert len(list(shots.glob("*.png"))) == 6
+    assert len(list(shots.glob("*.png"))) == 8
