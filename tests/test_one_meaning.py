@@ -60,3 +60,4 @@ def test_saddle_sim_takes_one_meaning_per_flag(args, flag, capsys):
         main([*args, "--t-end", "0.01"])
     assert stop.value.code == 2
     assert flag in capsys.readouterr().err
+
