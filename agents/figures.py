@@ -247,6 +247,14 @@ def _lookup(path: Path, key: str) -> Any:
     return value
 
 
+def _is_date(text: object) -> bool:
+    try:
+        datetime.date.fromisoformat(str(text))
+    except ValueError:
+        return False
+    return bool(re.fullmatch(r"\d{4}-\d{2}-\d{2}", str(text)))
+
+
 def load_store(store: Path = STORE, leaderboard: Path = LEADERBOARD) -> dict[str, dict[str, Any]]:
     """Every figure by name, each with ``value``, ``unit``, ``date``, ``machine`` and
     ``command``. Raises FigureError on an entry that lacks one of them."""
@@ -263,6 +271,9 @@ def load_store(store: Path = STORE, leaderboard: Path = LEADERBOARD) -> dict[str
         entry = dict(entry)
         if isinstance(entry["date"], datetime.date):
             entry["date"] = entry["date"].isoformat()
+        if not _is_date(entry["date"]):
+            raise FigureError(f"{store.name}: figure {name!r}: date {entry['date']!r} is not "
+                              "a date (YYYY-MM-DD: the day of the measurement, not a range)")
         if "derive" in entry:
             if entry["derive"] not in DERIVED:
                 raise FigureError(f"{store.name}: {name!r}: no derivation {entry['derive']!r}")
