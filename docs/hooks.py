@@ -122,6 +122,7 @@ CLIS: dict[str, Callable[[], argparse.ArgumentParser]] = {
     "python -m agents.benchmark": _build_parser("agents.benchmark.run"),
     "python -m agents.benchmark.leaderboard": _build_parser("agents.benchmark.leaderboard"),
     "python -m agents.figures": _build_parser("agents.figures"),
+    "python -m agents.remeasure": _build_parser("agents.remeasure"),
     "python -m agents.benchmark.time_to_target": _from_main("agents.benchmark.time_to_target"),
     "python -m agents.benchmark.profile_training": _from_main("agents.benchmark.profile_training"),
     "python -m agents.benchmark.rllib_throughput": _build_parser("agents.benchmark.rllib_throughput"),

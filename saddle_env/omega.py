@@ -105,3 +105,28 @@ class OmegaProfile:
     def bound(self, t_end: float) -> float:
         """An upper bound of |Ω| on [0, t_end]."""
         return max(abs(self.w0), abs(self.w0 + self.rate * t_end)) + abs(self.amp)
+
+
+def omega_rows(omega: object, n: int) -> np.ndarray:
+    """Each of n balls' Ω profile, checked, as (n, 5) profile rows (`OmegaProfile.array`).
+
+    ``omega`` is one number or `OmegaProfile` for all, a sequence of exactly n of them (one
+    per ball), an (n,) array of constant speeds [rad/s] or an (n, 5) array of profile rows.
+    Any other length is refused, never read as a profile's parameters: a sequence's length
+    does not choose its meaning (a ramp is an `OmegaProfile`)."""
+    if isinstance(omega, np.ndarray) and omega.ndim >= 1:
+        if omega.shape == (n,):
+            return np.array([OmegaProfile.coerce(w, f"omega[{i}]").array()
+                             for i, w in enumerate(omega)])
+        if omega.shape == (n, 5):
+            return np.array([OmegaProfile(*row).array() for row in omega])
+        raise ValueError(f"omega as an array must have shape ({n},) (a speed per ball) or "
+                         f"({n}, 5) (a profile row per ball), got {omega.shape}")
+    if isinstance(omega, (list, tuple)):
+        if len(omega) != n:
+            raise ValueError(f"omega as a sequence must hold one speed [rad/s] or OmegaProfile "
+                             f"per ball, {n} entries, got {len(omega)}; a ramp or a ripple for "
+                             "every ball is one OmegaProfile(w0, rate, amp, freq, phase)")
+        return np.array([OmegaProfile.coerce(w, f"omega[{i}]").array()
+                         for i, w in enumerate(omega)])
+    return np.tile(OmegaProfile.coerce(omega).array(), (n, 1))
