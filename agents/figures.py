@@ -404,6 +404,21 @@ def stale_files() -> list[Path]:
     return [p for p in rendered_files() if render(p.read_text()) != p.read_text()]
 
 
+def _is_table(value: Any) -> bool:
+    return isinstance(value, dict) and not {"mean", "se"} & set(value)
+
+
+def _show_value(name: str, figure: dict[str, Any]) -> list[str]:
+    """``--show``'s lines for a figure's value: a table's cells one per line, by the names
+    a text gives them (``NAME.ROW.COLUMN``)."""
+    if not _is_table(figure["value"]):
+        return [f"{name} = {format_figure(figure)} {figure['unit']}".rstrip()]
+    lines = [f"{name}: a table [{figure['unit']}]"] if "." not in name else []
+    for key, cell in figure["value"].items():
+        lines += _show_value(f"{name}.{key}", {**figure, "value": cell, "unit": ""})
+    return lines
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The command line of ``python -m agents.figures``."""
     p = argparse.ArgumentParser(
@@ -426,7 +441,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.show:
             figure = find_figure(args.show)
-            print(f"{args.show} = {format_figure(figure)} {figure['unit']}".rstrip())
+            print("\n".join(_show_value(args.show, figure)))
             for key in ("date", "machine", "command", "what"):
                 if key in figure:
                     print(f"  {key}: {figure[key]}")

@@ -90,3 +90,11 @@ def test_a_store_date_that_is_not_a_date_is_refused(tmp_path, date):
     store.write_text(f"x:\n  value: 1\n  unit: s\n  date: {date}\n  machine: m\n  command: c\n")
     with pytest.raises(figures.FigureError, match=r"'x': date .* is not a date"):
         figures.load_store(store)
+
+
+def test_show_prints_a_table_figure_cell_by_cell(capsys):
+    # it stopped with a KeyError on a table's rows (no "mean")
+    assert figures.main(["--show", "accuracy-coulomb-tier"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("accuracy-coulomb-tier: a table [")
+    assert "\naccuracy-coulomb-tier.rtol-1e-10.coulomb_error = " in out and "  date: " in out
