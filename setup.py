@@ -43,7 +43,8 @@ class build_aot(Command):
         root = Path(__file__).resolve().parent if self.editable_mode else Path(self.build_lib)
         out = root / "saddle_env" / "_aot"
         shutil.rmtree(out, ignore_errors=True)  # an earlier build's: never ship it instead
-        if os.environ.get("SADDLE_ENV_AOT", "1") in ("0", ""):
+        self._record(False)  # until a build has succeeded
+        if not aot_enabled():
             print("saddle-env: ahead-of-time kernels skipped (SADDLE_ENV_AOT=0)")
             return
         with tempfile.TemporaryDirectory(prefix="saddle-env-build-") as cache:
@@ -65,6 +66,17 @@ class build_aot(Command):
             return
         if not self.editable_mode:
             self._outputs = [str(p) for p in out.iterdir()]
+        self._record(True)
+
+    def _record(self, built: bool) -> None:
+        """Tell the distribution whether compiled modules were built, and a wheel being
+        made whether it is for this platform only: bdist_wheel decides that before the build
+        runs (from `has_ext_modules`, the expectation) and names and lays out the wheel
+        after it, from ``root_is_pure``."""
+        self.distribution.aot_built = built
+        wheel = self.distribution.command_obj.get("bdist_wheel")
+        if wheel is not None and getattr(wheel, "root_is_pure", None) is not None:
+            wheel.root_is_pure = not built
 
     def get_outputs(self):
         return self._outputs
@@ -98,11 +110,21 @@ class build_with_aot(build):
     sub_commands = [*build.sub_commands, ("build_aot", None)]
 
 
+def aot_enabled() -> bool:
+    """Whether the ahead-of-time build is to run (``SADDLE_ENV_AOT=0`` skips it)."""
+    return os.environ.get("SADDLE_ENV_AOT", "1") not in ("0", "")
+
+
 class BinaryDistribution(Distribution):
-    """A wheel holding the compiled modules is for this platform and Python only."""
+    """A wheel holding the compiled modules is for this platform and Python only; one
+    without them (the build skipped or failed) is pure Python, for any platform."""
+
+    aot_built: bool | None = None  # set by build_aot once it has run
 
     def has_ext_modules(self):
-        return True
+        # before the build (bdist_wheel asks in finalize_options): whether one will run;
+        # build_aot corrects the wheel's answer when it has failed
+        return aot_enabled() if self.aot_built is None else self.aot_built
 
 
 if __name__ == "__main__":  # as setuptools runs it (tests import the commands alone)

@@ -247,6 +247,14 @@ def _lookup(path: Path, key: str) -> Any:
     return value
 
 
+def _is_date(text: object) -> bool:
+    try:
+        datetime.date.fromisoformat(str(text))
+    except ValueError:
+        return False
+    return bool(re.fullmatch(r"\d{4}-\d{2}-\d{2}", str(text)))
+
+
 def load_store(store: Path = STORE, leaderboard: Path = LEADERBOARD) -> dict[str, dict[str, Any]]:
     """Every figure by name, each with ``value``, ``unit``, ``date``, ``machine`` and
     ``command``. Raises FigureError on an entry that lacks one of them."""
@@ -263,6 +271,9 @@ def load_store(store: Path = STORE, leaderboard: Path = LEADERBOARD) -> dict[str
         entry = dict(entry)
         if isinstance(entry["date"], datetime.date):
             entry["date"] = entry["date"].isoformat()
+        if not _is_date(entry["date"]):
+            raise FigureError(f"{store.name}: figure {name!r}: date {entry['date']!r} is not "
+                              "a date (YYYY-MM-DD: the day of the measurement, not a range)")
         if "derive" in entry:
             if entry["derive"] not in DERIVED:
                 raise FigureError(f"{store.name}: {name!r}: no derivation {entry['derive']!r}")
@@ -393,6 +404,21 @@ def stale_files() -> list[Path]:
     return [p for p in rendered_files() if render(p.read_text()) != p.read_text()]
 
 
+def _is_table(value: Any) -> bool:
+    return isinstance(value, dict) and not {"mean", "se"} & set(value)
+
+
+def _show_value(name: str, figure: dict[str, Any]) -> list[str]:
+    """``--show``'s lines for a figure's value: a table's cells one per line, by the names
+    a text gives them (``NAME.ROW.COLUMN``)."""
+    if not _is_table(figure["value"]):
+        return [f"{name} = {format_figure(figure)} {figure['unit']}".rstrip()]
+    lines = [f"{name}: a table [{figure['unit']}]"] if "." not in name else []
+    for key, cell in figure["value"].items():
+        lines += _show_value(f"{name}.{key}", {**figure, "value": cell, "unit": ""})
+    return lines
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The command line of ``python -m agents.figures``."""
     p = argparse.ArgumentParser(
@@ -415,7 +441,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.show:
             figure = find_figure(args.show)
-            print(f"{args.show} = {format_figure(figure)} {figure['unit']}".rstrip())
+            print("\n".join(_show_value(args.show, figure)))
             for key in ("date", "machine", "command", "what"):
                 if key in figure:
                     print(f"  {key}: {figure[key]}")

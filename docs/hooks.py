@@ -51,6 +51,24 @@ from collections.abc import Callable
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def clone_first_on_path() -> None:
+    """Put the clone's folder first on ``sys.path``.
+
+    The hooks read the clone's own ``agents/`` folder as the package ``agents`` (the figure
+    store, the command lines' parsers) and its ``train.py``; an install names that folder
+    ``saddle_agents``, and only ``python -m mkdocs`` run from the clone's root would have put
+    the clone on the path. With the clone first, the ``mkdocs`` console script, run from any
+    folder (``-f path/mkdocs.yml``), documents this clone's code. Called on import (the tests
+    import these functions) and again in ``on_config``: mkdocs restores ``sys.path`` after it
+    has loaded a hook file.
+    """
+    if sys.path[:1] != [str(ROOT)]:
+        sys.path.insert(0, str(ROOT))
+
+
+clone_first_on_path()
 MARKER = re.compile(r"^<!-- generated: (?P<what>[\w-]+)(?: (?P<arg>[^>]*?))? -->$", re.MULTILINE)
 
 
@@ -85,12 +103,7 @@ def _from_main(module: str) -> Callable[[], argparse.ArgumentParser]:
 
 def _build_parser(module: str) -> Callable[[], argparse.ArgumentParser]:
     def build() -> argparse.ArgumentParser:
-        if module == "train":
-            sys.path.insert(0, str(ROOT))
-            try:
-                return importlib.import_module("train").build_parser()
-            finally:
-                sys.path.remove(str(ROOT))
+        # `train` is the clone's train.py: ROOT is on the path (above)
         return importlib.import_module(module).build_parser()
 
     return build
@@ -109,6 +122,7 @@ CLIS: dict[str, Callable[[], argparse.ArgumentParser]] = {
     "python -m agents.benchmark": _build_parser("agents.benchmark.run"),
     "python -m agents.benchmark.leaderboard": _build_parser("agents.benchmark.leaderboard"),
     "python -m agents.figures": _build_parser("agents.figures"),
+    "python -m agents.remeasure": _build_parser("agents.remeasure"),
     "python -m agents.benchmark.time_to_target": _from_main("agents.benchmark.time_to_target"),
     "python -m agents.benchmark.profile_training": _from_main("agents.benchmark.profile_training"),
     "python -m agents.benchmark.rllib_throughput": _build_parser("agents.benchmark.rllib_throughput"),
@@ -490,6 +504,52 @@ def expand(markdown: str, page_dir: str = "") -> str:
 
 # The notes' weight in the search ranking (the user pages' is 1): still found, listed after.
 NOTES_SEARCH_BOOST = 0.1
+
+
+# A page of the docs named by its path in the repository, as help strings, docstrings and
+# the levels' descriptions name them (they are read in a terminal too): ``docs/X.md``, with
+# an optional anchor. Not when it is part of a longer path or already a link's target.
+_DOC_REF = re.compile(r"(?<![\w/.-])docs/(?P<path>[\w./-]+?\.md)(?P<anchor>#[\w-]+)?(?![\w/-])")
+_TAG = re.compile(r"(<[^>]*>)")
+# Where a reference stays text: inside a link already, and in code blocks (commands to copy).
+_NO_LINK_TAGS = frozenset({"a", "pre", "script", "style", "textarea", "title"})
+
+
+def link_doc_references(html: str, page, files) -> str:
+    """Every ``docs/X.md`` in the page's text made a link to page X of the site (its code
+    spans included: a link around the path's own text). A path that names no page of the
+    site fails the build, as a broken Markdown link does under ``--strict``."""
+
+    def link(m: re.Match) -> str:
+        target = files.get_file_from_path(m.group("path"))
+        if target is None:
+            raise RuntimeError(f"{page.file.src_uri}: docs/{m.group('path')} names no page "
+                               "of the site")
+        href = target.url_relative_to(page.file) + (m.group("anchor") or "")
+        return f'<a href="{href}">{m.group(0)}</a>'
+
+    out: list[str] = []
+    inside = 0  # depth of the tags of _NO_LINK_TAGS around this text
+    for part in _TAG.split(html):
+        if part.startswith("<"):
+            tag = re.match(r"<(/?)\s*([A-Za-z][\w-]*)", part)
+            if tag and tag.group(2).lower() in _NO_LINK_TAGS and not part.endswith("/>"):
+                inside += -1 if tag.group(1) else 1
+            out.append(part)
+        elif inside or "docs/" not in part:
+            out.append(part)
+        else:
+            out.append(_DOC_REF.sub(link, part))
+    return "".join(out)
+
+
+def on_page_content(html, page, config, files):
+    return link_doc_references(html, page, files)
+
+
+def on_config(config):
+    clone_first_on_path()
+    return config
 
 
 def on_page_markdown(markdown, page, config, files):

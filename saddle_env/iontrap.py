@@ -471,11 +471,15 @@ class BallIonMap:
 
     Attributes
     ----------
-    trap : RRFTrap — same Ω as the saddle.
-    stretch : float — λ = sqrt(−D/B): the ball's centre (x_c, y_c) is the ion at
+    trap : RRFTrap
+        Same Ω as the saddle.
+    stretch : float
+        λ = sqrt(−D/B): the ball's centre (x_c, y_c) is the ion at
         (x_c, y_c/λ) exactly (linear order). 1 when the map needs no stretch.
-    ball, ion : ABCD — the ball's Table I coefficients and the ion's Eq. (comp2) ones.
-    exact_unstretched : bool — λ = 1: the ball's centre and the ion coincide (linear order).
+    ball, ion : ABCD
+        The ball's Table I coefficients and the ion's Eq. (comp2) ones.
+    exact_unstretched : bool
+        λ = 1: the ball's centre and the ion coincide (linear order).
     """
 
     trap: RRFTrap

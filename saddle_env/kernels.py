@@ -704,14 +704,19 @@ def rhs(model, p, prof, t, y, dy, want_normal):
         ``ROLLING``, ``SLIPPING`` (the point model is slipping with p[P_R] = 0), ``COULOMB``
         (its phase in y[PHASE_SLOT]), or ``ION_RRF`` / ``ION_PAUL`` (state (x, y, vx, vy);
         no normal force: returns +inf).
-    p : (N_PARAMS,) float64 — packed scene parameters (Scene.params()).
-    prof : (DRIVE_WIDTH,) float64 — drive row (Ω profile, θ0, external force).
-    t : float — time [s].
-    y, dy : (STATE_WIDTH,) float64 — state and its derivative (the work slot's derivative
+    p : (N_PARAMS,) float64
+        Packed scene parameters (Scene.params()).
+    prof : (DRIVE_WIDTH,) float64
+        Drive row (Ω profile, θ0, external force).
+    t : float
+        Time [s].
+    y, dy : (STATE_WIDTH,) float64
+        State and its derivative (the work slot's derivative
         is the dissipated power; 0 when nothing dissipates). A coulomb ball's phase slot
         of ``dy`` gets the stick margin μ_s N/m - |f| [m/s²] while it sticks, the slip's
         lag behind the push [m/s] at onset, else 0.
-    want_normal : bool — whether to return the normal force per unit mass.
+    want_normal : bool
+        Whether to return the normal force per unit mass.
     """
     Om, Omd, fx, fy = frame_terms(prof, t, p[P_TILT_FORCE])
     if ROLLING_ON and model == ROLLING:

@@ -49,16 +49,31 @@ class OmegaProfile:
             object.__setattr__(self, name, finite_number(label, getattr(self, name)))
 
     @classmethod
-    def coerce(cls, omega: object) -> OmegaProfile:
-        """Accept a profile, a number (constant speed) or a (w0, rate, amp, freq, phase) tuple."""
+    def coerce(cls, omega: object, name: str = "omega") -> OmegaProfile:
+        """One ball's Ω: a profile, or a number (constant speed [rad/s]).
+
+        A sequence is one entry per ball, so for one ball it holds exactly one (a number or
+        a profile). A ramp or a ripple is only ever an `OmegaProfile`: a sequence's length
+        never chooses between "speeds" and "a profile's parameters".
+
+        Raises
+        ------
+        ValueError
+            Naming ``name``: not a finite number, not a profile, or a sequence of more or
+            fewer than one entry.
+        """
         if isinstance(omega, OmegaProfile):
             return omega
-        if isinstance(omega, (tuple, list)):
-            if not 1 <= len(omega) <= 5:
-                raise ValueError("omega as a sequence must be (w0[, rate[, amp[, freq[, phase]]]]), "
-                                 f"got {len(omega)} values")
-            return cls(*omega)
-        return cls(finite_number("omega", omega))
+        if isinstance(omega, (tuple, list)) or (isinstance(omega, np.ndarray) and omega.ndim):
+            shape = np.shape(omega) if isinstance(omega, np.ndarray) else (len(omega),)
+            if shape != (1,):
+                raise ValueError(
+                    f"{name} for one ball must be a number [rad/s], an OmegaProfile or a "
+                    f"sequence of exactly 1 of them (one per ball), got a "
+                    f"{type(omega).__name__} of shape {shape}; a ramp or a ripple is "
+                    "OmegaProfile(w0, rate, amp, freq, phase)")
+            return cls.coerce(omega[0], name)
+        return cls(finite_number(name, omega))
 
     def array(self) -> np.ndarray:
         """The profile packed as the compiled kernels read it."""
@@ -90,3 +105,28 @@ class OmegaProfile:
     def bound(self, t_end: float) -> float:
         """An upper bound of |Ω| on [0, t_end]."""
         return max(abs(self.w0), abs(self.w0 + self.rate * t_end)) + abs(self.amp)
+
+
+def omega_rows(omega: object, n: int) -> np.ndarray:
+    """Each of n balls' Ω profile, checked, as (n, 5) profile rows (`OmegaProfile.array`).
+
+    ``omega`` is one number or `OmegaProfile` for all, a sequence of exactly n of them (one
+    per ball), an (n,) array of constant speeds [rad/s] or an (n, 5) array of profile rows.
+    Any other length is refused, never read as a profile's parameters: a sequence's length
+    does not choose its meaning (a ramp is an `OmegaProfile`)."""
+    if isinstance(omega, np.ndarray) and omega.ndim >= 1:
+        if omega.shape == (n,):
+            return np.array([OmegaProfile.coerce(w, f"omega[{i}]").array()
+                             for i, w in enumerate(omega)])
+        if omega.shape == (n, 5):
+            return np.array([OmegaProfile(*row).array() for row in omega])
+        raise ValueError(f"omega as an array must have shape ({n},) (a speed per ball) or "
+                         f"({n}, 5) (a profile row per ball), got {omega.shape}")
+    if isinstance(omega, (list, tuple)):
+        if len(omega) != n:
+            raise ValueError(f"omega as a sequence must hold one speed [rad/s] or OmegaProfile "
+                             f"per ball, {n} entries, got {len(omega)}; a ramp or a ripple for "
+                             "every ball is one OmegaProfile(w0, rate, amp, freq, phase)")
+        return np.array([OmegaProfile.coerce(w, f"omega[{i}]").array()
+                         for i, w in enumerate(omega)])
+    return np.tile(OmegaProfile.coerce(omega).array(), (n, 1))

@@ -119,7 +119,8 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
     Parameters
     ----------
     models : int or numpy.ndarray
-        Contact model codes (`Scene.model_code`), one for all or (n,), one per run.
+        Contact model codes (`Scene.model_code`): one for all, or an (n,) array, one per
+        run (any other shape is a ValueError naming ``models``).
     P
         (n, N_PARAMS) packed scene parameters (`Scene.params()`).
     Y0
@@ -160,12 +161,15 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
         raise ValueError(f"sample must be a positive number of seconds, got {sample!r}")
     # always a fresh, writable array: a view of the caller's (read-only once broadcast)
     # would be another argument type, which the install's build has no entry point for
-    codes = np.array(np.broadcast_to(np.asarray(models, dtype=np.int64), (n,)))
+    codes = _model_codes(models, n)
     settings = Settings.build(method, rtol, atol, None, events, max_step, max_steps)
     if max_step is None:
         max_step = default_max_step(_speed_bound(drives, durations))
     if scales is None:
         scales = np.array([state_scale(P[r], codes[r]) for r in range(n)])
+    elif np.shape(scales) != (n, K.STATE_WIDTH):
+        raise ValueError(f"scales must have shape ({n}, {K.STATE_WIDTH}) (one row per run), "
+                         f"got {np.shape(scales)}")
     longest = durations.max(axis=0) if n else np.zeros(S)
     m = max((samples_in(float(T), float(sample)) for T in longest if T > 0), default=1)
     t = np.full((n, S, m), np.nan)
@@ -182,6 +186,18 @@ def predict_batch(models: int | np.ndarray, P: np.ndarray, Y0: np.ndarray, drive
     width = padded_width(codes)
     return Prediction(t, np.ascontiguousarray(state[..., :width]), normal, status,
                       np.ascontiguousarray(Y[:, :width]))
+
+
+def _model_codes(models: object, n: int) -> np.ndarray:
+    """The contact model codes, one per run: one code for all, or exactly n of them. A
+    sequence of any other length (one code of a list included) is refused, never
+    broadcast."""
+    arr = np.asarray(models)
+    if arr.dtype.kind not in "iu" or (arr.ndim and arr.shape != (n,)):
+        raise ValueError(f"models must be one contact model code (Scene.model_code) or {n} "
+                         f"of them, one per run, got {type(models).__name__} of shape "
+                         f"{arr.shape} and dtype {arr.dtype}")
+    return np.array(np.broadcast_to(arr.astype(np.int64), (n,)))
 
 
 def _speed_bound(drives: np.ndarray, durations: np.ndarray) -> float:

@@ -46,7 +46,7 @@ from .integrators import (
     transition_log,
     workspace,
 )
-from .omega import OmegaProfile
+from .omega import OmegaProfile, omega_rows
 from .scene import COULOMB, P_RESIST, Scene, finite_number
 
 # Default accuracy: DOP853 at this tolerance (see docs/accuracy.md).
@@ -79,18 +79,23 @@ def initial_state(scene: Scene, x: float, y: float, vx: float = 0.0, vy: float =
     Parameters
     ----------
     scene : Scene
-    x, y : float — contact point [m], rotating (saddle) coordinates.
-    vx, vy : float — contact-point velocity relative to the saddle [m/s]. Ignored when
+    x, y : float
+        Contact point [m], rotating (saddle) coordinates.
+    vx, vy : float
+        Contact-point velocity relative to the saddle [m/s]. Ignored when
         ``start`` is given.
     start : {"rotating-rest", "lab-rest"}, optional
         ``"rotating-rest"``: at rest on the saddle (vx = vy = 0). ``"lab-rest"``: placed at
         rest in the laboratory — the centre's velocity relative to the saddle is the
         tangential part of -Ω k×c (the normal part cannot be given to a ball that stays on
         the surface); needs ``omega``.
-    omega : float or OmegaProfile — the saddle speed at t = 0 (used by ``"lab-rest"``).
-    spin_normal : float — rolling and coulomb: spin about the normal relative to the saddle
+    omega : float or OmegaProfile
+        The saddle speed at t = 0 (used by ``"lab-rest"``).
+    spin_normal : float
+        Rolling and coulomb: spin about the normal relative to the saddle
         [rad/s]; 0 is the state friction drives the ball to (the paper's ω_z = 0).
-    spin : (wx, wy, wz), optional — coulomb only: the ball's whole angular velocity relative
+    spin : (wx, wy, wz), optional
+        Coulomb only: the ball's whole angular velocity relative
         to the saddle, in the saddle's axes [rad/s], instead of the rolling one (then it
         slips from the start unless the two agree). By default a coulomb ball starts rolling
         without slip.
@@ -459,19 +464,31 @@ class Stats:
 class Trajectory:
     """One ball's run, sampled at the output times reached before any event.
 
-    Attributes
-    ----------
-    t : (n,) output times [s].  state : (n, state_size) states (see `initial_state`).
-    event : Event or None.  settings : str, the integrator used.  stats : Stats.
-    work : (n,) work per unit mass [J/kg] done by the dissipative forces (air drag, drilling
-    friction) since t = 0, integrated with the state; zeros when the scene has none. At
-    constant Ω and with no lab-fixed force, ``h - h[0] == work``.
-    phase : (n,) coulomb: 0 where the ball sticks (rolls), 1 where it slips; None otherwise.
-    transitions : list of `Transition` — coulomb: every change of phase after t = 0, at its
-    located time (``phase[0]`` is the starting phase); ``transitions_total`` counts them all
-    when more than TRANSITION_LOG_ROWS happened.
     Derived quantities (velocity, normal force, Jacobi integral, centre, laboratory
     coordinates) are computed on first access from the shared kernels.
+
+    Attributes
+    ----------
+    t : ndarray, shape (n,)
+        Output times [s].
+    state : ndarray, shape (n, state_size)
+        States (see `initial_state`).
+    event : Event or None
+        The event that stopped the run, if one did.
+    settings : str
+        The integrator used.
+    stats : Stats
+        The integrator's counts.
+    work : ndarray, shape (n,)
+        Work per unit mass [J/kg] done by the dissipative forces (air drag, drilling
+        friction) since t = 0, integrated with the state; zeros when the scene has none.
+        At constant Ω and with no lab-fixed force, ``h - h[0] == work``.
+    phase : ndarray, shape (n,), or None
+        Coulomb: 0 where the ball sticks (rolls), 1 where it slips; None otherwise.
+    transitions : list of Transition
+        Coulomb: every change of phase after t = 0, at its located time (``phase[0]`` is
+        the starting phase); ``transitions_total`` counts them all when more than
+        TRANSITION_LOG_ROWS happened.
     """
 
     scene: Scene
@@ -756,13 +773,27 @@ class BatchResult:
 
     Attributes
     ----------
-    t : (m,) output times.  state : (n, m, k) states padded to k = 5 (7 when the batch has a
-    coulomb ball); rows after a ball's last output, and a ball's slots past its own state
-    (a rolling ball's in a batch padded to 7), are NaN.  n_out : (n,) outputs reached per
-    ball.  status : (n,) STATUS_* codes.  t_final : (n,) time of each final state (event time
-    where one fired).  final_state : (n, k) state at t_final, padded as ``state``.
-    work : (n, m) work of the dissipative forces per unit mass [J/kg] since t = 0
-    (`Trajectory.work`), NaN after a ball's last output.
+    t : ndarray, shape (m,)
+        Output times [s].
+    state : ndarray, shape (n, m, k)
+        States padded to k = 5 (7 when the batch has a coulomb ball); rows after a ball's
+        last output, and a ball's slots past its own state (a rolling ball's in a batch
+        padded to 7), are NaN.
+    n_out : ndarray, shape (n,)
+        Outputs reached per ball.
+    status : ndarray, shape (n,)
+        STATUS_* codes.
+    t_final : ndarray, shape (n,)
+        Time of each final state [s] (the event's time where one fired).
+    final_state : ndarray, shape (n, k)
+        State at ``t_final``, padded as ``state``.
+    stats : ndarray, shape (n, 4)
+        The integrator's counts per ball.
+    settings : str
+        The integrator used.
+    work : ndarray, shape (n, m)
+        Work of the dissipative forces per unit mass [J/kg] since t = 0
+        (`Trajectory.work`), NaN after a ball's last output.
     """
 
     t: np.ndarray
@@ -861,21 +892,3 @@ def check_angles(angle: object, n: int) -> np.ndarray:
                              f"finite angles [rad], got an array of shape {angle.shape}")
         return angle.astype(float)
     return np.full(n, finite_number("angle", angle))
-
-
-def omega_rows(omega: object, n: int) -> np.ndarray:
-    """Each of n balls' Ω profile, checked, as (n, 5) profile rows (`OmegaProfile.array`).
-
-    ``omega`` is one number or `OmegaProfile` for all, a sequence of n of them, an (n,)
-    array of constant speeds [rad/s] or an (n, 5) array of profile rows."""
-    if isinstance(omega, np.ndarray) and omega.ndim >= 1:
-        if omega.shape == (n,):
-            return np.array([OmegaProfile.coerce(float(w)).array() for w in omega])
-        if omega.shape == (n, 5):
-            return np.array([OmegaProfile(*row).array() for row in omega])
-        raise ValueError(f"omega array must have shape ({n},) or ({n}, 5), got {omega.shape}")
-    if isinstance(omega, (list, tuple)) and len(omega) == n and n > 1 and all(
-            isinstance(w, (OmegaProfile, int, float, np.floating, np.integer)) for w in omega):
-        return np.array([OmegaProfile.coerce(w).array() for w in omega])
-    row = OmegaProfile.coerce(omega).array()
-    return np.tile(row, (n, 1))

@@ -67,9 +67,12 @@ class Scene:
 
     Parameters
     ----------
-    a, b : float
-        Saddle lengths [m]; the surface is ``z = x²/a − y²/b``. ``b`` defaults to ``a``
-        (the symmetric saddle of the paper, a = 0.159 m).
+    a : float
+        Saddle length along x [m]; the surface is ``z = x²/a − y²/b`` (the paper's saddle:
+        0.159 m).
+    b : float or None
+        Saddle length along y [m]. None (the default) means ``b = a``, the symmetric saddle
+        of the paper: the built scene's ``b`` holds the value used.
     R : float
         Ball radius [m], ``0 < R < min(a, b)/2``. Ignored (taken as 0) by ``contact="point"``.
     alpha : float

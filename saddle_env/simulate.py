@@ -52,7 +52,7 @@ from .scene import Scene
 # Entry points
 # --------------------------------------------------------------------------------------
 def simulate(scene: Scene, state: np.ndarray, t_end: float, *,
-             omega: float | OmegaProfile | Sequence[float] = 20.0, dt_out: float | None = 0.01,
+             omega: float | OmegaProfile = 20.0, dt_out: float | None = 0.01,
              method: str | None = None, rtol: float | None = None, atol: float | None = None,
              dt: float | None = None, events: Sequence[str] = DEFAULT_EVENTS,
              max_step: float | None = None, max_steps: int = 50_000_000,
@@ -67,8 +67,9 @@ def simulate(scene: Scene, state: np.ndarray, t_end: float, *,
         The starting state, from `initial_state`.
     t_end : float
         Final time [s].
-    omega : float, OmegaProfile or tuple
-        Ω(t) [rad/s] (a number means constant speed).
+    omega : float or OmegaProfile
+        Ω(t) [rad/s]: a number is a constant speed; a ramp or a ripple is an `OmegaProfile`.
+        A sequence is one entry per ball, so here exactly one (else ValueError).
     dt_out : float or None
         Output spacing [s]; None outputs only t = 0 and t_end. The outputs are the
         multiples of ``dt_out`` up to ``t_end``, and ``t_end`` itself when it is not one of
@@ -145,8 +146,10 @@ def simulate_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: f
     t_end : float
         Final time [s].
     omega : float, OmegaProfile, sequence or ndarray
-        One value/profile for all, or one per ball (a sequence, or an (n,) array of
-        constant speeds, or an (n, 5) array of profile rows).
+        One speed [rad/s] or `OmegaProfile` for all balls, or one per ball: a sequence of
+        exactly n speeds or profiles, an (n,) array of constant speeds, or an (n, 5) array
+        of profile rows (`OmegaProfile.array`). Any other length is a ValueError naming
+        ``omega`` and n; a ramp for every ball is one `OmegaProfile`, never a pair.
     dt_out, method, rtol, atol, dt, events, max_step, max_steps, force
         As in `simulate`.
     tol : float

@@ -115,8 +115,12 @@ BAD_CALLS = [
     (dict(dt_out=-1.0), "dt_out must be > 0"),
     (dict(dt_out=1e-9, t_end=100.0), "at most"),
     (dict(omega=math.nan), "omega must be finite"),
-    (dict(omega=(20.0, math.inf)), "omega rate must be finite"),
-    (dict(omega=(1, 2, 3, 4, 5, 6)), "omega as a sequence"),
+    # a ramp is an OmegaProfile, never a tuple: a sequence is one entry per ball
+    (dict(omega=(20.0, 1.0)), r"omega for one ball .* exactly 1 .* shape \(2,\)"),
+    (dict(omega=(1, 2, 3, 4, 5, 6)), r"omega for one ball .* OmegaProfile\(w0, rate"),
+    (dict(omega=[]), r"omega for one ball .* shape \(0,\)"),
+    (dict(omega=np.array([20.0, 21.0])), r"omega for one ball .* shape \(2,\)"),
+    (dict(omega=[math.inf]), "omega must be finite"),
     (dict(method="euler"), "method must be one of"),
     (dict(method="rk4", rtol=1e-6), "no error estimate"),
     (dict(rtol=0.0), "rtol must satisfy"),
@@ -137,6 +141,49 @@ def test_bad_simulate_arguments(kwargs, message):
     call.update(kwargs)
     with pytest.raises(ValueError, match=message):
         simulate(sc, initial_state(sc, 0.01, 0.0), **call)
+
+
+# One argument, one meaning: a sequence of speeds is one entry per ball, whatever its length;
+# `simulate_batch(scene, three_states, 1.0, omega=[20, 21])` was once a ramp (20 rad/s rising
+# at 21 rad/s^2) for every ball.
+BAD_BATCH_OMEGAS = [
+    ([20.0, 21.0], r"omega as a sequence .* per ball, 3 entries, got 2"),
+    ((20.0, 21.0), r"omega as a sequence .* 3 entries, got 2"),
+    ([20.0, 21.0, 22.0, 23.0], r"omega as a sequence .* 3 entries, got 4"),
+    ([20.0, 21.0, 22.0, 23.0, 24.0], r"3 entries, got 5; a ramp .* OmegaProfile"),
+    ([20.0], r"3 entries, got 1"),
+    (np.array([20.0, 21.0]), r"omega as an array must have shape \(3,\) .* or \(3, 5\)"),
+    (np.full((3, 4), 20.0), r"omega as an array .* got \(3, 4\)"),
+    ([[20.0, 1.0], 21.0, 22.0], r"omega\[0\] for one ball .* shape \(2,\)"),
+    ([20.0, math.nan, 22.0], r"omega\[1\] must be finite"),
+    ([20.0, "21", 22.0], r"omega\[1\] must be a real number"),
+]
+
+
+@pytest.mark.parametrize("omega, message", BAD_BATCH_OMEGAS)
+def test_batch_omega_of_the_wrong_length_is_refused(omega, message):
+    sc = Scene()
+    states = np.array([initial_state(sc, 0.005 * (i + 1), 0.0) for i in range(3)])
+    with pytest.raises(ValueError, match=message):
+        simulate_batch(sc, states, 1.0, omega=omega)
+
+
+def test_batch_omega_one_entry_per_ball_whatever_the_count():
+    # two balls, two speeds: per-ball constant speeds (not a ramp), as two single runs; one
+    # ball, one speed; a ramp for every ball is one OmegaProfile
+    sc = Scene()
+    states = np.array([initial_state(sc, 0.005, 0.0), initial_state(sc, 0.01, 0.0)])
+    batch = simulate_batch(sc, states, 0.3, omega=[20.0, 21.0], dt_out=0.1)
+    for i, w in enumerate((20.0, 21.0)):
+        single = simulate(sc, states[i], 0.3, omega=w, dt_out=0.1)
+        np.testing.assert_array_equal(batch.state[i], single.state)
+    one = simulate_batch(sc, states[1:], 0.3, omega=[21.0], dt_out=0.1)
+    np.testing.assert_array_equal(one.state[0], batch.state[1])
+    ramp = OmegaProfile(20.0, 21.0)
+    ramped = simulate_batch(sc, states, 0.3, omega=ramp, dt_out=0.1)
+    np.testing.assert_array_equal(ramped.state[1],
+                                  simulate(sc, states[1], 0.3, omega=ramp, dt_out=0.1).state)
+    assert not np.array_equal(ramped.state[1], batch.state[1])
 
 
 @pytest.mark.parametrize("state, message", [

@@ -166,7 +166,8 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("agents: controllers", ("agents.control",)),
     ("agents: evaluation", ("agents.evaluation",)),
     ("agents: training", ("agents.training",)),
-    ("agents: the benchmark and the figure store", ("agents.benchmark", "agents.figures")),
+    ("agents: the benchmark and the figure store",
+     ("agents.benchmark", "agents.figures", "agents.remeasure")),
     ("the training script", ("train",)),
 )
 

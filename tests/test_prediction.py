@@ -181,6 +181,27 @@ def test_bad_shapes_are_refused():
                       np.zeros((1, 1, K.DRIVE_WIDTH)), np.ones((1, 1)), 0.0)
 
 
+@pytest.mark.parametrize("models, message", [
+    (np.array([0, 0]), r"models must be one contact model code .* or 3 of them, .* shape \(2,\)"),
+    (np.array([0]), r"or 3 of them, one per run, got ndarray of shape \(1,\)"),  # not broadcast
+    ([0, 0, 0, 0], r"or 3 of them, .* shape \(4,\)"),
+    (np.zeros((3, 1), dtype=int), r"shape \(3, 1\)"),
+    (0.0, r"models must be one contact model code .* dtype float64"),
+])
+def test_models_of_the_wrong_length_are_refused(models, message):
+    # one entry per run or one for all: a sequence's length never broadcasts
+    _, P, Y0, drives, durations = _cases_batch()
+    with pytest.raises(ValueError, match=message):
+        predict_batch(models, P, Y0, drives, durations, 0.05)
+
+
+def test_scales_of_the_wrong_shape_are_refused():
+    _, P, Y0, drives, durations = _cases_batch()
+    models = np.array([Scene().model_code] * 3)
+    with pytest.raises(ValueError, match=rf"scales must have shape \(3, {K.STATE_WIDTH}\)"):
+        predict_batch(models, P, Y0, drives, durations, 0.05, scales=np.ones(K.STATE_WIDTH))
+
+
 def test_a_batch_compiled_for_its_own_contact_models_predicts_identically(monkeypatch):
     """`predict_batch` compiles its kernel for the batch's contact models alone
     (`compilation.specialise`, as the environment does): a rolling batch's prediction is the

@@ -53,20 +53,20 @@ def synthetic_tracks(env_id: str = "SaddleTrap-Lab-v0", n_tracks: int = 3,
         ball's size is the fixed ``R`` (not drawn from ``ball_radii``).
     seconds, fps
         Each track's length [s] and frame rate [1/s] (1-10,000).
-    position_noise
-        The camera's noise [m], Gaussian, per coordinate.
-    omega_noise, theta_noise
-        The tachometer's [rad/s] and the encoder's [rad] noise.
+    position_noise, omega_noise, theta_noise
+        The camera's [m] (Gaussian, per coordinate), the tachometer's [rad/s] and the
+        encoder's [rad] noise.
     columns
         The optional columns to write, from ("omega", "voltage", "theta").
     hold, action_range
-        The commands: uniform in ``action_range`` (the action, -1 to 1)
-        held for ``hold`` seconds each.
+        The commands: uniform in ``action_range`` (the action, -1 to 1) held ``hold`` s each.
 
     Returns
     -------
-    (tracks, config) : the tracks (``Track.source`` names the episode) and the `EnvConfig`.
-    """
+    tracks : list of Track
+        The tracks (``Track.source`` names the episode).
+    config : EnvConfig
+        The level's options that made them."""
     level = get_level(env_id)
     if not (isinstance(n_tracks, int) and 1 <= n_tracks <= MAX_TRACKS):
         raise ValueError(f"n_tracks must be an integer in [1, {MAX_TRACKS}], got {n_tracks!r}")

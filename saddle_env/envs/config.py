@@ -219,6 +219,10 @@ class EnvConfig:
             self._set("mu_range", _range("mu_range", self.mu_range, lo=0.0))
         # Scene parameters are validated by building the nominal scene.
         self.scene()
+        if self.g == 0:  # the simulator takes g = 0; a trap needs gravity to work against
+            raise ValueError("g must be > 0 m/s^2 in the environment, got 0: gravity holds "
+                             "the ball on the saddle (the trap's threshold sqrt(2g/(a - 2R)) "
+                             "is 0 without it, and no start keeps the ball on the surface)")
         # The friction coefficients reach only coulomb balls' scenes: check them here too.
         for name in ("mu", "mu_static"):
             if getattr(self, name) is not None:

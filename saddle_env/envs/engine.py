@@ -105,9 +105,12 @@ class TrapEngine:
     Parameters
     ----------
     config : EnvConfig
-    n : int — number of balls.
-    parallel : bool — step with numba threads (worth it from a few dozen balls).
-    lockstep : bool — step balls that fit one integrator step per control period together in
+    n : int
+        Number of balls.
+    parallel : bool
+        Step with numba threads (worth it from a few dozen balls).
+    lockstep : bool
+        Step balls that fit one integrator step per control period together in
         SIMD blocks (`saddle_env.lockstep`); False forces the scalar path for every ball.
         Results are identical either way (tested); only the speed differs.
     """

@@ -60,11 +60,16 @@ class Context:
 
     Attributes
     ----------
-    out : Path — output folder (PNG, CSV, summary.json, cache/).
-    quick : bool — small grids and short runs (CI), same figures.
-    use_cache : bool — read cached sweeps (they are always written).
-    progress : bool — show tqdm progress bars.
-    written : list of Path — files written so far (for the final listing).
+    out : Path
+        Output folder (PNG, CSV, summary.json, cache/).
+    quick : bool
+        Small grids and short runs (CI), same figures.
+    use_cache : bool
+        Read cached sweeps (they are always written).
+    progress : bool
+        Show tqdm progress bars.
+    written : list of Path
+        Files written so far (for the final listing).
     """
 
     out: Path

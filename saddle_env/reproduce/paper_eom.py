@@ -112,10 +112,14 @@ def spin_rate(scene: Scene, omega: float, y: np.ndarray, keep_transport: bool = 
 
     Parameters
     ----------
-    scene : Scene — a rolling ball.
-    omega : float — constant saddle speed Ω [rad/s] (the paper's equation assumes it).
-    y : (..., 5) — states (x, y, wx, wy, wz) as in `saddle_env.initial_state`.
-    keep_transport : bool — restore the term ṙ_o × ṙ_c the paper drops (→ exact model).
+    scene : Scene
+        A rolling ball.
+    omega : float
+        Constant saddle speed Ω [rad/s] (the paper's equation assumes it).
+    y : (..., 5)
+        States (x, y, wx, wy, wz) as in `saddle_env.initial_state`.
+    keep_transport : bool
+        Restore the term ṙ_o × ṙ_c the paper drops (→ exact model).
 
     Returns
     -------
@@ -194,13 +198,23 @@ def simulate_paper(scene: Scene, state: np.ndarray, t_end: float, omega: float,
 
     Parameters
     ----------
-    scene : Scene — rolling ball; the run stops when the contact point leaves its rim.
-    state : (5,) — from `saddle_env.initial_state`.
-    t_end : float [s].  omega : float — constant Ω [rad/s].  dt_out : float — output spacing.
-    keep_transport : bool — restore the dropped term (the exact model, for checking).
-    rtol : float — relative tolerance; absolute tolerances scale with the state's size as in
+    scene : Scene
+        Rolling ball; the run stops when the contact point leaves its rim.
+    state : (5,)
+        From `saddle_env.initial_state`.
+    t_end : float
+        Duration [s].
+    omega : float
+        Constant Ω [rad/s].
+    dt_out : float
+        Output spacing [s].
+    keep_transport : bool
+        Restore the dropped term (the exact model, for checking).
+    rtol : float
+        Relative tolerance; absolute tolerances scale with the state's size as in
         `saddle_env.integrators.state_scale`.
-    stop_at_detach : bool — stop at the first N = 0 crossing (else run on, as the paper's
+    stop_at_detach : bool
+        Stop at the first N = 0 crossing (else run on, as the paper's
         figure does, showing the forbidden negative force).
     """
     from scipy.integrate import solve_ivp
@@ -253,8 +267,10 @@ def feasible_paper(scene: Scene, states: np.ndarray, omega: float, t_end: float,
 
     Returns
     -------
-    ok : (n,) bool — stayed in contact and on the saddle.
-    t_lost : (n,) float — first sampled time of N < 0 or r > rim (inf if ok).
+    ok : (n,) bool
+        Stayed in contact and on the saddle.
+    t_lost : (n,) float
+        First sampled time of N < 0 or r > rim (inf if ok).
     """
     from scipy.integrate import solve_ivp
 

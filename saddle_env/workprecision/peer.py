@@ -30,13 +30,19 @@ class PeerModel:
 
     Parameters
     ----------
-    a, b, R, alpha, g : scene parameters (``R = 0`` for the mass point).
-    rolling : bool — pure rolling (5 states) or frictionless slipping (4 states).
-    omega : (w0, rate, amp, freq, phase[, decay, decay_rate]) —
+    a, b, R, alpha, g : float
+        Scene parameters (``R = 0`` for the mass point).
+    rolling : bool
+        Pure rolling (5 states) or frictionless slipping (4 states).
+    omega : (w0, rate, amp, freq, phase[, decay, decay_rate])
         Ω(t) = w0 + rate·t + amp·sin(freq·t + phase) + decay·exp(−decay_rate·t), the last term
         being a voltage-driven motor relaxing to its steady speed.
-    drilling_friction : float — rate [1/s] relaxing the spin about the normal (rolling).
-    force, theta0 : lab-frame horizontal force per unit mass [m/s²] and the saddle angle at t = 0.
+    drilling_friction : float
+        Rate [1/s] relaxing the spin about the normal (rolling).
+    force : (fx, fy)
+        Lab-frame horizontal force per unit mass [m/s²].
+    theta0 : float
+        The saddle angle at t = 0 [rad].
     """
 
     def __init__(self, a: float, b: float, R: float, alpha: float, g: float, rolling: bool,

@@ -3,7 +3,8 @@ its checkpoints.
 
 All Ray code of the project lives here, and ray is imported only inside the functions that
 need it: importing this module (or `saddle_env`, or `agents`) never imports ray. Install it
-with the ``[rllib]`` extra (``pip install -e ".[rllib]"``, torch==2.13.0 CPU first).
+with the ``[rllib]`` extra (``pip install -e ".[rllib]"``, torch==2.13.0 first; CPU-only from
+``--index-url https://download.pytorch.org/whl/cpu``).
 
 **Sampling.** RLlib's new API stack: ``num_env_runners`` EnvRunner actors, each stepping
 ``num_envs_per_env_runner`` balls through the native vector env (`SaddleTrapVectorEnv`,
@@ -148,7 +149,8 @@ def check_dependencies(progress_bar: bool = True) -> None:
     lacking = missing(RLLIB_MODULES)
     if lacking:
         raise MissingExtra(f"--backend rllib needs {', '.join(lacking)}, not installed: "
-                           f"{install_hint('rllib')} (torch==2.13.0 CPU first)")
+                           f"{install_hint('rllib')} (torch==2.13.0 first; CPU-only: pip install "
+                           "torch==2.13.0 --index-url https://download.pytorch.org/whl/cpu)")
 
 
 # ---------------------------------------------------------------------------------------
