@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .compilation.jit import jit
+from .compilation.jit import inline, jit
 from .compilation.specialise import COULOMB_ON, specialisable
 from .kernels import PHASE_SLOT, ROW_WIDTH, STATE_WIDTH, rhs, rim_margin, stick_margin
 from .scene import COULOMB, P_RIM, P_RIM_SQUARE
@@ -153,6 +153,32 @@ class _Methods(Mapping):
 METHODS: Mapping[str, Method] = _Methods({"rk4": _rk4, "dopri5": _dopri5, "dop853": _dop853})
 
 
+@inline
+def _stage_sums(a, count, h, d, K, y, out):
+    """out[j] = y[j] + h·Σ_{l < count} a[l]·K[l, j] for the first d ≤ ROW_WIDTH slots, each sum
+    over l in order. The ROW_WIDTH sums are kept in registers and advanced together: one sum
+    at a time waited on each addition in turn, and sums kept in ``out`` went through memory
+    (same operations, same order, same bits either way). Slots d.. of K are finite (the
+    rates write every slot of a row), so summing them costs nothing but time."""
+    s0 = s1 = s2 = s3 = s4 = s5 = 0.0
+    for l in range(count):
+        c = a[l]
+        s0 += c * K[l, 0]
+        s1 += c * K[l, 1]
+        s2 += c * K[l, 2]
+        s3 += c * K[l, 3]
+        s4 += c * K[l, 4]
+        s5 += c * K[l, 5]
+    out[0] = y[0] + h * s0
+    out[1] = y[1] + h * s1
+    out[2] = y[2] + h * s2
+    out[3] = y[3] + h * s3
+    if d > 4:
+        out[4] = y[4] + h * s4
+    if d > 5:
+        out[5] = y[5] + h * s5
+
+
 @jit
 def stages(model, p, prof, t, y, h, d, tab, K, ytmp, ynew, want_normal):
     """Stages 2..s of one explicit RK step from (t, y) with K[0] = f(t, y) given; the
@@ -163,11 +189,14 @@ def stages(model, p, prof, t, y, h, d, tab, K, ytmp, ynew, want_normal):
     full = COULOMB_ON and model == COULOMB
     lowest = np.inf
     for i in range(1, s):
-        for j in range(d):
-            acc = 0.0
-            for l in range(i):
-                acc += A[i, l] * K[l, j]
-            ytmp[j] = y[j] + h * acc
+        if d <= ROW_WIDTH:
+            _stage_sums(A[i], i, h, d, K, y, ytmp)
+        else:
+            for j in range(d):
+                acc = 0.0
+                for l in range(i):
+                    acc += A[i, l] * K[l, j]
+                ytmp[j] = y[j] + h * acc
         # Slots not integrated ride along (work slot; a coulomb ball's phase, which rhs reads).
         for j in range(d, ROW_WIDTH):
             ytmp[j] = y[j]
@@ -176,11 +205,14 @@ def stages(model, p, prof, t, y, h, d, tab, K, ytmp, ynew, want_normal):
         n = rhs(model, p, prof, t + C[i] * h, ytmp, K[i], want_normal)
         if want_normal and n < lowest:
             lowest = n
-    for j in range(d):
-        acc = 0.0
-        for l in range(s):
-            acc += B[l] * K[l, j]
-        ynew[j] = y[j] + h * acc
+    if d <= ROW_WIDTH:
+        _stage_sums(B, s, h, d, K, y, ynew)
+    else:
+        for j in range(d):
+            acc = 0.0
+            for l in range(s):
+                acc += B[l] * K[l, j]
+            ynew[j] = y[j] + h * acc
     for j in range(d, ROW_WIDTH):
         ynew[j] = y[j]
     if full:
