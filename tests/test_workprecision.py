@@ -71,7 +71,9 @@ def test_peer_trajectory_matches_the_simulator():
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
-    assert bench_main(["--quick", "--quiet", "--out", str(out), "--jacobi-periods", "200"]) == 0
+    # The compiled peers have their own tests (tests/test_peers.py): only scipy's here.
+    assert bench_main(["--quick", "--quiet", "--out", str(out), "--jacobi-periods", "200",
+                       "--peers", "plain"]) == 0
     return out
 
 
@@ -125,7 +127,7 @@ def test_csv_rows_can_be_rerun(quick_run):
 
 def test_bench_rejects_bad_arguments(capsys):
     for argv in (["--tiers", "nonsense"], ["--jacobi-periods", "-1"], ["--replot", "/no/such.csv"],
-                 ["--frobnicate"]):
+                 ["--frobnicate"], ["--peers", "fortran77"]):
         with pytest.raises(SystemExit) as exc:
             bench_main(argv)
         assert exc.value.code == 2

@@ -126,9 +126,11 @@ class Solver:
         self.args = (scene.a, scene.b, scene.radius, scene.alpha, scene.g, float(omega))
 
     def single(self, y0: np.ndarray, grid: np.ndarray, rtol: float) -> tuple[np.ndarray, float]:
+        """One ball from state ``y0``: its states on ``grid`` and the evaluation count."""
         raise NotImplementedError
 
     def batch(self, Y0: np.ndarray, grid: np.ndarray, rtol: float) -> np.ndarray:
+        """The balls of ``Y0`` (n, d): their states on ``grid``, (n, len(grid), d)."""
         raise NotImplementedError(f"{type(self).__name__} has no batch form")
 
 
@@ -180,6 +182,7 @@ class ScipyLean(Solver):
         self.fun = _python_rates(self.rolling, self.args)
 
     def single(self, y0, grid, rtol):
+        """As `Solver.single`."""
         from scipy.integrate import solve_ivp
 
         sol = solve_ivp(self.fun, (grid[0], grid[-1]), y0, method="DOP853", rtol=rtol,
@@ -230,6 +233,7 @@ class CvodeAdams(Solver):
         self.fun = f
 
     def single(self, y0, grid, rtol):
+        """As `Solver.single`."""
         from sksundae.cvode import CVODE
 
         solver = CVODE(self.fun, method="Adams", rtol=rtol,
@@ -293,6 +297,7 @@ class Numbalsoda(Solver):
         self._one, self._many = one, many
 
     def single(self, y0, grid, rtol):
+        """As `Solver.single`."""
         z, ok = self._one(self.funcptr, np.asarray(y0, dtype=float) / self.scale, grid,
                           self.data, rtol)
         if not ok:
@@ -300,6 +305,7 @@ class Numbalsoda(Solver):
         return z * self.scale, math.nan
 
     def batch(self, Y0, grid, rtol):
+        """As `Solver.batch`."""
         Z0 = np.ascontiguousarray(np.asarray(Y0, dtype=float) / self.scale)
         out = np.empty((len(Z0), len(grid), self.d))
         ok = np.zeros(len(Z0), dtype=np.bool_)
@@ -342,10 +348,12 @@ class Diffrax(Solver):
         self._many = jax.jit(jax.vmap(solve, in_axes=(0, None, None)))
 
     def single(self, y0, grid, rtol):
+        """As `Solver.single`."""
         ys, _ = self._one(np.asarray(y0, dtype=float) / self.scale, grid, rtol)
         return np.asarray(ys) * self.scale, math.nan
 
     def batch(self, Y0, grid, rtol):
+        """As `Solver.batch`."""
         ys, _ = self._many(np.asarray(Y0, dtype=float) / self.scale, grid, rtol)
         return np.asarray(ys) * self.scale
 
