@@ -132,6 +132,8 @@ def test_batch_form_is_the_single_ball_run_ball_by_ball(key):
 def test_peers_solve_the_models_they_have():
     with pytest.raises(ValueError, match="scene"):
         build(BY_KEY["scipy-lean"], Scene(contact="coulomb", mu=0.1), 20.0)
+    with pytest.raises(ValueError, match="scene: the peers' equations have no drilling friction"):
+        build(BY_KEY["scipy-lean"], Scene(drilling_friction=0.5), 20.0)
     with pytest.raises(ValueError, match="omega"):
         build(BY_KEY["scipy-lean"], Scene(), math.nan)
 

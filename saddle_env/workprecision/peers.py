@@ -36,7 +36,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..integrators import state_scale
-from ..scene import Scene
+from ..scene import (
+    P_DRAG_LINEAR,
+    P_DRAG_QUADRATIC,
+    P_DRILL,
+    P_RESIST,
+    P_SURFACE_DRAG,
+    P_TILT_FORCE,
+    Scene,
+)
 from .equations import jax_rhs, rolling_rates, slipping_rates
 
 
@@ -119,6 +127,15 @@ class Solver:
                              f"not {scene.contact!r}")
         if not math.isfinite(omega):
             raise ValueError(f"omega must be finite, got {omega!r}")
+        p = scene.params()
+        extra = [name for name, slot in (("drilling friction", P_DRILL), ("air drag", P_DRAG_LINEAR),
+                                         ("air drag", P_DRAG_QUADRATIC),
+                                         ("surface drag", P_SURFACE_DRAG),
+                                         ("rolling resistance", P_RESIST), ("tilt", P_TILT_FORCE))
+                 if p[slot] != 0.0]
+        if extra:
+            raise ValueError(f"scene: the peers' equations have no {extra[0]} (the benchmark's "
+                             "scene is conservative)")
         self.rolling = scene.contact == "rolling"
         self.d = scene.state_size
         self.scale = state_scale(scene.params(), scene.model_code)[: self.d].copy()
