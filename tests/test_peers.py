@@ -15,7 +15,7 @@ from saddle_env import kernels as K
 from saddle_env.workprecision.core import Case, centre_xy, max_distance, reference
 from saddle_env.workprecision.equations import rolling_rates, slipping_rates
 from saddle_env.workprecision.peers import BY_KEY, PEERS, Peer, build, missing, parse_peers
-from saddle_env.workprecision.report import peer_comparison
+from saddle_env.workprecision.report import peer_comparison, summarize
 
 
 def _states(contact: str, n: int = 50, seed: int = 3):
@@ -152,7 +152,7 @@ def test_peer_selection_and_missing_packages():
 
 def _row(solver, label, error, cost, batch=math.nan, peer=""):
     return {"tier": "rolling", "solver": solver, "label": label, "peer": peer, "rhs": "",
-            "status": "ok", "error_m": error, "us_per_sim_s": cost,
+            "status": "ok", "error_m": error, "model_error_m": error, "us_per_sim_s": cost,
             "batch_us_per_ball_sim_s": batch, "method": "m", "kind": "adaptive", "rtol": error,
             "dt": math.nan, "max_step": math.nan, "batch_n": 1024.0, "batch_threads": 2.0,
             "compile_s": 1.5, "batch_compile_s": math.nan}
@@ -179,6 +179,10 @@ def test_peer_comparison_picks_each_solvers_cheapest_setting_meeting_the_error()
     assert out["batch"]["1e-9"]["numbalsoda-dop853"]["time"] == 60.0
     assert "plain" not in out["batch"]["1e-9"]  # no batch form
     assert peer_comparison([r for r in rows if r["solver"] == "saddle_env"]) == {}
+    # The speed-up target stays against scipy on the plain-numpy model, not its lean peers.
+    lean = _row("scipy", "scipy DOP853 (python)", 1e-10, 500.0, peer="scipy-lean")
+    lean["method"] = "DOP853"
+    assert summarize(rows + [lean])["target_speedup"]["scipy_dop853"]["us_per_sim_s"] == 9000.0
 
 
 def test_a_numba_function_without_a_module_compiles_under_the_compile_notice():
