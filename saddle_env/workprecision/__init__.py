@@ -6,7 +6,9 @@ Writes, to ``--out DIR`` (default ``./bench_results``):
   each completes (Ctrl-C keeps the finished rows);
 * ``bench_single.png``, ``bench_batch.png`` — work-precision diagrams (wall time per
   simulated second against the maximum position error over the run), made from the CSV;
-* ``summary.json`` — the issue's targets and the cheapest setting per error level.
+* ``summary.json`` — the issue's targets, the cheapest setting per error level and the peers;
+* ``rounds.json`` — with compiled peers: the picked settings of the simulator and each peer
+  timed again in alternating rounds (`core.rounds`), merged into the summary's ``peers``.
 
 ``saddle-bench --replot DIR/bench.csv`` rebuilds the figures and the summary from a CSV.
 See docs/accuracy.md for what is measured and how to read it.
@@ -28,10 +30,24 @@ from pathlib import Path
 
 from ..accuracy import AccuracyWarning
 from ..jobs.blas import limit_blas_threads
-from .core import COLUMNS, MODEL_TIERS, TIERS, Case, measure_jacobi, reference, tasks, warm_up
+from .core import (
+    COLUMNS,
+    MODEL_TIERS,
+    TIERS,
+    Case,
+    PeerCache,
+    measure_jacobi,
+    reference,
+    rounds,
+    tasks,
+    warm_up,
+)
 from .peer import PeerModel
 from .peers import BY_KEY, missing, parse_peers
-from .report import Summary, plot, read_rows, summarize
+from .report import Summary, merge_rounds, peer_comparison, plot, read_rows, summarize
+
+# The alternating rounds' times of the peers and the simulator (`core.rounds`), beside bench.csv.
+ROUNDS = "rounds.json"
 
 __all__ = ["Case", "PeerModel", "main", "run"]
 
@@ -73,7 +89,8 @@ def _run(out, quick, tiers, peers, batch, figures, jacobi_periods, quiet, case):
     warm_up(case)
     refs = {t: reference(case, t) for t in MODEL_TIERS if t == "rolling" or t in tiers}
     keys = tuple(peer_keys(peers))
-    todo = list(tasks(case, quick, tuple(tiers), keys, batch))
+    cache = PeerCache()
+    todo = list(tasks(case, quick, tuple(tiers), keys, batch, cache))
     interrupted = False
     started = time.time()
     with open(csv_path, "w", newline="", encoding="utf-8") as fh:
@@ -96,6 +113,14 @@ def _run(out, quick, tiers, peers, batch, figures, jacobi_periods, quiet, case):
             if bar is not None:
                 bar.close()
     extra: Summary = {}
+    comparison = peer_comparison(read_rows(csv_path)) if not interrupted else {}
+    if cache.solvers and comparison:
+        if not quiet:
+            print("saddle-bench: the picked settings again, in alternating rounds",
+                  file=sys.stderr)
+        timed = rounds(case, comparison, cache, n_rounds=3 if quick else 7)
+        with open(out / ROUNDS, "w", encoding="utf-8") as fh:
+            json.dump(timed, fh, indent=2)
     if jacobi_periods is None:
         jacobi_periods = 1000 if quick else 10_000
     if jacobi_periods and not interrupted:
@@ -125,6 +150,9 @@ def finish(csv_path: Path, out: Path, figures: bool, extra: Summary | None = Non
 
     rows = read_rows(csv_path)
     summary = summarize(rows, extra)
+    timed = csv_path.parent / ROUNDS  # written by `run` beside the CSV, kept by --replot
+    if "peers" in summary and timed.is_file():
+        merge_rounds(summary["peers"], json.loads(timed.read_text(encoding="utf-8")))
     if figures and rows:
         default = {"method": DEFAULT_METHOD, "rtol": DEFAULT_RTOL}
         summary["figures"] = [str(plot(rows, out, batch=False, default=default))]
@@ -249,15 +277,19 @@ def _peer_lines(summary: Summary) -> list[str]:
         for name, level in peers.get(form, {}).items():
             lines.append(f"peers, {what}, error <= {name} m:")
             mine = level["project"]
+            again = f"; rounds {mine['time_rounds']:.1f}" if "time_rounds" in mine else ""
             lines.append(f"  {'saddle_env ' + mine['label']:32s} {mine['time']:10.1f}  error "
-                         f"{mine['error_m']:.1e} m at {mine['setting']:g}")
+                         f"{mine['error_m']:.1e} m at {mine['setting']:g}{again}")
             for key, r in level.items():
-                if key in ("project", "fastest"):
+                if key in ("project", "fastest", "fastest_rounds"):
                     continue
                 jit = (f"  (compile {r['compile_s']:.1f} s, not timed)"
                        if math.isfinite(r["compile_s"]) and r["compile_s"] > 0.05 else "")
+                again = (f"; rounds {r['time_rounds']:.1f}, {r['time_vs_project_rounds']:.2f}x"
+                         if "time_rounds" in r else "")
                 lines.append(f"  {r['label']:32s} {r['time']:10.1f}  error {r['error_m']:.1e} m "
-                             f"at rtol {r['setting']:g}  {r['time_vs_project']:.2f}x ours{jit}")
+                             f"at rtol {r['setting']:g}  {r['time_vs_project']:.2f}x ours"
+                             f"{again}{jit}")
     return lines
 
 

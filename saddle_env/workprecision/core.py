@@ -461,7 +461,8 @@ def warm_up(case: Case) -> None:
 
 
 def tasks(case: Case, quick: bool, tiers: tuple[Tier, ...] = TIERS,
-          peers: bool | tuple[str, ...] = True, batch: bool = True
+          peers: bool | tuple[str, ...] = True, batch: bool = True,
+          cache: PeerCache | None = None
           ) -> Iterator[tuple[str, Callable[[dict[str, np.ndarray]], dict]]]:
     """(description, measurement) pairs, cheapest first within each tier. ``peers``: True
     for every peer, False for none, or the keys of those to run ("plain" is scipy on the
@@ -470,7 +471,7 @@ def tasks(case: Case, quick: bool, tiers: tuple[Tier, ...] = TIERS,
         keys: tuple[str, ...] = ("plain",) + tuple(BY_KEY)
     else:
         keys = peers or ()
-    cache = PeerCache()
+    cache = PeerCache() if cache is None else cache
     for tier in tiers:
         if tier == "linear":
             yield "linear expm", lambda refs: measure_linear(case, refs, batch)
@@ -487,6 +488,58 @@ def tasks(case: Case, quick: bool, tiers: tuple[Tier, ...] = TIERS,
                 yield (f"{tier} {cfg.label} {cfg.rtol:g}",
                        partial(measure_compiled_peer, case, tier, cfg, cache=cache,
                                batch=batch and tier == "rolling"))
+
+
+def _our_config(brief: dict) -> Config:
+    """The simulator's setting a summary entry (`report._brief`) names."""
+    fixed = brief["kind"] == "fixed"
+    return Config("saddle_env", brief["method"], rtol=math.nan if fixed else brief["setting"],
+                  dt=brief["setting"] if fixed else math.nan, max_step=brief["max_step"])
+
+
+def rounds(case: Case, comparison: dict, cache: PeerCache, n_rounds: int = 5) -> dict:
+    """The settings `report.peer_comparison` picked, timed again in alternating rounds.
+
+    The sweep times each row when its turn comes, so on a shared machine the simulator's
+    row and a peer's can meet different loads. Here, for each form (one ball, batch) and
+    error bound, the simulator and every compiled peer run once per round, in an order
+    that rotates, and each keeps its fastest round: their ratio is measured under the same
+    load. scipy on the plain-numpy model is left out (seconds per run, and thousands of
+    times slower). Returns {form: {bound: {"project": µs, key: µs, ...}}} with the same
+    units as the sweep (µs per simulated second, per ball in the batch)."""
+    out: dict = {}
+    s0 = case.state("rolling")
+    grid = case.grid()
+    states = batch_states(case, "rolling", case.batch_n)
+    n_out = int(round(case.batch_t_end / case.dt_out))
+    bgrid = np.arange(n_out + 1) * case.dt_out
+    sc = case.scene("rolling")
+    for form in ("one_ball", "batch"):
+        for bound, level in comparison.get(form, {}).items():
+            kw = _sim_kwargs(case, _our_config(level["project"]))
+            fns: dict[str, Callable[[], object]] = {}
+            if form == "one_ball":
+                fns["project"] = partial(simulate, sc, s0, case.t_end, **kw)
+                per = case.t_end
+            else:
+                fns["project"] = partial(simulate_batch, sc, states, case.batch_t_end, **kw)
+                per = case.batch_t_end * case.batch_n
+            for key, entry in level.items():
+                if key in ("project", "fastest", "plain"):
+                    continue
+                solver = cache.solver(case, "rolling", key)
+                fns[key] = (partial(solver.single, s0, grid, entry["setting"])
+                            if form == "one_ball"
+                            else partial(solver.batch, states, bgrid, entry["setting"]))
+            best = dict.fromkeys(fns, math.inf)
+            names = list(fns)
+            for i in range(n_rounds):
+                for name in names[i % len(names):] + names[: i % len(names)]:
+                    t0 = time.perf_counter()
+                    fns[name]()
+                    best[name] = min(best[name], time.perf_counter() - t0)
+            out.setdefault(form, {})[bound] = {k: v / per * 1e6 for k, v in best.items()}
+    return out
 
 
 def measure_jacobi(case: Case, periods: int, rtol: float = REFERENCE_RTOL) -> dict[str, object]:

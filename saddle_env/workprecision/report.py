@@ -188,6 +188,28 @@ def peer_comparison(rows: list[Row]) -> Summary:
     return out
 
 
+def merge_rounds(peers: Summary, timed: Summary) -> None:
+    """Add the alternating rounds' times (`core.rounds`) to `peer_comparison`'s entries:
+    ``time_rounds`` [µs per simulated s] and ``time_vs_project_rounds``; and the fastest
+    peer by them, ``fastest_rounds``."""
+    for form, levels in timed.items():
+        for bound, times in levels.items():
+            level = peers.get(form, {}).get(bound)
+            if level is None or "project" not in times:
+                continue
+            for key, t in times.items():
+                if key in level:
+                    level[key]["time_rounds"] = t
+                    if key != "project":
+                        level[key]["time_vs_project_rounds"] = t / times["project"]
+            timed_peers = [k for k in times if k != "project" and k in level]
+            if timed_peers:
+                fastest = min(timed_peers, key=lambda k: times[k])
+                level["fastest_rounds"] = {
+                    "peer": fastest, "label": level[fastest]["label"],
+                    "time_vs_project": level[fastest]["time_vs_project_rounds"]}
+
+
 def _brief(r: Row) -> Summary:
     setting = r["rtol"] if r["kind"] == "adaptive" else r["dt"]
     return {"label": r["label"], "method": r["method"], "kind": r["kind"], "setting": setting,
