@@ -5,6 +5,7 @@ is not installed (the [peers] extra) is skipped, naming the package."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -15,7 +16,7 @@ from saddle_env import kernels as K
 from saddle_env.workprecision.core import Case, centre_xy, max_distance, reference
 from saddle_env.workprecision.equations import rolling_rates, slipping_rates
 from saddle_env.workprecision.peers import BY_KEY, PEERS, Peer, build, missing, parse_peers
-from saddle_env.workprecision.report import peer_comparison, summarize
+from saddle_env.workprecision.report import merge_rounds, peer_comparison, summarize
 
 
 def _states(contact: str, n: int = 50, seed: int = 3):
@@ -198,3 +199,35 @@ def test_a_numba_function_without_a_module_compiles_under_the_compile_notice():
     f = ns["f"]
     f.__module__ = None
     assert numba.njit(f)(1.0) == 2.0
+
+
+def test_rounds_are_merged_into_the_comparison():
+    rows = [_row("saddle_env", "dop853 rtol", 5e-10, 70.0, 80.0),
+            _row("numbalsoda", "numbalsoda DOP853", 9e-10, 56.0, 60.0, "numbalsoda-dop853"),
+            _row("diffrax", "diffrax Tsit5", 9e-10, 50.0, 70.0, "diffrax-tsit5")]
+    peers = peer_comparison(rows)
+    assert peers["one_ball"]["1e-9"]["fastest"]["peer"] == "diffrax-tsit5"  # by the sweep
+    merge_rounds(peers, {"one_ball": {"1e-9": {"project": 40.0, "numbalsoda-dop853": 20.0,
+                                               "diffrax-tsit5": 60.0}}})
+    level = peers["one_ball"]["1e-9"]
+    assert level["numbalsoda-dop853"]["time_vs_project_rounds"] == pytest.approx(0.5)
+    assert level["project"]["time_rounds"] == 40.0
+    assert level["fastest_rounds"] == {"peer": "numbalsoda-dop853", "label": "numbalsoda DOP853",
+                                       "time_vs_project": pytest.approx(0.5)}
+    assert "time_rounds" not in peers["batch"]["1e-9"]["project"]  # no batch rounds given
+
+
+@pytest.mark.slow  # a quick benchmark run with one compiled peer: about a minute
+def test_bench_runs_a_compiled_peer_and_its_rounds(tmp_path):
+    from saddle_env.workprecision import main as bench_main
+
+    _need(BY_KEY["numbalsoda-dop853"])
+    assert bench_main(["--quick", "--quiet", "--tiers", "rolling", "--peers",
+                       "numbalsoda-dop853", "--jacobi-periods", "0", "--out", str(tmp_path),
+                       "--no-figures"]) == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    level = summary["peers"]["one_ball"]["1e-9"]
+    assert level["numbalsoda-dop853"]["error_m"] <= 1e-9
+    assert level["numbalsoda-dop853"]["time_rounds"] > 0
+    assert summary["peers"]["batch"]["1e-9"]["numbalsoda-dop853"]["threads"] >= 1
+    assert summary["peers_run"]["skipped"] == {}

@@ -105,6 +105,11 @@ def test_summary_is_reproducible_from_the_csv(quick_run, tmp_path):
     for key in ("target_speedup", "target_batch", "cheapest_setting_per_error",
                 "model_error_vs_rolling"):
         assert after[key] == before[key]
+    # Replotting in place keeps what only the run knew (machine, Jacobi drift, peers asked).
+    assert bench_main(["--replot", str(quick_run / "bench.csv"), "--no-figures"]) == 0
+    again = json.loads((quick_run / "summary.json").read_text())
+    for key in ("machine", "target_jacobi", "peers_run", "run"):
+        assert again[key] == before[key]
 
 
 @pytest.mark.slow  # an end-to-end run: CI runs it with -m slow

@@ -163,6 +163,19 @@ def finish(csv_path: Path, out: Path, figures: bool, extra: Summary | None = Non
     return summary
 
 
+# What a run adds to its summary that its CSV does not hold: --replot keeps them.
+RUN_FACTS = ("target_jacobi", "machine", "run", "default", "peers_run")
+
+
+def _run_facts(run_dir: Path) -> Summary:
+    """The run's own facts from the summary.json beside its CSV (empty if there is none)."""
+    path = run_dir / "summary.json"
+    if not path.is_file():
+        return {}
+    old = json.loads(path.read_text(encoding="utf-8"))
+    return {k: old[k] for k in RUN_FACTS if k in old}
+
+
 def _json_default(v: object) -> object:
     if isinstance(v, float) and not math.isfinite(v):
         return None
@@ -244,7 +257,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             ap.error(f"--replot: no such file {str(csv_path)!r}")
         out = Path(args.out) if args.out != "bench_results" else csv_path.parent
         out.mkdir(parents=True, exist_ok=True)
-        summary = finish(csv_path, out, not args.no_figures)
+        summary = finish(csv_path, out, not args.no_figures, _run_facts(csv_path.parent))
     else:
         tiers = tuple(t.strip() for t in args.tiers.split(",") if t.strip())
         bad = [t for t in tiers if t not in TIERS]

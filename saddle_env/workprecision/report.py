@@ -245,8 +245,10 @@ def plot(rows: list[Row], out_dir: str | Path, batch: bool = False,
     import matplotlib.pyplot as plt
 
     cost = "batch_us_per_ball_sim_s" if batch else "us_per_sim_s"
-    fig, axes = plt.subplots(1, len(MODEL_TIERS) + 1, figsize=(20, 4.2), sharey=True)
-    panels = [(tier, "error_m") for tier in MODEL_TIERS] + [(None, "model_error_m")]
+    # A panel per contact model the run measured (saddle-bench --tiers), and the tiers' panel.
+    tiers = [t for t in MODEL_TIERS if any(r["tier"] == t for r in rows)] or list(MODEL_TIERS)
+    fig, axes = plt.subplots(1, len(tiers) + 1, figsize=(4 * len(tiers) + 4, 4.2), sharey=True)
+    panels = [(tier, "error_m") for tier in tiers] + [(None, "model_error_m")]
     for ax, (tier, key) in zip(axes, panels):
         groups: dict[tuple[str, str], list] = defaultdict(list)
         for r in rows:
