@@ -285,7 +285,8 @@ def load_store(store: Path = STORE, leaderboard: Path = LEADERBOARD) -> dict[str
                 entry["value"] = sum(entry["value"].values())
             if "over" in entry:   # a ratio of two values of the same file
                 entry["value"] /= _lookup(REPO_ROOT / entry["source"], entry["over"])
-            entry["value"] *= entry.get("scale", 1)
+            if "scale" in entry:  # a table (a mapping of cells) is read as it is
+                entry["value"] *= entry["scale"]
         if name in figures:
             raise FigureError(f"{store.name}: {name!r} is a leaderboard figure already")
         figures[name] = entry

@@ -71,7 +71,9 @@ def test_peer_trajectory_matches_the_simulator():
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
-    assert bench_main(["--quick", "--quiet", "--out", str(out), "--jacobi-periods", "200"]) == 0
+    # The compiled peers have their own tests (tests/test_peers.py): only scipy's here.
+    assert bench_main(["--quick", "--quiet", "--out", str(out), "--jacobi-periods", "200",
+                       "--peers", "plain"]) == 0
     return out
 
 
@@ -103,6 +105,11 @@ def test_summary_is_reproducible_from_the_csv(quick_run, tmp_path):
     for key in ("target_speedup", "target_batch", "cheapest_setting_per_error",
                 "model_error_vs_rolling"):
         assert after[key] == before[key]
+    # Replotting in place keeps what only the run knew (machine, Jacobi drift, peers asked).
+    assert bench_main(["--replot", str(quick_run / "bench.csv"), "--no-figures"]) == 0
+    again = json.loads((quick_run / "summary.json").read_text())
+    for key in ("machine", "target_jacobi", "peers_run", "run"):
+        assert again[key] == before[key]
 
 
 @pytest.mark.slow  # an end-to-end run: CI runs it with -m slow
@@ -125,7 +132,7 @@ def test_csv_rows_can_be_rerun(quick_run):
 
 def test_bench_rejects_bad_arguments(capsys):
     for argv in (["--tiers", "nonsense"], ["--jacobi-periods", "-1"], ["--replot", "/no/such.csv"],
-                 ["--frobnicate"]):
+                 ["--frobnicate"], ["--peers", "fortran77"]):
         with pytest.raises(SystemExit) as exc:
             bench_main(argv)
         assert exc.value.code == 2

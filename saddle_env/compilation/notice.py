@@ -48,9 +48,15 @@ def announce_no_build(why: str) -> None:
 _announced_no_build = False
 
 
+def _ours(f) -> bool:
+    # numba makes some functions with no module (a jitclass's property getters, which
+    # numbalsoda's import compiles): those are not ours either.
+    return (f.__module__ or "").startswith(_OURS)
+
+
 def _start(ev) -> None:
     f = ev.data["dispatcher"].py_func
-    if not f.__module__.startswith(_OURS):
+    if not _ours(f):
         return
     depth = getattr(_state, "depth", 0)
     _state.depth = depth + 1
@@ -66,7 +72,7 @@ def _start(ev) -> None:
 
 def _end(ev) -> None:
     f = ev.data["dispatcher"].py_func
-    if not f.__module__.startswith(_OURS):
+    if not _ours(f):
         return
     _state.depth -= 1
     if _state.depth:

@@ -6,7 +6,9 @@ Writes, to ``--out DIR`` (default ``./bench_results``):
   each completes (Ctrl-C keeps the finished rows);
 * ``bench_single.png``, ``bench_batch.png`` — work-precision diagrams (wall time per
   simulated second against the maximum position error over the run), made from the CSV;
-* ``summary.json`` — the issue's targets and the cheapest setting per error level.
+* ``summary.json`` — the issue's targets, the cheapest setting per error level and the peers;
+* ``rounds.json`` — with compiled peers: the picked settings of the simulator and each peer
+  timed again in alternating rounds (`core.rounds`), merged into the summary's ``peers``.
 
 ``saddle-bench --replot DIR/bench.csv`` rebuilds the figures and the summary from a CSV.
 See docs/accuracy.md for what is measured and how to read it.
@@ -28,9 +30,24 @@ from pathlib import Path
 
 from ..accuracy import AccuracyWarning
 from ..jobs.blas import limit_blas_threads
-from .core import COLUMNS, MODEL_TIERS, TIERS, Case, measure_jacobi, reference, tasks, warm_up
+from .core import (
+    COLUMNS,
+    MODEL_TIERS,
+    TIERS,
+    Case,
+    PeerCache,
+    measure_jacobi,
+    reference,
+    rounds,
+    tasks,
+    warm_up,
+)
 from .peer import PeerModel
-from .report import Summary, plot, read_rows, summarize
+from .peers import BY_KEY, missing, parse_peers
+from .report import Summary, merge_rounds, peer_comparison, plot, read_rows, summarize
+
+# The alternating rounds' times of the peers and the simulator (`core.rounds`), beside bench.csv.
+ROUNDS = "rounds.json"
 
 __all__ = ["Case", "PeerModel", "main", "run"]
 
@@ -48,10 +65,12 @@ def _progress(items: list, quiet: bool):
     return bar, bar
 
 
-def run(out: str | Path, quick: bool = False, tiers: Sequence[str] = TIERS, peers: bool = True,
+def run(out: str | Path, quick: bool = False, tiers: Sequence[str] = TIERS,
+        peers: bool | Sequence[str] = True,
         batch: bool = True, figures: bool = True, jacobi_periods: int | None = None,
         quiet: bool = False, case: Case | None = None) -> Summary:
-    """Run the benchmark; return the summary (also written to ``out/summary.json``)."""
+    """Run the benchmark; return the summary (also written to ``out/summary.json``).
+    ``peers``: True (all), False (none) or the peers' keys (`peers.parse_peers`)."""
     with warnings.catch_warnings():
         # The sweep runs deliberately coarse fixed steps: their AccuracyWarning is the point.
         warnings.simplefilter("ignore", AccuracyWarning)
@@ -69,7 +88,9 @@ def _run(out, quick, tiers, peers, batch, figures, jacobi_periods, quiet, case):
     blas = limit_blas_threads(1)
     warm_up(case)
     refs = {t: reference(case, t) for t in MODEL_TIERS if t == "rolling" or t in tiers}
-    todo = list(tasks(case, quick, tuple(tiers), peers, batch))
+    keys = tuple(peer_keys(peers))
+    cache = PeerCache()
+    todo = list(tasks(case, quick, tuple(tiers), keys, batch, cache))
     interrupted = False
     started = time.time()
     with open(csv_path, "w", newline="", encoding="utf-8") as fh:
@@ -92,6 +113,14 @@ def _run(out, quick, tiers, peers, batch, figures, jacobi_periods, quiet, case):
             if bar is not None:
                 bar.close()
     extra: Summary = {}
+    comparison = peer_comparison(read_rows(csv_path)) if not interrupted else {}
+    if cache.solvers and comparison:
+        if not quiet:
+            print("saddle-bench: the picked settings again, in alternating rounds",
+                  file=sys.stderr)
+        timed = rounds(case, comparison, cache, n_rounds=3 if quick else 7)
+        with open(out / ROUNDS, "w", encoding="utf-8") as fh:
+            json.dump(timed, fh, indent=2)
     if jacobi_periods is None:
         jacobi_periods = 1000 if quick else 10_000
     if jacobi_periods and not interrupted:
@@ -109,6 +138,8 @@ def _run(out, quick, tiers, peers, batch, figures, jacobi_periods, quiet, case):
     extra["run"] = {"quick": quick, "interrupted": interrupted,
                     "wall_s": time.time() - started, "csv": str(csv_path)}
     extra["default"] = {"method": DEFAULT_METHOD, "rtol": DEFAULT_RTOL}
+    extra["peers_run"] = {"asked": list(keys), "skipped": skipped_peers(keys),
+                          "versions": peer_versions(keys)}
     return finish(csv_path, out, figures, extra)
 
 
@@ -119,6 +150,9 @@ def finish(csv_path: Path, out: Path, figures: bool, extra: Summary | None = Non
 
     rows = read_rows(csv_path)
     summary = summarize(rows, extra)
+    timed = csv_path.parent / ROUNDS  # written by `run` beside the CSV, kept by --replot
+    if "peers" in summary and timed.is_file():
+        merge_rounds(summary["peers"], json.loads(timed.read_text(encoding="utf-8")))
     if figures and rows:
         default = {"method": DEFAULT_METHOD, "rtol": DEFAULT_RTOL}
         summary["figures"] = [str(plot(rows, out, batch=False, default=default))]
@@ -129,10 +163,52 @@ def finish(csv_path: Path, out: Path, figures: bool, extra: Summary | None = Non
     return summary
 
 
+# What a run adds to its summary that its CSV does not hold: --replot keeps them.
+RUN_FACTS = ("target_jacobi", "machine", "run", "default", "peers_run")
+
+
+def _run_facts(run_dir: Path) -> Summary:
+    """The run's own facts from the summary.json beside its CSV (empty if there is none)."""
+    path = run_dir / "summary.json"
+    if not path.is_file():
+        return {}
+    old = json.loads(path.read_text(encoding="utf-8"))
+    return {k: old[k] for k in RUN_FACTS if k in old}
+
+
 def _json_default(v: object) -> object:
     if isinstance(v, float) and not math.isfinite(v):
         return None
     return str(v)
+
+
+def peer_keys(peers: bool | Sequence[str]) -> tuple[str, ...]:
+    """The peers' keys ``run``'s ``peers`` argument names."""
+    if peers is True:
+        return parse_peers("all")
+    if peers is False:
+        return ()
+    return parse_peers(",".join(peers))
+
+
+def skipped_peers(keys: Sequence[str]) -> dict[str, str]:
+    """The asked peers that cannot run here, and why."""
+    return {k: why for k in keys if k in BY_KEY and (why := missing(BY_KEY[k])) is not None}
+
+
+def peer_versions(keys: Sequence[str]) -> dict[str, str]:
+    """The installed version of each asked peer's package."""
+    from importlib.metadata import PackageNotFoundError
+
+    out = {}
+    for k in keys:
+        package = BY_KEY[k].solver if k in BY_KEY else "scipy"
+        for name in (package, "jax") if package == "diffrax" else (package,):
+            try:
+                out[name] = _version(name)
+            except PackageNotFoundError:
+                pass
+    return out
 
 
 def _version(name: str) -> str:
@@ -155,7 +231,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="a small sweep over a 1 s run (for CI; about a minute)")
     ap.add_argument("--tiers", default=",".join(TIERS),
                     help="comma-separated subset of " + ",".join(TIERS))
-    ap.add_argument("--no-peers", action="store_true", help="skip scipy solve_ivp")
+    ap.add_argument("--peers", default="all", metavar="LIST",
+                    help="the peers to run: all, compiled, scipy or none, or a comma-separated "
+                         "list of plain (scipy on the plain-numpy model), "
+                         + ", ".join(BY_KEY) + "; peers not installed are listed as skipped")
+    ap.add_argument("--no-peers", action="store_true", help="run no peer (--peers none)")
     ap.add_argument("--no-batch", action="store_true", help="skip the batch timings")
     ap.add_argument("--no-figures", action="store_true", help="skip the PNG diagrams")
     ap.add_argument("--jacobi-periods", type=int, default=None, metavar="N",
@@ -177,7 +257,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             ap.error(f"--replot: no such file {str(csv_path)!r}")
         out = Path(args.out) if args.out != "bench_results" else csv_path.parent
         out.mkdir(parents=True, exist_ok=True)
-        summary = finish(csv_path, out, not args.no_figures)
+        summary = finish(csv_path, out, not args.no_figures, _run_facts(csv_path.parent))
     else:
         tiers = tuple(t.strip() for t in args.tiers.split(",") if t.strip())
         bad = [t for t in tiers if t not in TIERS]
@@ -186,11 +266,44 @@ def main(argv: Sequence[str] | None = None) -> int:
                      f"{args.tiers!r}")
         if args.jacobi_periods is not None and args.jacobi_periods < 0:
             ap.error("--jacobi-periods must be >= 0")
-        summary = run(args.out, quick=args.quick, tiers=tiers, peers=not args.no_peers,
+        try:
+            peers = () if args.no_peers else parse_peers(args.peers)
+        except ValueError as exc:
+            ap.error(f"--{exc}")
+        for key, why in skipped_peers(peers).items():
+            print(f"saddle-bench: skipping peer {key}: {why}", file=sys.stderr)
+        summary = run(args.out, quick=args.quick, tiers=tiers, peers=peers,
                       batch=not args.no_batch, figures=not args.no_figures,
                       jacobi_periods=args.jacobi_periods, quiet=args.quiet)
     print(_headline(summary))
     return 0
+
+
+def _peer_lines(summary: Summary) -> list[str]:
+    """The peers' table: per error level, ours and each peer's cheapest setting meeting it."""
+    peers = summary.get("peers", {})
+    lines = []
+    for form, what in (("one_ball", "one rolling ball, µs per simulated second"),
+                       ("batch", f"per ball in a batch of {peers.get('batch_n', 0):.0f} "
+                                 f"(project on {peers.get('threads', 0):.0f} threads), µs per "
+                                 "simulated second")):
+        for name, level in peers.get(form, {}).items():
+            lines.append(f"peers, {what}, error <= {name} m:")
+            mine = level["project"]
+            again = f"; rounds {mine['time_rounds']:.1f}" if "time_rounds" in mine else ""
+            lines.append(f"  {'saddle_env ' + mine['label']:32s} {mine['time']:10.1f}  error "
+                         f"{mine['error_m']:.1e} m at {mine['setting']:g}{again}")
+            for key, r in level.items():
+                if key in ("project", "fastest", "fastest_rounds"):
+                    continue
+                jit = (f"  (compile {r['compile_s']:.1f} s, not timed)"
+                       if math.isfinite(r["compile_s"]) and r["compile_s"] > 0.05 else "")
+                again = (f"; rounds {r['time_rounds']:.1f}, {r['time_vs_project_rounds']:.2f}x"
+                         if "time_rounds" in r else "")
+                lines.append(f"  {r['label']:32s} {r['time']:10.1f}  error {r['error_m']:.1e} m "
+                             f"at rtol {r['setting']:g}  {r['time_vs_project']:.2f}x ours"
+                             f"{again}{jit}")
+    return lines
 
 
 def _headline(summary: Summary) -> str:
@@ -211,6 +324,10 @@ def _headline(summary: Summary) -> str:
         lines.append(f"Jacobi drift over {t3['periods']} saddle periods at rtol {t3['rtol']:g}: "
                      f"{t3['jacobi_drift_relative']:.2e} relative; centre off its offset "
                      f"surface by <= {t3['offset_surface_error_m']:.1e} m")
+    lines += _peer_lines(summary)
+    run = summary.get("peers_run", {})
+    for key, why in run.get("skipped", {}).items():
+        lines.append(f"peer {key} skipped: {why}")
     for f in summary.get("figures", []):
         lines.append(f"wrote {f}")
     return "\n".join(lines)

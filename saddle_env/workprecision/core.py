@@ -19,6 +19,7 @@ Error definitions (the issue's):
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
@@ -35,6 +36,7 @@ from ..runner import Start
 from ..scene import P_A, P_B, P_R, Scene
 from ..simulate import initial_state, simulate, simulate_batch
 from .peer import PeerModel
+from .peers import BY_KEY, Solver, build, missing
 
 REFERENCE_RTOL = 1e-12
 # A contact model (`Scene.contact`) or the linearised rolling model.
@@ -56,6 +58,9 @@ COLUMNS = (
     # batch
     "batch_n", "batch_t_end", "batch_wall_s", "batch_threads", "batch_us_per_ball_sim_s",
     "batch_ball_steps_per_s",
+    # the compiled peers (saddle_env.workprecision.peers): which, how its right-hand side is
+    # compiled, and the compile (JIT) time its first call took, excluded from the timings
+    "peer", "rhs", "compile_s", "batch_compile_s",
 )
 
 
@@ -110,6 +115,7 @@ class Config:
     rtol: float = math.nan
     dt: float = math.nan   # fixed step [s]
     max_step: float = math.nan  # nan: the simulator's default cap
+    peer: str = ""         # a compiled peer's key (saddle_env.workprecision.peers.BY_KEY)
 
     @property
     def kind(self) -> str:
@@ -123,6 +129,8 @@ class Config:
         """The setting's name in the tables and figures."""
         if self.method == "expm":
             return "linearised (expm)"
+        if self.peer:
+            return BY_KEY[self.peer].label
         if self.solver == "scipy":
             base = f"scipy {self.method}"
             return base + (" default tol" if self.method == "RK45" and self.rtol == 1e-3 else "")
@@ -148,6 +156,18 @@ def our_configs(quick: bool) -> list[Config]:
     out += [Config("saddle_env", "rk4", dt=d) for d in (0.02, 0.01, 0.005, 0.002, 0.001, 5e-4,
                                                           2e-4, 1e-4)]
     out += [Config("saddle_env", "dop853", dt=d) for d in (0.04, 0.02, 0.01, 0.005, 0.0025)]
+    return out
+
+
+def compiled_peer_configs(quick: bool, keys: tuple[str, ...]) -> list[Config]:
+    """The sweep of each compiled peer named in ``keys`` (and installed): the same rtol
+    decades as our adaptive integrators, atol = rtol × the state scales."""
+    rtols = (1e-6, 1e-10) if quick else _decades(4, 13)
+    out = []
+    for key in keys:
+        if key in BY_KEY and missing(BY_KEY[key]) is None:
+            peer = BY_KEY[key]
+            out += [Config(peer.solver, peer.method, rtol=r, peer=key) for r in rtols]
     return out
 
 
@@ -302,6 +322,87 @@ def measure_peer(case: Case, tier: Tier, cfg: Config, refs: dict[str, np.ndarray
                 error_m=max_distance(xy, refs[tier]), model_error_m=max_distance(xy, refs["rolling"]))
 
 
+# Projected batch cost above which a peer's batch row is not run [s]: the slowest peers at
+# their tightest tolerances would otherwise hold the benchmark for minutes per row.
+PEER_BATCH_BUDGET_S = 60.0
+
+
+class PeerCache:
+    """Each compiled peer's solver, built once per contact tier, and the compile time its
+    first call (single ball, batch) took: excluded from the timed runs, reported apart."""
+
+    def __init__(self) -> None:
+        self.solvers: dict[tuple[str, str], Solver] = {}
+        self.compile_s: dict[tuple[str, str, str], float] = {}
+
+    def solver(self, case: Case, tier: Tier, key: str) -> Solver:
+        """The peer's solver for the case's ``tier``."""
+        if (key, tier) not in self.solvers:
+            self.solvers[(key, tier)] = build(BY_KEY[key], case.scene(tier), case.omega)
+        return self.solvers[(key, tier)]
+
+    def first_call(self, key: str, tier: str, form: str, fn: Callable[[], object]) -> float:
+        """The compile time of ``fn`` (a peer's ``form`` of call: single or batch): its first
+        call's time less its second's. Measured once; 0 on later calls."""
+        if (key, tier, form) in self.compile_s:
+            return 0.0
+        t0 = time.perf_counter()
+        fn()
+        t1 = time.perf_counter()
+        fn()
+        self.compile_s[(key, tier, form)] = max((t1 - t0) - (time.perf_counter() - t1), 0.0)
+        return self.compile_s[(key, tier, form)]
+
+
+def measure_compiled_peer(case: Case, tier: Tier, cfg: Config, refs: dict[str, np.ndarray],
+                          cache: PeerCache, batch: bool) -> dict[str, object]:
+    """Time a compiled peer on one ball (and on the case's batch if the peer has a batch
+    form); its error against ``refs`` as for ours. The first row of each peer, tier and form
+    carries the compile time (`PeerCache.first_call`) in ``compile_s``/``batch_compile_s``."""
+    peer = BY_KEY[cfg.peer]
+    sc = case.scene(tier)
+    s0 = case.state(tier)
+    grid = case.grid()
+    solver = cache.solver(case, tier, cfg.peer)
+    try:
+        compile_s = cache.first_call(cfg.peer, tier, "single",
+                                     lambda: solver.single(s0, grid, cfg.rtol))
+        (states, nfev), wall, reps = _timed(lambda: solver.single(s0, grid, cfg.rtol))
+        status = "ok"
+        xy = centre_xy(sc, states)
+    except RuntimeError as exc:
+        wall, reps, nfev, status, xy = math.nan, 0, math.nan, f"failed: {exc}", np.empty((0, 2))
+        compile_s = math.nan
+    row = _row(case, tier, cfg, wall_s=wall, repeats=reps, us_per_sim_s=wall / case.t_end * 1e6,
+               steps="", rhs_evals="" if math.isnan(nfev) else nfev, status=status,
+               error_m=max_distance(xy, refs[tier]), model_error_m=max_distance(xy, refs["rolling"]),
+               peer=cfg.peer, rhs=peer.rhs, compile_s=compile_s or "")
+    projected = wall / case.t_end * case.batch_t_end * case.batch_n
+    if batch and peer.batch and status == "ok" and projected < PEER_BATCH_BUDGET_S:
+        row.update(measure_peer_batch(case, tier, cfg, solver, cache))
+    return row
+
+
+def measure_peer_batch(case: Case, tier: Tier, cfg: Config, solver: Solver, cache: PeerCache
+                       ) -> dict[str, object]:
+    """Time the peer's batch form on the case's batch of releases (as `measure_batch`)."""
+    import numba
+
+    states = batch_states(case, tier, case.batch_n)
+    n_out = int(round(case.batch_t_end / case.dt_out))
+    grid = np.arange(n_out + 1) * case.dt_out
+    compile_s = cache.first_call(cfg.peer, tier, "batch",
+                                 lambda: solver.batch(states, grid, cfg.rtol))
+    _, wall, _ = _timed(lambda: solver.batch(states, grid, cfg.rtol), budget=1.0, max_repeats=3)
+    # numbalsoda's batch is a prange loop on numba's threads; XLA runs diffrax's vmap on
+    # the threads it starts, one per core.
+    threads = numba.get_num_threads() if cfg.solver == "numbalsoda" else os.cpu_count()
+    return {"batch_n": case.batch_n, "batch_t_end": case.batch_t_end, "batch_wall_s": wall,
+            "batch_threads": threads,
+            "batch_us_per_ball_sim_s": wall / (case.batch_n * case.batch_t_end) * 1e6,
+            "batch_compile_s": compile_s or ""}
+
+
 def linear_centre_state(case: Case) -> np.ndarray:
     """(x_c, y_c, ẋ_c, ẏ_c) of the rolling ball's release, from the exact model."""
     sc = case.scene("rolling")
@@ -359,9 +460,18 @@ def warm_up(case: Case) -> None:
             simulate_batch(sc, s0[None, :], 0.05, omega=case.omega, method=m, dt=dt)
 
 
-def tasks(case: Case, quick: bool, tiers: tuple[Tier, ...] = TIERS, peers: bool = True,
-          batch: bool = True) -> Iterator[tuple[str, Callable[[dict[str, np.ndarray]], dict]]]:
-    """(description, measurement) pairs, cheapest first within each tier."""
+def tasks(case: Case, quick: bool, tiers: tuple[Tier, ...] = TIERS,
+          peers: bool | tuple[str, ...] = True, batch: bool = True,
+          cache: PeerCache | None = None
+          ) -> Iterator[tuple[str, Callable[[dict[str, np.ndarray]], dict]]]:
+    """(description, measurement) pairs, cheapest first within each tier. ``peers``: True
+    for every peer, False for none, or the keys of those to run ("plain" is scipy on the
+    plain-numpy `PeerModel`; the others are `saddle_env.workprecision.peers.BY_KEY`'s)."""
+    if peers is True:
+        keys: tuple[str, ...] = ("plain",) + tuple(BY_KEY)
+    else:
+        keys = peers or ()
+    cache = PeerCache() if cache is None else cache
     for tier in tiers:
         if tier == "linear":
             yield "linear expm", lambda refs: measure_linear(case, refs, batch)
@@ -369,10 +479,67 @@ def tasks(case: Case, quick: bool, tiers: tuple[Tier, ...] = TIERS, peers: bool 
         for cfg in our_configs(quick):
             yield (f"{tier} {cfg.label} {cfg.rtol if cfg.kind == 'adaptive' else cfg.dt:g}",
                    partial(measure_ours, case, tier, cfg, batch=batch))
-        if peers and tier != "coulomb":  # the plain-numpy peer has no friction model
+        if "plain" in keys and tier != "coulomb":  # the plain-numpy peer has no friction model
             for cfg in peer_configs(quick):
                 yield (f"{tier} {cfg.label} {cfg.rtol:g}",
                        partial(measure_peer, case, tier, cfg))
+        if tier in ("rolling", "slipping", "point"):  # the compiled peers' models
+            for cfg in compiled_peer_configs(quick, keys):
+                yield (f"{tier} {cfg.label} {cfg.rtol:g}",
+                       partial(measure_compiled_peer, case, tier, cfg, cache=cache,
+                               batch=batch and tier == "rolling"))
+
+
+def _our_config(brief: dict) -> Config:
+    """The simulator's setting a summary entry (`report._brief`) names."""
+    fixed = brief["kind"] == "fixed"
+    return Config("saddle_env", brief["method"], rtol=math.nan if fixed else brief["setting"],
+                  dt=brief["setting"] if fixed else math.nan, max_step=brief["max_step"])
+
+
+def rounds(case: Case, comparison: dict, cache: PeerCache, n_rounds: int = 5) -> dict:
+    """The settings `report.peer_comparison` picked, timed again in alternating rounds.
+
+    The sweep times each row when its turn comes, so on a shared machine the simulator's
+    row and a peer's can meet different loads. Here, for each form (one ball, batch) and
+    error bound, the simulator and every compiled peer run once per round, in an order
+    that rotates, and each keeps its fastest round: their ratio is measured under the same
+    load. scipy on the plain-numpy model is left out (seconds per run, and thousands of
+    times slower). Returns {form: {bound: {"project": µs, key: µs, ...}}} with the same
+    units as the sweep (µs per simulated second, per ball in the batch)."""
+    out: dict = {}
+    s0 = case.state("rolling")
+    grid = case.grid()
+    states = batch_states(case, "rolling", case.batch_n)
+    n_out = int(round(case.batch_t_end / case.dt_out))
+    bgrid = np.arange(n_out + 1) * case.dt_out
+    sc = case.scene("rolling")
+    for form in ("one_ball", "batch"):
+        for bound, level in comparison.get(form, {}).items():
+            kw = _sim_kwargs(case, _our_config(level["project"]))
+            fns: dict[str, Callable[[], object]] = {}
+            if form == "one_ball":
+                fns["project"] = partial(simulate, sc, s0, case.t_end, **kw)
+                per = case.t_end
+            else:
+                fns["project"] = partial(simulate_batch, sc, states, case.batch_t_end, **kw)
+                per = case.batch_t_end * case.batch_n
+            for key, entry in level.items():
+                if key in ("project", "fastest", "plain"):
+                    continue
+                solver = cache.solver(case, "rolling", key)
+                fns[key] = (partial(solver.single, s0, grid, entry["setting"])
+                            if form == "one_ball"
+                            else partial(solver.batch, states, bgrid, entry["setting"]))
+            best = dict.fromkeys(fns, math.inf)
+            names = list(fns)
+            for i in range(n_rounds):
+                for name in names[i % len(names):] + names[: i % len(names)]:
+                    t0 = time.perf_counter()
+                    fns[name]()
+                    best[name] = min(best[name], time.perf_counter() - t0)
+            out.setdefault(form, {})[bound] = {k: v / per * 1e6 for k, v in best.items()}
+    return out
 
 
 def measure_jacobi(case: Case, periods: int, rtol: float = REFERENCE_RTOL) -> dict[str, object]:

@@ -24,7 +24,10 @@ TARGET_JACOBI = 1e-9         # target 3: relative Jacobi drift over 1e4 saddle p
 NUMERIC = ("rtol", "dt", "max_step", "a", "R", "omega", "x0", "y0", "t_end", "dt_out",
            "wall_s", "repeats", "us_per_sim_s", "steps", "rhs_evals", "error_m",
            "model_error_m", "batch_n", "batch_t_end", "batch_wall_s", "batch_threads",
-           "batch_us_per_ball_sim_s", "batch_ball_steps_per_s")
+           "batch_us_per_ball_sim_s", "batch_ball_steps_per_s", "compile_s", "batch_compile_s")
+# The errors at which the peers are compared with the simulator [m], and their keys in the
+# summary (no dot: the figure store reads them as one step of a dotted path).
+PEER_ERRORS = {"1e-6": 1e-6, "1e-9": 1e-9}
 
 
 def read_rows(path: str | Path) -> list[Row]:
@@ -75,7 +78,9 @@ def summarize(rows: list[Row], extra: Summary | None = None) -> Summary:
     out: Summary = {}
     rolling = [r for r in rows if r["tier"] == "rolling"]
     ours = [r for r in rolling if r["solver"] == "saddle_env"]
-    dop = [r for r in rolling if r["solver"] == "scipy" and r["method"] == "DOP853"]
+    # The target's peer is scipy on the plain-numpy model (label "scipy DOP853"); the lean
+    # and njit right-hand sides under the same stepper are peers of their own (`peer_comparison`).
+    dop = [r for r in rolling if r["solver"] == "scipy" and r["label"] == "scipy DOP853"]
     best_ours = cheapest_meeting(ours, TARGET_ERROR)
     best_dop = cheapest_meeting(dop, TARGET_ERROR)
     t1: Summary = {"target": f">= {TARGET_SPEEDUP:g}x less wall time per simulated "
@@ -122,9 +127,87 @@ def summarize(rows: list[Row], extra: Summary | None = None) -> Summary:
             tiers[tier] = {"model_error_m": best["model_error_m"],
                            "cheapest_us_per_sim_s": min(r["us_per_sim_s"] for r in tier_rows)}
     out["model_error_vs_rolling"] = tiers
+    peers = peer_comparison(rows)
+    if peers:
+        out["peers"] = peers
     if extra:
         out.update(extra)
     return out
+
+
+def _peer_key(r: Row) -> str:
+    """A peer row's key: the compiled peer's, or "plain" for scipy on the plain-numpy model."""
+    return str(r.get("peer") or ("plain" if r["label"] == "scipy DOP853" else ""))
+
+
+def peer_comparison(rows: list[Row]) -> Summary:
+    """Each peer against the simulator on the rolling ball, for one ball and per ball in
+    the batch, at each of `PEER_ERRORS`: for every solver the cheapest setting of its sweep
+    that meets the error, and the peer's time over ours (``time_vs_project`` < 1: the peer
+    is faster). Empty when the run had no peer."""
+    rolling = [r for r in rows if r["tier"] == "rolling"]
+    ours = [r for r in rolling if r["solver"] == "saddle_env"]
+    by_peer: dict[str, list[Row]] = defaultdict(list)
+    for r in rolling:
+        if r["solver"] != "saddle_env" and _peer_key(r):
+            by_peer[_peer_key(r)].append(r)
+    if not by_peer or not ours:
+        return {}
+    out: Summary = {}
+    for form, cost in (("one_ball", "us_per_sim_s"), ("batch", "batch_us_per_ball_sim_s")):
+        section: Summary = {}
+        for name, tol in PEER_ERRORS.items():
+            mine = cheapest_meeting(ours, tol, cost=cost)
+            if mine is None:
+                continue
+            level: Summary = {"project": {**_brief(mine), "time": mine[cost]}}
+            for key, prs in sorted(by_peer.items()):
+                best = cheapest_meeting(prs, tol, cost=cost)
+                if best is None:
+                    continue
+                compile_s = [r["compile_s" if form == "one_ball" else "batch_compile_s"]
+                             for r in prs]
+                level[key] = {"label": best["label"], "rhs": best.get("rhs", ""),
+                              "setting": best["rtol"], "error_m": best["error_m"],
+                              "time": best[cost], "time_vs_project": best[cost] / mine[cost],
+                              "threads": best["batch_threads"],
+                              "compile_s": max((c for c in compile_s if math.isfinite(c)),
+                                               default=math.nan)}
+            peers_here = [k for k in level if k != "project"]
+            if peers_here:
+                fastest = min(peers_here, key=lambda k: level[k]["time"])
+                level["fastest"] = {"peer": fastest, "label": level[fastest]["label"],
+                                    "time_vs_project": level[fastest]["time_vs_project"]}
+            section[name] = level
+        if section:
+            out[form] = section
+    batch_rows = [r for r in ours if math.isfinite(r["batch_n"])]
+    if batch_rows:
+        out["batch_n"] = batch_rows[0]["batch_n"]
+        out["threads"] = batch_rows[0]["batch_threads"]
+    return out
+
+
+def merge_rounds(peers: Summary, timed: Summary) -> None:
+    """Add the alternating rounds' times (`core.rounds`) to `peer_comparison`'s entries:
+    ``time_rounds`` [µs per simulated s] and ``time_vs_project_rounds``; and the fastest
+    peer by them, ``fastest_rounds``."""
+    for form, levels in timed.items():
+        for bound, times in levels.items():
+            level = peers.get(form, {}).get(bound)
+            if level is None or "project" not in times:
+                continue
+            for key, t in times.items():
+                if key in level:
+                    level[key]["time_rounds"] = t
+                    if key != "project":
+                        level[key]["time_vs_project_rounds"] = t / times["project"]
+            timed_peers = [k for k in times if k != "project" and k in level]
+            if timed_peers:
+                fastest = min(timed_peers, key=lambda k: times[k])
+                level["fastest_rounds"] = {
+                    "peer": fastest, "label": level[fastest]["label"],
+                    "time_vs_project": level[fastest]["time_vs_project_rounds"]}
 
 
 def _brief(r: Row) -> Summary:
@@ -144,6 +227,10 @@ STYLE = {
     "rk4 fixed dt": ("C2", "^", "-"), "dop853 fixed dt": ("C4", "v", "-"),
     "scipy DOP853": ("C3", "D", "--"), "scipy RK45 default tol": ("C3", "*", "none"),
     "linearised (expm)": ("k", "P", "none"),
+    "scipy DOP853 (python)": ("C3", "d", "-."), "scipy DOP853 (njit)": ("C3", "x", ":"),
+    "numbalsoda DOP853": ("C6", "D", "-"), "numbalsoda LSODA": ("C6", "s", "--"),
+    "diffrax Dopri8": ("C8", "o", "-"), "diffrax Tsit5": ("C8", "^", "--"),
+    "scikit-sundae CVODE Adams": ("C9", "p", "-"),
 }
 
 
@@ -158,14 +245,16 @@ def plot(rows: list[Row], out_dir: str | Path, batch: bool = False,
     import matplotlib.pyplot as plt
 
     cost = "batch_us_per_ball_sim_s" if batch else "us_per_sim_s"
-    fig, axes = plt.subplots(1, len(MODEL_TIERS) + 1, figsize=(20, 4.2), sharey=True)
-    panels = [(tier, "error_m") for tier in MODEL_TIERS] + [(None, "model_error_m")]
+    # A panel per contact model the run measured (saddle-bench --tiers), and the tiers' panel.
+    tiers = [t for t in MODEL_TIERS if any(r["tier"] == t for r in rows)] or list(MODEL_TIERS)
+    fig, axes = plt.subplots(1, len(tiers) + 1, figsize=(4 * len(tiers) + 4, 4.2), sharey=True)
+    panels = [(tier, "error_m") for tier in tiers] + [(None, "model_error_m")]
     for ax, (tier, key) in zip(axes, panels):
         groups: dict[tuple[str, str], list] = defaultdict(list)
         for r in rows:
             if tier is not None and r["tier"] != tier:
                 continue
-            if tier is None and r["solver"] == "scipy":
+            if tier is None and r["solver"] != "saddle_env":
                 continue
             if tier is None and r["label"] not in ("dop853 rtol", "linearised (expm)"):
                 continue
