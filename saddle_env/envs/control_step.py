@@ -438,7 +438,6 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
     stages = tab.B.shape[0]
     dt = cfg[C_DT]
     sc, record, ws, rates, lanes = _carve(buf, ibuf, stages, dt)
-    p, scale, y, ball, nz, ob, o = record
     Pl, D, Y0, Sc = ws.P, ws.D, ws.Y0, ws.Sc
     lockstep = cfg[C_LOCKSTEP] != 0.0
     failed = 0
@@ -447,23 +446,26 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
         for i in range(lo, hi):
             if not (ROLLING_ON or SLIPPING_ON) or not active[i] or models[i] != model:
                 continue
-            _load(i, ROW_WIDTH, P, scales, Y, balls, noise, record)
             # A ball with rolling resistance takes the scalar path: its loop may cut a step at
             # a rolling spin's stop (`integrators`, roll stop), which a block's lanes do not.
-            if lockstep and p[P_RESIST] == 0.0 and reaches(0.0, _first_step(ball, ctl), dt):
+            # A lane is gathered from the shared rows straight (the ball's record is loaded
+            # when the block is finished, `_step_block`).
+            row = balls[i]
+            if lockstep and P[i, P_RESIST] == 0.0 and reaches(0.0, _first_step(row, ctl), dt):
                 lanes[m] = i
-                rates[m] = _drive(ball, cfg, actions[i], D[m])
+                rates[m] = _drive(row, cfg, actions[i], D[m])
                 for k in range(PARAM_WIDTH):
-                    Pl[k, m] = p[k]
+                    Pl[k, m] = P[i, k]
                 for j in range(BLOCK_WIDTH):
-                    Y0[j, m] = y[j]
-                    Sc[j, m] = scale[j]
+                    Y0[j, m] = Y[i, j]
+                    Sc[j, m] = scales[i, j]
                 m += 1
                 if m == LANES:
                     failed += _step_block(model, m, lanes, rates, ws, sc, record, P, scales, Y,
                                           balls, cfg, actions, tab, ctl, noise, obs, out)
                     m = 0
             else:
+                _load(i, ROW_WIDTH, P, scales, Y, balls, noise, record)
                 failed += _scalar_ball(i, model, ROW_WIDTH, Y, balls, cfg, actions, tab, ctl,
                                        obs, out, sc, record)
         if m > 0:
