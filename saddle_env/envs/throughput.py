@@ -224,7 +224,8 @@ def _machine() -> dict[str, object]:
     return {"python": platform.python_version(), "platform": platform.platform(),
             "cpus": os.cpu_count(), "load_average": list(os.getloadavg()),
             "numba_threads": numba.get_num_threads(), "gymnasium": gym.__version__,
-            "kernels": aot.status()}
+            # the folder relative to the package: a results file names no local paths
+            "kernels": aot.status().replace(str(aot.AOT_DIR), "saddle_env/_aot")}
 
 
 def plot(sweep: list[dict[str, float]], path: Path) -> bool:
