@@ -487,3 +487,61 @@ def test_a_reset_that_brings_another_contact_model_widens_the_compiled_step(monk
     assert engine._uses == ({ROLLING, SLIPPING}, False)    # no resistance was drawn
     monkeypatch.setenv(FULL_KERNELS_ENV, "1")
     _assert_identical(own, _seeded_steps("SaddleTrap-v0", options)[1])
+
+
+def test_gym_make_wraps_in_the_time_limit_alone_and_the_env_enforces_the_order():
+    """The env checks what OrderEnforcing would (a step or render before reset), so
+    gym.make adds TimeLimit only; the passive checker can still be asked for."""
+    env = gym.make("SaddleTrap-v0", render_mode="rgb_array")
+    assert str(env) == "<TimeLimit<SaddleTrapEnv<SaddleTrap-v0>>>"
+    with pytest.raises(RuntimeError, match=r"reset\(\) before step"):
+        env.step(ZERO)
+    with pytest.raises(RuntimeError, match=r"reset\(\) before render"):
+        env.render()
+    env.reset(seed=0)
+    assert env.render().ndim == 3
+    checked = gym.make("SaddleTrap-v0", disable_env_checker=False)
+    assert "PassiveEnvChecker" in str(checked)
+    checked.reset(seed=0)
+    checked.step(ZERO)
+
+
+def test_a_step_with_the_envs_own_buffers_equals_one_with_fresh_arrays():
+    """The engine keeps the last call's arguments when the same arrays come again (the
+    single env's step): the run is the one of fresh arrays each step, through a lockstep
+    switch and a reset that widens the compiled step in between."""
+    def run(fresh: bool):
+        env = SaddleTrapEnv()
+        env.reset(seed=5)
+        engine = env.unwrapped.engine
+        rows = []
+        for k in range(60):
+            if k == 20:
+                engine.lockstep = False
+            if k == 40:
+                env.reset(seed=6, options={"contact": "slipping"})
+            if fresh:
+                env._action = np.zeros(1)       # a new buffer: the general path
+                env._active = np.ones(1, dtype=bool)
+            obs, r, te, tr, info = env.step(np.array([0.3 * np.sin(k)], np.float32))
+            rows.append((obs, r, te, info, engine.Y[0].copy()))
+            if te:
+                env.reset(seed=k)
+        return rows
+
+    kept, fresh = run(False), run(True)
+    for (o1, r1, t1, i1, y1), (o2, r2, t2, i2, y2) in zip(kept, fresh):
+        np.testing.assert_array_equal(o1, o2)
+        np.testing.assert_array_equal(y1, y2)
+        assert (r1, t1, i1) == (r2, t2, i2)
+
+
+def test_the_steps_info_holds_python_floats_of_the_engines_rows():
+    env = gym.make("SaddleTrap-v0")
+    env.reset(seed=2)
+    _, reward, terminated, _, info = env.step(ZERO)
+    e = env.unwrapped.engine
+    assert type(reward) is float and type(terminated) is bool
+    assert info == {"omega": e.balls[0, 0], "time": pytest.approx(0.02, abs=1e-15),
+                    "N_over_mg": e.out[0, 2], "trapped_fraction": 1.0}
+    assert all(type(v) is float for v in info.values())

@@ -22,6 +22,14 @@ def test_throughput_writes_json_csv_and_figure(tmp_path, capsys):
                 "cartpole_vector_steps_per_s", "first_step_warm_s"):
         assert data[key] > 0, key
     assert data["vector_num_envs"] == 8 and "first_step_cold_s" not in data
+    assert data["vector_ratio"] == pytest.approx(data["saddle_vector_steps_per_s"]
+                                                 / data["cartpole_vector_steps_per_s"])
+    assert data["single_ratio"] == pytest.approx(data["saddle_steps_per_s"]
+                                                 / data["cartpole_steps_per_s"])
+    # as users make them: gym.make's wrappers, gym.make_vec's default (the native vector env)
+    assert data["single_made_as"] == "<TimeLimit<SaddleTrapEnv<SaddleTrap-v0>>>"
+    assert data["vector_made_as"].startswith("SaddleTrapVectorEnv(SaddleTrap-v0, num_envs=8")
+    assert len(data["date"]) == 10 and data["machine"]["gymnasium"]
     rows = list(csv.DictReader(open(out / "batch_sizes.csv")))
     assert [int(r["num_envs"]) for r in rows] == [4, 8]
     assert all(float(r["saddle_steps_per_s"]) > 0 for r in rows)

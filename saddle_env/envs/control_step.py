@@ -56,6 +56,8 @@ from collections import namedtuple
 
 import numba as nb
 import numpy as np
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
 from ..compilation.jit import ir_inline, jit, jit_per_constant, python_entry
 from ..compilation.specialise import COULOMB_ON, ROLLING_ON, SLIPPING_ON, specialisable
@@ -436,7 +438,6 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
     stages = tab.B.shape[0]
     dt = cfg[C_DT]
     sc, record, ws, rates, lanes = _carve(buf, ibuf, stages, dt)
-    p, scale, y, ball, nz, ob, o = record
     Pl, D, Y0, Sc = ws.P, ws.D, ws.Y0, ws.Sc
     lockstep = cfg[C_LOCKSTEP] != 0.0
     failed = 0
@@ -445,23 +446,26 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
         for i in range(lo, hi):
             if not (ROLLING_ON or SLIPPING_ON) or not active[i] or models[i] != model:
                 continue
-            _load(i, ROW_WIDTH, P, scales, Y, balls, noise, record)
             # A ball with rolling resistance takes the scalar path: its loop may cut a step at
             # a rolling spin's stop (`integrators`, roll stop), which a block's lanes do not.
-            if lockstep and p[P_RESIST] == 0.0 and reaches(0.0, _first_step(ball, ctl), dt):
+            # A lane is gathered from the shared rows straight (the ball's record is loaded
+            # when the block is finished, `_step_block`).
+            row = balls[i]
+            if lockstep and P[i, P_RESIST] == 0.0 and reaches(0.0, _first_step(row, ctl), dt):
                 lanes[m] = i
-                rates[m] = _drive(ball, cfg, actions[i], D[m])
+                rates[m] = _drive(row, cfg, actions[i], D[m])
                 for k in range(PARAM_WIDTH):
-                    Pl[k, m] = p[k]
+                    Pl[k, m] = P[i, k]
                 for j in range(BLOCK_WIDTH):
-                    Y0[j, m] = y[j]
-                    Sc[j, m] = scale[j]
+                    Y0[j, m] = Y[i, j]
+                    Sc[j, m] = scales[i, j]
                 m += 1
                 if m == LANES:
                     failed += _step_block(model, m, lanes, rates, ws, sc, record, P, scales, Y,
                                           balls, cfg, actions, tab, ctl, noise, obs, out)
                     m = 0
             else:
+                _load(i, ROW_WIDTH, P, scales, Y, balls, noise, record)
                 failed += _scalar_ball(i, model, ROW_WIDTH, Y, balls, cfg, actions, tab, ctl,
                                        obs, out, sc, record)
         if m > 0:
@@ -491,6 +495,37 @@ def _step_range_scalar(lo, hi, models, P, scales, Y, balls, cfg, actions, active
                                    tab, ctl, noise, obs, out, sc, record)
 
 
+@intrinsic
+def _unmanaged(typingctx, arr):
+    """``arr`` without its reference count: the same data, shape and strides, with numba's
+    memory record (meminfo) left empty. Every view the compiled step takes of such an array
+    is then free of the atomic increments and decrements that a managed array's views cost
+    (two thirds of a single ball's compiled step, in the integrator's views of its scratch
+    rows). Only for an array its caller keeps alive for the whole call, and whose views do
+    not outlive it: the entry points' arguments, which Python holds."""
+    if not isinstance(arr, types.Array):
+        return None
+
+    def codegen(context, builder, sig, args):
+        src = context.make_array(arr)(context, builder, value=args[0])
+        dst = context.make_array(arr)(context, builder)
+        for name in ("nitems", "itemsize", "data", "shape", "strides"):
+            setattr(dst, name, getattr(src, name))
+        dst.meminfo = cgutils.get_null_value(dst.meminfo.type)
+        dst.parent = cgutils.get_null_value(dst.parent.type)
+        return dst._getvalue()
+
+    return arr(arr), codegen
+
+
+@ir_inline
+def _unmanaged_tableau(tab_fields):
+    """`Tableau` of ``tab_fields`` with its arrays `_unmanaged`."""
+    C, A, B, E, E3, err_kind, err_order = tab_fields
+    return Tableau(_unmanaged(C), _unmanaged(A), _unmanaged(B), _unmanaged(E), _unmanaged(E3),
+                   err_kind, err_order)
+
+
 # `_step_range`, `_step_block` and `_integrate` are typed into `step_serial`
 # (`kernels.ir_inline`): compiled on their own, each was one more module holding all of the
 # integrator's code, optimised and turned into machine code again (docs/coldstart.md).
@@ -508,9 +543,11 @@ def step_serial(models, P, scales, Y, balls, cfg, actions, active, tab_fields, c
     """Step the active balls on this thread with the caller's scratch buffers (see `_carve`);
     return how many failed (status < 0). ``tab_fields``, ``ctl_fields``: the fields of the
     method's `Tableau` and of the `StepControl`."""
-    return _step_range_inlined(0, Y.shape[0], models, P, scales, Y, balls, cfg, actions,
-                               active, Tableau(*tab_fields), StepControl(*ctl_fields), noise,
-                               obs, out, buf, ibuf)
+    U = _unmanaged
+    return _step_range_inlined(0, Y.shape[0], U(models), U(P), U(scales), U(Y), U(balls), U(cfg),
+                               U(actions), U(active), _unmanaged_tableau(tab_fields),
+                               StepControl(*ctl_fields), U(noise), U(obs), U(out), U(buf),
+                               U(ibuf))
 
 
 @python_entry
@@ -519,9 +556,11 @@ def step_scalar(models, P, scales, Y, balls, cfg, actions, active, tab_fields, c
                 noise, obs, out, buf, ibuf):
     """`step_serial` for engines where no SIMD block can form (`_step_range_scalar`): the
     same results, less to compile. Same arguments."""
-    return _step_range_scalar(0, Y.shape[0], models, P, scales, Y, balls, cfg, actions, active,
-                              Tableau(*tab_fields), StepControl(*ctl_fields), noise, obs, out,
-                              buf, ibuf)
+    U = _unmanaged
+    return _step_range_scalar(0, Y.shape[0], U(models), U(P), U(scales), U(Y), U(balls), U(cfg),
+                              U(actions), U(active), _unmanaged_tableau(tab_fields),
+                              StepControl(*ctl_fields), U(noise), U(obs), U(out), U(buf),
+                              U(ibuf))
 
 
 @python_entry
@@ -531,7 +570,11 @@ def step_parallel(models, P, scales, Y, balls, cfg, actions, active, tab_fields,
     """Step the active balls on all threads in ``len(bufs)`` contiguous chunks, each with its
     own rows of the caller's scratch buffers (a few chunks per thread balance the load);
     return how many failed. The records' fields as in `step_serial`."""
-    tab, ctl = Tableau(*tab_fields), StepControl(*ctl_fields)
+    tab, ctl = _unmanaged_tableau(tab_fields), StepControl(*ctl_fields)
+    U = _unmanaged
+    models, P, scales, Y, balls, cfg = U(models), U(P), U(scales), U(Y), U(balls), U(cfg)
+    actions, active, noise, obs, out = U(actions), U(active), U(noise), U(obs), U(out)
+    bufs, ibufs = U(bufs), U(ibufs)
     n = Y.shape[0]
     chunks = bufs.shape[0]
     failed = 0

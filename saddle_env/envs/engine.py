@@ -153,12 +153,16 @@ class TrapEngine:
         self._uses = contact_uses(config)
         self._S = specialise(*self._uses, S)
         self._entries: dict[str, object] = {}  # `_entry`
+        self._serial_call: tuple | None = None  # `_run`'s last serial call, made again
         self._scene_cache: dict[tuple, tuple[Scene, np.ndarray, np.ndarray]] = {}
         self._noise_scale = self._build_noise_scale(config)
         self._air_decay = math.exp(-config.control_period / config.air_force_tau)
         self.delays = DelayPlan(config)
         if self.delays.active:
             self._init_delays()
+        # A step is the compiled call alone: no random draws, delays or frame history.
+        self._plain = (config.air_force == 0 and self._noise_scale is None
+                       and not self.delays.active and self.layout.frames == 1)
         # Scratch memory for the compiled step, allocated once rather than on every step: one
         # row for the serial step, one per chunk in parallel.
         self._scratch, self._iscratch = (a[0] for a in self._new_scratch(1))
@@ -167,12 +171,14 @@ class TrapEngine:
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
         del state["_S"], state["_entries"]  # compiled code: found again from ``_uses``
+        state["_serial_call"] = None
         return state
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         self._S = specialise(*self._uses, S)
         self._entries = {}
+        self._serial_call = None
 
     def _entry(self, name: str, args: tuple):
         """``self._S``'s entry point ``name`` for ``args``, checked once
@@ -193,6 +199,7 @@ class TrapEngine:
     @lockstep.setter
     def lockstep(self, on: bool) -> None:
         self._lockstep = bool(on)
+        self._serial_call = None  # `_run` picks the entry by it
         for cfg in (self.cfg, *getattr(self, "_seg_cfgs", ())):
             cfg[S.C_LOCKSTEP] = 1.0 if on else 0.0
 
@@ -349,6 +356,7 @@ class TrapEngine:
             self._uses = (models | drawn, resisted)
             self._S = specialise(*self._uses, S)
             self._entries = {}
+            self._serial_call = None
         args = (idx, self.models, self.P, self.Y, self.balls, self.cfg, x, y, vx, vy, lab_rest,
                 spin, self.noise, self.frame, self.out)
         self._entry("place", args)(*args)
@@ -437,6 +445,14 @@ class TrapEngine:
         Per-step random draws (air current, sensor noise) come from each ball's own
         generator, so a ball's run does not depend on how many others share the batch.
         """
+        call = self._serial_call
+        if self._plain and call is not None and call[1] is actions and call[2] is active \
+                and not self.parallel:
+            # The arrays of the last step, checked then (a single env passes its own buffers):
+            # straight to the compiled step.
+            if call[3](*call[4]):
+                self._raise_failed(active)
+            return
         c = self.config
         actions = self._per_ball("actions", actions, np.float64)
         active = self._per_ball("active", active, np.bool_)
@@ -492,6 +508,14 @@ class TrapEngine:
 
     def _run(self, cfg: np.ndarray, actions: np.ndarray, active: np.ndarray) -> None:
         """The compiled step of the ``active`` balls over ``cfg``'s period."""
+        call = self._serial_call
+        if call is not None and call[0] is cfg and call[1] is actions and call[2] is active \
+                and not self.parallel:
+            # The same arrays as last time (a single env's step passes its own buffers): the
+            # argument tuple and the entry are kept, a third of the Python side of its step.
+            if call[3](*call[4]):
+                self._raise_failed(active)
+            return
         args = (self.models, self.P, self.scales, self.Y, self.balls, cfg, actions, active,
                 *self._record_fields, self.noise, self.frame, self.out)
         if self.parallel and threads_usable():
@@ -505,14 +529,20 @@ class TrapEngine:
             # compile on a first step; the same results).
             name = "step_serial" if self._lockstep and self.n >= S.MIN_BLOCK else "step_scalar"
             serial_args = (*args, self._scratch, self._iscratch)
-            failed = self._entry(name, serial_args)(*serial_args)
+            fn = self._entry(name, serial_args)
+            self._serial_call = (cfg, actions, active, fn, serial_args)
+            failed = fn(*serial_args)
         if failed:
-            bad = int(np.flatnonzero(active & (self.out[:, S.O_STATUS] < 0))[0])
-            code = int(self.out[bad, S.O_STATUS])
-            why = "the step limit was hit" if code == STATUS_MAX_STEPS else "the state became non-finite"
-            raise SimulationError(
-                f"ball {bad}: integration failed at t = {self.balls[bad, S.B_TIME]:.6f} s "
-                f"({why}); scene {self.scenes[bad]}")
+            self._raise_failed(active)
+
+    def _raise_failed(self, active: np.ndarray) -> None:
+        """SimulationError naming the first ball of ``active`` whose step failed."""
+        bad = int(np.flatnonzero(active & (self.out[:, S.O_STATUS] < 0))[0])
+        code = int(self.out[bad, S.O_STATUS])
+        why = "the step limit was hit" if code == STATUS_MAX_STEPS else "the state became non-finite"
+        raise SimulationError(
+            f"ball {bad}: integration failed at t = {self.balls[bad, S.B_TIME]:.6f} s "
+            f"({why}); scene {self.scenes[bad]}")
 
     def _per_ball(self, name: str, values, dtype) -> np.ndarray:
         """``values`` as a contiguous vector of ``dtype``, one per ball (what the compiled

@@ -18,6 +18,11 @@ if TYPE_CHECKING:
     from .rendering import SaddleRenderer
 
 
+# The slots `step` reads, as module constants (a module attribute costs a lookup per step)
+_O_STATUS, _O_REWARD, _O_NORMAL, _O_TRAPPED = S.O_STATUS, S.O_REWARD, S.O_NORMAL, S.O_TRAPPED
+_B_OMEGA, _B_TIME = S.B_OMEGA, S.B_TIME
+
+
 def action_space() -> spaces.Box:
     """The action space of every level: one number in [-1, 1]."""
     return spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
@@ -31,7 +36,7 @@ def check_actions(actions: Any, n: int, out: np.ndarray | None = None) -> np.nda
     if out is not None and type(actions) is np.ndarray and actions.dtype.kind == "f" and \
             (actions.shape == (n,) or actions.shape == (n, 1)):
         if n == 1:  # a plain float is cheaper than a compiled call for one ball
-            v = float(actions.flat[0])
+            v = actions.item(0)
             if not math.isfinite(v):
                 raise ValueError(f"action must be finite (in [-1, 1]), got {actions!r}")
             out[0] = -1.0 if v < -1.0 else (1.0 if v > 1.0 else v)
@@ -134,6 +139,7 @@ class SaddleTrapEnv(gym.Env):
         self._action = np.zeros(1)
         self._renderer: SaddleRenderer | None = None
         self._needs_reset = True
+        self._was_reset = False  # render needs an episode (`levels.register_levels`)
 
     @property
     def scene(self):
@@ -171,6 +177,7 @@ class SaddleTrapEnv(gym.Env):
         super().reset(seed=seed)
         self.engine.reset(np.array([0]), [self.np_random], options)
         self._needs_reset = False
+        self._was_reset = True
         if self._renderer is not None:
             self._renderer.clear()
         if self.render_mode == "human":
@@ -206,21 +213,25 @@ class SaddleTrapEnv(gym.Env):
         if self._needs_reset:
             raise RuntimeError("call reset() before step() (the episode has ended or not begun)")
         a = check_actions(action, 1, self._action)
-        self.engine.step(a, self._active, [self.np_random])
-        out = self.engine.out[0]
-        terminated = out[S.O_STATUS] > 0
-        self._needs_reset = bool(terminated)
-        reward = float(out[S.O_REWARD])
+        e = self.engine
+        e.step(a, self._active, [self.np_random])
+        # The rows' numbers as Python floats, one call per row (indexing them one by one was
+        # a tenth of the step)
+        out = e.out[0].tolist()
+        terminated = out[_O_STATUS] > 0
+        self._needs_reset = terminated
         if self.render_mode == "human":
             self.render()
-        return self.engine.obs[0].copy(), reward, bool(terminated), False, self._info(terminated)
+        return e.obs[0].copy(), out[_O_REWARD], terminated, False, self._info(terminated, out)
 
-    def _info(self, terminated: bool) -> dict[str, Any]:
+    def _info(self, terminated: bool, out: list[float] | None = None) -> dict[str, Any]:
+        """The info of the step whose outputs (``engine.out``'s row) are ``out``."""
         e = self.engine
-        info: dict[str, Any] = {"omega": float(e.balls[0, S.B_OMEGA]),
-                                "time": float(e.balls[0, S.B_TIME]),
-                                "N_over_mg": float(e.out[0, S.O_NORMAL]),
-                                "trapped_fraction": float(e.out[0, S.O_TRAPPED])}
+        if out is None:
+            out = e.out[0].tolist()
+        ball = e.balls[0].tolist()
+        info: dict[str, Any] = {"omega": ball[_B_OMEGA], "time": ball[_B_TIME],
+                                "N_over_mg": out[_O_NORMAL], "trapped_fraction": out[_O_TRAPPED]}
         if terminated:
             info["cause"] = e.cause(0)
             info["event_time"] = info["time"]
@@ -234,11 +245,18 @@ class SaddleTrapEnv(gym.Env):
         numpy.ndarray or None
             An RGB array in "rgb_array" mode; None in "human" mode (it draws to a window) or
             without a render mode.
+
+        Raises
+        ------
+        RuntimeError
+            Before the first `reset` (no episode to draw).
         """
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' "
                             "or 'human' to gym.make")
             return None
+        if not self._was_reset:
+            raise RuntimeError("call reset() before render() (there is no episode to draw)")
         if self._renderer is None:
             from .rendering import SaddleRenderer
             self._renderer = SaddleRenderer(self.config, self.render_mode)
