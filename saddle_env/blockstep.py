@@ -38,11 +38,11 @@ from .integrators import (
     STATUS_FAILED,
     STATUS_MAX_STEPS,
     StepControl,
-    Tableau,
     integrate,
     integrate_h,
     reaches,
     step_factor,
+    unmanaged_tableau,
     workspace,
 )
 from .kernels import STATE_WIDTH, frame_terms, rhs, rim_margin, sized
@@ -340,8 +340,7 @@ def _shared_range(lo, hi, models, P, profiles, Y, t0, t_out, tab, ctl, scales, m
     models, P, profiles, Y, t_out = U(models), U(P), U(profiles), U(Y), U(t_out)
     scales, max_step, active, Y_out = U(scales), U(max_step), U(active), U(Y_out)
     status, t_final, stats, buf, idx = U(status), U(t_final), U(stats), U(buf), U(idx)
-    tab = Tableau(U(tab.C), U(tab.A), U(tab.B), U(tab.E), U(tab.E3), tab.err_kind,
-                  tab.err_order)
+    tab = unmanaged_tableau(tab)
     ws = carve_block(buf, tab.B.shape[0])
     i = lo
     while i < hi:

@@ -79,7 +79,7 @@ __all__ = ["ERR_DOP853", "ERR_EMBEDDED", "ERR_NONE", "EVENT_DETACH", "EVENT_ESCA
            "EVENT_KINDS", "EVENT_TIME_TOL", "LOG_PHASE", "LOG_T", "METHODS", "STATUS_DETACH",
            "STATUS_DONE", "STATUS_ESCAPE", "STATUS_FAILED", "STATUS_MAX_STEPS", "Method",
            "Outcome", "StepControl", "Tableau", "integrate", "integrate_batch", "integrate_h",
-           "reaches", "state_scale", "step_control", "step_factor", "transition_log",
+           "reaches", "state_scale", "step_control", "step_factor", "transition_log", "unmanaged_tableau",
            "workspace"]
 
 # The status codes `integrate` returns (detachment and escape: `rk`'s event kinds).
@@ -434,8 +434,7 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
     p, prof, y, t_out, scale = unmanaged(p), unmanaged(prof), unmanaged(y), unmanaged(t_out), \
         unmanaged(scale)
     Y_out, stats, work = unmanaged(Y_out), unmanaged(stats), unmanaged(work)
-    tab = Tableau(unmanaged(tab.C), unmanaged(tab.A), unmanaged(tab.B), unmanaged(tab.E),
-                  unmanaged(tab.E3), tab.err_kind, tab.err_order)
+    tab = unmanaged_tableau(tab)
     s = tab.B.shape[0]
     K = work[:s + 1]
     want_normal = (ctl.events & EVENT_DETACH) != 0
@@ -455,6 +454,13 @@ def integrate_h(model, p, prof, y, t0, t_out, tab, ctl, scale, Y_out, stats, h_s
     h = _starting_step(model, p, prof, t0, y, K, tab, ctl, scale, h_start, work)
     return _march(model, p, prof, y, t0, t_out, k, h, tab, ctl, scale, Y_out, stats, h_start,
                   work, accepted_normal)
+
+
+@ir_inline
+def unmanaged_tableau(tab):
+    """``tab`` with its arrays `unmanaged` (for a caller that holds the method's arrays)."""
+    return Tableau(unmanaged(tab.C), unmanaged(tab.A), unmanaged(tab.B), unmanaged(tab.E),
+                   unmanaged(tab.E3), tab.err_kind, tab.err_order)
 
 
 @jit

@@ -56,12 +56,18 @@ from collections import namedtuple
 
 import numba as nb
 import numpy as np
-from numba.core import cgutils, types
-from numba.extending import intrinsic
 
-from ..compilation.jit import ir_inline, jit, jit_per_constant, python_entry
+from ..compilation.jit import ir_inline, jit, jit_per_constant, python_entry, unmanaged
 from ..compilation.specialise import COULOMB_ON, ROLLING_ON, SLIPPING_ON, specialisable
-from ..integrators import EVENT_DETACH, STATUS_DETACH, StepControl, Tableau, integrate_h, reaches
+from ..integrators import (
+    EVENT_DETACH,
+    STATUS_DETACH,
+    StepControl,
+    Tableau,
+    integrate_h,
+    reaches,
+    unmanaged_tableau,
+)
 from ..kernels import (
     DRIVE_AMP,
     DRIVE_DECAY,
@@ -495,35 +501,13 @@ def _step_range_scalar(lo, hi, models, P, scales, Y, balls, cfg, actions, active
                                    tab, ctl, noise, obs, out, sc, record)
 
 
-@intrinsic
-def _unmanaged(typingctx, arr):
-    """``arr`` without its reference count: the same data, shape and strides, with numba's
-    memory record (meminfo) left empty. Every view the compiled step takes of such an array
-    is then free of the atomic increments and decrements that a managed array's views cost
-    (two thirds of a single ball's compiled step, in the integrator's views of its scratch
-    rows). Only for an array its caller keeps alive for the whole call, and whose views do
-    not outlive it: the entry points' arguments, which Python holds."""
-    if not isinstance(arr, types.Array):
-        return None
-
-    def codegen(context, builder, sig, args):
-        src = context.make_array(arr)(context, builder, value=args[0])
-        dst = context.make_array(arr)(context, builder)
-        for name in ("nitems", "itemsize", "data", "shape", "strides"):
-            setattr(dst, name, getattr(src, name))
-        dst.meminfo = cgutils.get_null_value(dst.meminfo.type)
-        dst.parent = cgutils.get_null_value(dst.parent.type)
-        return dst._getvalue()
-
-    return arr(arr), codegen
-
-
 @ir_inline
 def _unmanaged_tableau(tab_fields):
-    """`Tableau` of ``tab_fields`` with its arrays `_unmanaged`."""
-    C, A, B, E, E3, err_kind, err_order = tab_fields
-    return Tableau(_unmanaged(C), _unmanaged(A), _unmanaged(B), _unmanaged(E), _unmanaged(E3),
-                   err_kind, err_order)
+    """`Tableau` of ``tab_fields`` with its arrays `unmanaged`: the compiled step entry points
+    work on their arguments without reference counts (`compilation.jit.unmanaged`; Python
+    holds them for the call), so the integrator's views of its scratch rows cost no atomic
+    increments."""
+    return unmanaged_tableau(Tableau(*tab_fields))
 
 
 # `_step_range`, `_step_block` and `_integrate` are typed into `step_serial`
@@ -543,7 +527,7 @@ def step_serial(models, P, scales, Y, balls, cfg, actions, active, tab_fields, c
     """Step the active balls on this thread with the caller's scratch buffers (see `_carve`);
     return how many failed (status < 0). ``tab_fields``, ``ctl_fields``: the fields of the
     method's `Tableau` and of the `StepControl`."""
-    U = _unmanaged
+    U = unmanaged
     return _step_range_inlined(0, Y.shape[0], U(models), U(P), U(scales), U(Y), U(balls), U(cfg),
                                U(actions), U(active), _unmanaged_tableau(tab_fields),
                                StepControl(*ctl_fields), U(noise), U(obs), U(out), U(buf),
@@ -556,7 +540,7 @@ def step_scalar(models, P, scales, Y, balls, cfg, actions, active, tab_fields, c
                 noise, obs, out, buf, ibuf):
     """`step_serial` for engines where no SIMD block can form (`_step_range_scalar`): the
     same results, less to compile. Same arguments."""
-    U = _unmanaged
+    U = unmanaged
     return _step_range_scalar(0, Y.shape[0], U(models), U(P), U(scales), U(Y), U(balls), U(cfg),
                               U(actions), U(active), _unmanaged_tableau(tab_fields),
                               StepControl(*ctl_fields), U(noise), U(obs), U(out), U(buf),
@@ -571,7 +555,7 @@ def step_parallel(models, P, scales, Y, balls, cfg, actions, active, tab_fields,
     own rows of the caller's scratch buffers (a few chunks per thread balance the load);
     return how many failed. The records' fields as in `step_serial`."""
     tab, ctl = _unmanaged_tableau(tab_fields), StepControl(*ctl_fields)
-    U = _unmanaged
+    U = unmanaged
     models, P, scales, Y, balls, cfg = U(models), U(P), U(scales), U(Y), U(balls), U(cfg)
     actions, active, noise, obs, out = U(actions), U(active), U(noise), U(obs), U(out)
     bufs, ibufs = U(bufs), U(ibufs)
