@@ -39,6 +39,9 @@ from .peer import PeerModel
 from .peers import BY_KEY, Solver, build, missing
 
 REFERENCE_RTOL = 1e-12
+# The simulator's batch rows are timed with shared steps (`simulate_batch(...,
+# shared_steps=True)`, its fastest batch); each ball stepping alone is timed beside it.
+BATCH_SHARED = True
 # A contact model (`Scene.contact`) or the linearised rolling model.
 Tier = Literal["rolling", "slipping", "point", "coulomb", "linear"]
 TIERS: tuple[Tier, ...] = ("rolling", "slipping", "point", "coulomb", "linear")
@@ -57,7 +60,7 @@ COLUMNS = (
     "error_m", "model_error_m",
     # batch
     "batch_n", "batch_t_end", "batch_wall_s", "batch_threads", "batch_us_per_ball_sim_s",
-    "batch_ball_steps_per_s",
+    "batch_ball_steps_per_s", "batch_alone_us_per_ball_sim_s",
     # the compiled peers (saddle_env.workprecision.peers): which, how its right-hand side is
     # compiled, and the compile (JIT) time its first call took, excluded from the timings
     "peer", "rhs", "compile_s", "batch_compile_s",
@@ -280,19 +283,26 @@ def measure_ours(case: Case, tier: Tier, cfg: Config, refs: dict[str, np.ndarray
 
 
 def measure_batch(case: Case, tier: Tier, kw: SimKwargs) -> dict[str, object]:
-    """Time `saddle_env.simulate_batch` on the case's batch of releases."""
+    """Time `saddle_env.simulate_batch` on the case's batch of releases: with shared steps
+    (`saddle_env.blockstep`, the simulator's fastest batch, in the ``batch_*`` columns) and
+    with each ball stepping alone (``batch_alone_us_per_ball_sim_s``)."""
     import numba
 
     sc = case.scene(tier)
     states = batch_states(case, tier, case.batch_n)
-    res, wall, _ = _timed(lambda: simulate_batch(sc, states, case.batch_t_end, **kw),
+    res, wall, _ = _timed(lambda: simulate_batch(sc, states, case.batch_t_end,
+                                                 shared_steps=BATCH_SHARED, **kw),
                           budget=1.0, max_repeats=3)
+    _, alone, _ = _timed(lambda: simulate_batch(sc, states, case.batch_t_end, **kw),
+                         budget=1.0, max_repeats=3)
     steps = int(res.stats[:, 0].sum())
     ok = int(np.sum(res.status == STATUS_DONE))
+    per_ball = case.batch_n * case.batch_t_end
     return {"batch_n": case.batch_n, "batch_t_end": case.batch_t_end, "batch_wall_s": wall,
             "batch_threads": numba.get_num_threads(),
-            "batch_us_per_ball_sim_s": wall / (case.batch_n * case.batch_t_end) * 1e6,
-            "batch_ball_steps_per_s": steps / wall if ok == case.batch_n else math.nan}
+            "batch_us_per_ball_sim_s": wall / per_ball * 1e6,
+            "batch_ball_steps_per_s": steps / wall if ok == case.batch_n else math.nan,
+            "batch_alone_us_per_ball_sim_s": alone / per_ball * 1e6}
 
 
 def measure_peer(case: Case, tier: Tier, cfg: Config, refs: dict[str, np.ndarray]
@@ -522,7 +532,8 @@ def rounds(case: Case, comparison: dict, cache: PeerCache, n_rounds: int = 5) ->
                 fns["project"] = partial(simulate, sc, s0, case.t_end, **kw)
                 per = case.t_end
             else:
-                fns["project"] = partial(simulate_batch, sc, states, case.batch_t_end, **kw)
+                fns["project"] = partial(simulate_batch, sc, states, case.batch_t_end,
+                                         shared_steps=BATCH_SHARED, **kw)
                 per = case.batch_t_end * case.batch_n
             for key, entry in level.items():
                 if key in ("project", "fastest", "plain"):
