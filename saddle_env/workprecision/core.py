@@ -512,9 +512,9 @@ def rounds(case: Case, comparison: dict, cache: PeerCache, n_rounds: int = 5) ->
 
     The sweep times each row when its turn comes, so on a shared machine the simulator's
     row and a peer's can meet different loads. Here, for each form (one ball, batch) and
-    error bound, the simulator and every compiled peer run once per round, in an order
-    that rotates, and each keeps its fastest round: their ratio is measured under the same
-    load. scipy on the plain-numpy model is left out (seconds per run, and thousands of
+    error bound, the simulator and every compiled peer run once per round (after one
+    untimed call), in an order that rotates, and each keeps its fastest round: their ratio
+    is measured under the same load. scipy on the plain-numpy model is left out (seconds per run, and thousands of
     times slower). Returns {form: {bound: {"project": µs, key: µs, ...}}} with the same
     units as the sweep (µs per simulated second, per ball in the batch)."""
     out: dict = {}
@@ -546,6 +546,10 @@ def rounds(case: Case, comparison: dict, cache: PeerCache, n_rounds: int = 5) ->
             names = list(fns)
             for i in range(n_rounds):
                 for name in names[i % len(names):] + names[: i % len(names)]:
+                    # Untimed once first: a call right after another solver's ran up to 40 %
+                    # slower (measured after diffrax and CVODE: their caches, XLA's threads),
+                    # which would charge each solver for the one before it in the round.
+                    fns[name]()
                     t0 = time.perf_counter()
                     fns[name]()
                     best[name] = min(best[name], time.perf_counter() - t0)
