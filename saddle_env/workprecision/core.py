@@ -493,8 +493,8 @@ def tasks(case: Case, quick: bool, tiers: tuple[Tier, ...] = TIERS,
             for cfg in peer_configs(quick):
                 yield (f"{tier} {cfg.label} {cfg.rtol:g}",
                        partial(measure_peer, case, tier, cfg))
-        # the compiled peers' models (the point ball, R = 0, divides by zero in their
-        # equations' shared code: a full run stalled on it, printing a traceback per call)
+        # the compiled peers' models (on the point ball, R = 0, numbalsoda's cfunc raised
+        # ZeroDivisionError at every call: a full run stalled on it, printing each)
         if tier in ("rolling", "slipping"):
             for cfg in compiled_peer_configs(quick, keys):
                 yield (f"{tier} {cfg.label} {cfg.rtol:g}",
