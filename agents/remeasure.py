@@ -75,6 +75,10 @@ MEASUREMENTS: tuple[Measurement, ...] = (
                       ("bench_batch.png", "docs/figures/bench_batch.png"),
                       ("bench_single.png", "docs/figures/bench_peers_single.png"),
                       ("bench_batch.png", "docs/figures/bench_peers_batch.png")), long=True),
+    # where one ball's time goes, the simulator's DOP853 against numbalsoda's (docs/accuracy.md)
+    Measurement("profile", ("{python}", "-m", "saddle_env.workprecision.profile", "--out",
+                            "{out}"),
+                "profile.json", "docs/figures/bench_profile.json", timeout_s=600.0, long=True),
 )
 
 
@@ -164,8 +168,9 @@ def build_parser() -> argparse.ArgumentParser:
                    choices=[m.name for m in MEASUREMENTS],
                    help="re-measure only these (default: all of them)")
     p.add_argument("--long", action="store_true",
-                   help="also the long measurements: the environment's throughput and the full "
-                        "work-precision benchmark with the compiled peers (about 15 min)")
+                   help="also the long measurements: the environment's throughput, the full "
+                        "work-precision benchmark with the compiled peers and the profile of one "
+                        "ball against numbalsoda's (about 15 min)")
     p.add_argument("--list", action="store_true",
                    help="print each measurement's command and results file, and stop")
     return p

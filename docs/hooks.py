@@ -118,6 +118,7 @@ CLIS: dict[str, Callable[[], argparse.ArgumentParser]] = {
     "python -m saddle_env.calibrate.synthetic": _build_parser("saddle_env.calibrate.synthetic"),
     "saddle-sim": _build_parser("saddle_env.cli"),
     "saddle-bench": _build_parser("saddle_env.workprecision"),
+    "python -m saddle_env.workprecision.profile": _from_main("saddle_env.workprecision.profile"),
     "saddle-reproduce": _build_parser("saddle_env.reproduce.cli"),
     "python -m agents.benchmark": _build_parser("agents.benchmark.run"),
     "python -m agents.benchmark.leaderboard": _build_parser("agents.benchmark.leaderboard"),

@@ -231,3 +231,32 @@ def test_bench_runs_a_compiled_peer_and_its_rounds(tmp_path):
     assert level["numbalsoda-dop853"]["time_rounds"] > 0
     assert summary["peers"]["batch"]["1e-9"]["numbalsoda-dop853"]["threads"] >= 1
     assert summary["peers_run"]["skipped"] == {}
+
+
+def test_the_profile_splits_each_solvers_time_into_parts_that_add_up(tmp_path):
+    # python -m saddle_env.workprecision.profile: the right-hand side, the stepping and the
+    # call from Python, for the simulator and numbalsoda, at a loose tolerance (quick)
+    pytest.importorskip("numbalsoda", reason="numbalsoda is not installed (the [peers] extra)")
+    from saddle_env.workprecision import profile
+
+    res = profile.profile(rtol=1e-6, rounds=1)
+    for who in ("ours", "peer"):
+        r = res[who]
+        assert r["rhs_evals"] > 1000  # a 10 s run at rtol 1e-6: about 2,400 calls
+        assert 0 < r["rhs_ns_per_call"] < 1e4
+        parts = r["rhs_us_per_sim_s"] + r["stepping_us_per_sim_s"] + r["call_us_per_sim_s"]
+        assert parts == pytest.approx(r["us_per_sim_s"], rel=1e-9)
+        assert r["rhs_us_per_sim_s"] > 0 and r["call_us_per_sim_s"] > 0
+    assert res["ours"]["steps"] * 12 + 1 == res["ours"]["rhs_evals"]  # DOP853: 12 per step
+    assert res["peer_over_ours"] == pytest.approx(
+        res["peer"]["us_per_sim_s"] / res["ours"]["us_per_sim_s"])
+
+
+@pytest.mark.parametrize("argv, message", [(["--rtol", "0"], "--rtol must be in"),
+                                           (["--rounds", "0"], "--rounds must be at least 1")])
+def test_the_profile_refuses_bad_arguments_by_name(argv, message, capsys):
+    from saddle_env.workprecision import profile
+
+    with pytest.raises(SystemExit) as err:
+        profile.main(argv)
+    assert err.value.code == 2 and message in capsys.readouterr().err

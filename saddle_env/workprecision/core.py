@@ -461,13 +461,15 @@ def measure_linear(case: Case, refs: dict[str, np.ndarray], batch: bool) -> dict
 
 def warm_up(case: Case) -> None:
     """Compile (or load from the cache) every kernel the benchmark times."""
-    for tier in ("rolling", "slipping"):
+    for tier in ("rolling", "slipping", "coulomb"):
         sc = case.scene(tier)
         s0 = case.state(tier)
         for m in ("dop853", "dopri5", "rk4"):
             dt = 0.01 if m == "rk4" else None
             simulate(sc, s0, 0.05, omega=case.omega, method=m, dt=dt)
-            simulate_batch(sc, s0[None, :], 0.05, omega=case.omega, method=m, dt=dt)
+            for shared in (False, True):
+                simulate_batch(sc, s0[None, :], 0.05, omega=case.omega, method=m, dt=dt,
+                               shared_steps=shared)
 
 
 def tasks(case: Case, quick: bool, tiers: tuple[Tier, ...] = TIERS,
