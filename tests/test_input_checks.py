@@ -64,5 +64,9 @@ def test_each_state_is_checked_once_per_call(monkeypatch, tol):
     simulate(sc, y0, 0.5, tol=tol)
     assert calls == ["state"]
     calls.clear()
-    simulate_batch(sc, np.array([y0] * 3), 0.5, tol=tol)
+    simulate_batch([sc] * 3, np.array([y0] * 3), 0.5, tol=tol)
     assert calls == ["states[0]", "states[1]", "states[2]"]
+    calls.clear()
+    # one Scene for every ball: the rows are checked together, none by itself
+    simulate_batch(sc, np.array([y0] * 3), 0.5, tol=tol)
+    assert calls == []
