@@ -78,7 +78,7 @@ MEASUREMENTS: tuple[Measurement, ...] = (
     # where one ball's time goes, the simulator's DOP853 against numbalsoda's (docs/accuracy.md)
     Measurement("profile", ("{python}", "-m", "saddle_env.workprecision.profile", "--out",
                             "{out}"),
-                "profile.json", "docs/figures/bench_profile.json", timeout_s=600.0, long=True),
+                "bench_profile.json", "docs/figures/bench_profile.json", timeout_s=600.0, long=True),
 )
 
 

@@ -8,7 +8,7 @@ alone in a compiled loop of the same number of calls), the stepping around them 
 of a run) and the fixed cost of a call from Python (a run of one step). The simulator counts
 its right-hand-side calls; numbalsoda does not report them, so its count is scipy's DOP853
 at the same tolerance on the same error test (the same method, so the same steps, within a
-few). Needs the ``[peers]`` extra (numbalsoda). Writes ``profile.json`` to ``--out``; the
+few). Needs the ``[peers]`` extra (numbalsoda). Writes ``bench_profile.json`` to ``--out``; the
 accuracy page reads it. Timings are CPU time (`time.process_time`), best of ``--rounds``
 alternating rounds, so other jobs on the machine slow them less.
 """
@@ -154,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
                          "position error of 1e-9 m)")
     ap.add_argument("--rounds", type=int, default=7, help="alternating rounds; each keeps its best")
     ap.add_argument("--out", type=Path, default=Path("bench_results/profile"),
-                    help="folder for profile.json")
+                    help="folder for bench_profile.json")
     args = ap.parse_args(argv)
     if not 0 < args.rtol < 1:
         ap.error(f"--rtol must be in (0, 1), got {args.rtol}")
@@ -168,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     res = profile(args.rtol, args.rounds)
     res["date"] = time.strftime("%Y-%m-%d")
     args.out.mkdir(parents=True, exist_ok=True)
-    write_text_atomically(args.out / "profile.json", json.dumps(res, indent=2) + "\n")
+    write_text_atomically(args.out / "bench_profile.json", json.dumps(res, indent=2) + "\n")
     print(f"one rolling ball, rtol {args.rtol:g}, CPU µs per simulated second "
           f"(best of {args.rounds} rounds):")
     print(f"  {'':22s}{'total':>8s}{'rhs':>8s}{'stepping':>10s}{'call':>8s}"
@@ -179,7 +179,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['stepping_us_per_sim_s']:10.1f}{r['call_us_per_sim_s']:8.1f}"
               f"{r['rhs_evals']:11.0f}{r['rhs_ns_per_call']:8.1f}{r['stepping_ns_per_eval']:13.1f}")
     print(f"  numbalsoda's time over ours: {res['peer_over_ours']:.2f}")
-    print(f"wrote {args.out / 'profile.json'}")
+    print(f"wrote {args.out / 'bench_profile.json'}")
     return 0
 
 
