@@ -27,7 +27,7 @@ KNOWN_WITHOUT_COMMAND = {
     # docs/accuracy.md, docs/how-to/accuracy.md: the tolerance pilot's cost
     "accuracy-pilot-cost",
     # docs/accuracy.md: timed while writing saddle-bench
-    "accuracy-rhs-cost", "bench-openblas-expm-ms",
+    "bench-openblas-expm-ms",
     # docs/physics.md: the runs of a test, their output not kept
     "physics-crr-undoes-trap",
 }
