@@ -40,8 +40,8 @@ from typing import TYPE_CHECKING, TypedDict
 import numpy as np
 
 from . import kernels as K
-from .omega import OmegaProfile
-from .runner import RunInputs, Settings, check_run, drive_row, output_times, run, run_checked
+from .omega import OmegaProfile, drive_row
+from .runner import RunInputs, Settings, check_run, output_times, run, run_checked
 from .scene import Scene, finite_number
 
 if TYPE_CHECKING:

@@ -130,3 +130,31 @@ def omega_rows(omega: object, n: int) -> np.ndarray:
         return np.array([OmegaProfile.coerce(w, f"omega[{i}]").array()
                          for i, w in enumerate(omega)])
     return np.tile(OmegaProfile.coerce(omega).array(), (n, 1))
+
+
+def drive_row(profile: OmegaProfile, force: tuple[float, float] = (0.0, 0.0),
+              theta0: float = 0.0) -> np.ndarray:
+    """The kernels' drive row.
+
+    Parameters
+    ----------
+    profile : OmegaProfile
+        Ω(t).
+    force : (fx, fy)
+        Lab-frame force per unit mass [m/s²].
+    theta0 : float
+        The saddle's angle at t = 0 [rad].
+
+    Returns
+    -------
+    ndarray, shape (DRIVE_WIDTH,)
+    """
+    from . import kernels as K  # the row's layout; numba comes with the kernels, not with omega
+
+    row = np.zeros(K.DRIVE_WIDTH)
+    row[K.DRIVE_W0], row[K.DRIVE_RATE] = profile.w0, profile.rate
+    row[K.DRIVE_AMP], row[K.DRIVE_FREQ] = profile.amp, profile.freq
+    row[K.DRIVE_PHASE] = profile.phase
+    row[K.DRIVE_THETA0] = theta0
+    row[K.DRIVE_FX], row[K.DRIVE_FY] = force
+    return row

@@ -46,7 +46,7 @@ from .integrators import (
     transition_log,
     workspace,
 )
-from .omega import OmegaProfile, omega_rows
+from .omega import OmegaProfile, drive_row, omega_rows
 from .scene import COULOMB, P_RESIST, Scene, finite_number
 
 # Default accuracy: DOP853 at this tolerance (see docs/accuracy.md).
@@ -152,32 +152,6 @@ def check_force(force: object) -> tuple[float, float]:
     return finite_number("force fx", force[0]), finite_number("force fy", force[1])
 
 
-def drive_row(profile: OmegaProfile, force: tuple[float, float] = (0.0, 0.0),
-              theta0: float = 0.0) -> np.ndarray:
-    """The kernels' drive row.
-
-    Parameters
-    ----------
-    profile : OmegaProfile
-        Ω(t).
-    force : (fx, fy)
-        Lab-frame force per unit mass [m/s²].
-    theta0 : float
-        The saddle's angle at t = 0 [rad].
-
-    Returns
-    -------
-    ndarray, shape (DRIVE_WIDTH,)
-    """
-    row = np.zeros(K.DRIVE_WIDTH)
-    row[K.DRIVE_W0], row[K.DRIVE_RATE] = profile.w0, profile.rate
-    row[K.DRIVE_AMP], row[K.DRIVE_FREQ] = profile.amp, profile.freq
-    row[K.DRIVE_PHASE] = profile.phase
-    row[K.DRIVE_THETA0] = theta0
-    row[K.DRIVE_FX], row[K.DRIVE_FY] = force
-    return row
-
-
 def integrator_loop(model: int, resist: bool, args: tuple):
     """`integrators.integrate_h` compiled for the contact model (or ion trap) ``model`` alone,
     with rolling resistance if ``resist``, for the arguments ``args``
@@ -224,9 +198,8 @@ def check_state(scene: Scene, state: object, name: str = "state") -> np.ndarray:
 
 
 def starting_phase(scene: Scene) -> float:
-    """What a state's phase slot starts as: a coulomb state does not say its phase, so it
-    starts as ONSET and the loop decides it (it slips unless the slip velocity is 0 and
-    static friction can hold it); 0 for the other models."""
+    """A state's phase slot at the start: ONSET for a coulomb ball, whose state does not say
+    its phase (the loop decides it), 0 for the other models."""
     return K.ONSET if scene.contact == "coulomb" else 0.0
 
 
@@ -693,16 +666,12 @@ def check_batch(scenes: object, states: object, t_end: float, omega: object = 20
     if len(scene_list) != n or not all(isinstance(s, Scene) for s in scene_list):
         raise ValueError(f"scenes must be a Scene or a sequence of {n} Scenes (one per ball)")
     Y = np.zeros((n, K.STATE_WIDTH))
-    sc = scene_list[0]
-    if isinstance(scenes, Scene) and rows.shape[1] in range(sc.state_size, K.DYNAMICS_WIDTH + 1):
-        # One scene for every ball: the rows checked at once (the first bad one named as
-        # check_state names it), for a batch of thousands costs a loop in Python per row.
-        ok = np.isfinite(rows[:, : sc.state_size]).all(axis=1)
-        if not ok.all():
-            i = int(np.argmin(ok))
-            check_state(sc, rows[i, : sc.state_size], f"states[{i}]")
-        Y[:, : sc.state_size] = rows[:, : sc.state_size]
-        Y[:, K.PHASE_SLOT] = starting_phase(sc)
+    sc, d = scene_list[0], scene_list[0].state_size
+    if isinstance(scenes, Scene) and d <= rows.shape[1] <= K.DYNAMICS_WIDTH:
+        # one scene: the rows checked at once (a Python loop per row cost thousands of calls)
+        if not (ok := np.isfinite(rows[:, :d]).all(axis=1)).all():
+            check_state(sc, rows[int(np.argmin(ok)), :d], f"states[{int(np.argmin(ok))}]")
+        Y[:, :d], Y[:, K.PHASE_SLOT] = rows[:, :d], starting_phase(sc)
     else:
         for i, (sc, row) in enumerate(zip(scene_list, rows)):
             if sc.state_size < rows.shape[1] <= K.DYNAMICS_WIDTH:  # a padded row
@@ -866,20 +835,16 @@ def run_batch_checked(inputs: BatchInputs, settings: Settings,
     scene_list, profiles, t_out = inputs.scenes, inputs.omegas, inputs.t_out
     n = len(scene_list)
     Y = inputs.states.copy()
-    # Each distinct scene and Ω profile is packed once (a batch usually has one of each):
-    # per ball, the Python work cost more than integrating 1024 balls at rtol 1e-7.
-    drive_of = _per_distinct(
-        [(tuple(row), theta0) for row, theta0 in zip(profiles.tolist(), inputs.angles.tolist())],
-        lambda key: drive_row(OmegaProfile(*key[0]), inputs.force, key[1]))
-    drives = np.array(drive_of)
-    packed = _per_distinct(scene_list, lambda sc: (sc.params(), sc.model_code))
-    P = np.array([p for p, _ in packed])
-    models = np.array([code for _, code in packed], dtype=np.int64)
-    scales = np.array(_per_distinct(scene_list, lambda sc: state_scale(sc.params(),
-                                                                        sc.model_code)))
-    max_step_arr = np.array(_per_distinct(
-        [tuple(row) for row in profiles.tolist()],
-        lambda row: settings.max_step_for(OmegaProfile(*row), float(t_out[-1]))))
+    # each distinct scene and Ω profile packed once (per ball, this cost more than
+    # integrating 1024 balls for 2 s at rtol 1e-7)
+    rows = [(*row, theta0) for row, theta0 in zip(profiles.tolist(), inputs.angles.tolist())]
+    drives = np.array(_per_distinct(rows, lambda r: drive_row(OmegaProfile(*r[:5]),
+                                                              inputs.force, r[5])))
+    P = np.array(_per_distinct(scene_list, Scene.params))
+    models = np.array([sc.model_code for sc in scene_list], dtype=np.int64)
+    scales = np.array(_per_distinct(scene_list, lambda s: state_scale(s.params(), s.model_code)))
+    max_step_arr = np.array(_per_distinct(rows, lambda r: settings.max_step_for(
+        OmegaProfile(*r[:5]), float(t_out[-1]))))
     m = settings.method
     Y_out = np.full((n, len(t_out), K.STATE_WIDTH), np.nan)
     status = np.zeros(n, dtype=np.int64)
@@ -906,16 +871,11 @@ def run_batch_checked(inputs: BatchInputs, settings: Settings,
 
 
 def _per_distinct(keys: Sequence, make) -> list:
-    """``[make(k) for k in keys]``, calling ``make`` once per distinct key (by equality for
-    hashable keys, by identity for the rest, such as Scenes)."""
+    """``[make(k) for k in keys]``, ``make`` called once per distinct key (tuples by value,
+    anything else, such as a Scene, by identity)."""
     made: dict = {}
-    out = []
-    for k in keys:
-        tag = (type(k), k) if isinstance(k, tuple) else id(k)
-        if tag not in made:
-            made[tag] = make(k)
-        out.append(made[tag])
-    return out
+    return [made[t] if (t := k if isinstance(k, tuple) else id(k)) in made
+            else made.setdefault(t, make(k)) for k in keys]
 
 
 def check_angles(angle: object, n: int) -> np.ndarray:

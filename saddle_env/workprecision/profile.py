@@ -91,8 +91,7 @@ def profile(rtol: float = 1e-10, rounds: int = 7) -> dict:
     """The split of one rolling ball's time, for the simulator and numbalsoda's DOP853."""
     from .. import kernels as K
     from ..integrators import state_scale
-    from ..omega import OmegaProfile
-    from ..runner import drive_row
+    from ..omega import OmegaProfile, drive_row
     from ..simulate import simulate
     from .peers import BY_KEY, build
 
