@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -49,10 +50,29 @@ def test_shared_equations_agree_with_the_kernels(contact):
     assert worst < 1e-13, worst
 
 
-@pytest.mark.parametrize("contact", ["rolling", "slipping"])
-def test_jax_rhs_agrees_with_the_kernels_under_jit_and_vmap(contact):
+@pytest.fixture(autouse=True)
+def _jax_precision_restored():
+    """JAX's float64 setting as it was before each test: it is global, a diffrax peer turns
+    it on, and SBX's tests (tests/test_sbx_backend.py) fail on float64 where they expect
+    float32."""
+    jax = sys.modules.get("jax")
+    before = bool(jax.config.read("jax_enable_x64")) if jax is not None else False
+    yield
+    if (jax := sys.modules.get("jax")) is not None:
+        jax.config.update("jax_enable_x64", before)
+
+
+@pytest.fixture
+def x64():
+    """JAX in float64 for one test (restored by `_jax_precision_restored`)."""
     jax = pytest.importorskip("jax", reason="jax is not installed (pip install 'saddle-env[peers]')")
     jax.config.update("jax_enable_x64", True)
+    return jax
+
+
+@pytest.mark.parametrize("contact", ["rolling", "slipping"])
+def test_jax_rhs_agrees_with_the_kernels_under_jit_and_vmap(contact, x64):
+    jax = x64
     import jax.numpy as jnp
 
     from saddle_env.workprecision.equations import jax_rhs

@@ -339,10 +339,12 @@ class Diffrax(Solver):
 
     def __init__(self, scene: Scene, omega: float, method: str) -> None:
         super().__init__(scene, omega)
+        import diffrax  # first: a missing diffrax leaves JAX's settings alone
         import jax
 
+        # float64 for the whole process (JAX has no per-call setting): the benchmark's
+        # processes run no float32 JAX code; tests restore it (tests/test_peers.py)
         jax.config.update("jax_enable_x64", True)
-        import diffrax
         import jax.numpy as jnp
 
         if method not in ("Dopri8", "Tsit5"):
