@@ -163,7 +163,7 @@ def simulate_batch(scenes: Scene | Sequence[Scene], states: np.ndarray, t_end: f
         time per ball, each ball's error still held to the tolerance at every step (a row
         then differs from `simulate`'s by about the tolerance). A ball that meets an event
         is finished alone, as `simulate` would; coulomb balls, rolling resistance and the
-        ion models always step alone ([Simulator](simulator.md#many-balls-at-once)).
+        ion models always step alone (docs/simulator.md, "Many balls at once").
 
     Returns
     -------
