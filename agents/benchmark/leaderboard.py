@@ -248,16 +248,22 @@ def levels_markdown() -> str:
     for level in LEVELS:
         lines.append(f"| `{level.id}` | {level.summary} | {level.max_episode_steps} steps | "
                      f"{level.reward_threshold} |")
+    board = DOCS / "leaderboard.json"
+    on_board = json.loads(board.read_text()).get("levels", {}) if board.is_file() else {}
     for level in LEVELS:
         opts = ", ".join(f"`{k}={v!r}`" for k, v in level.options.items()) or \
             "none: every option at its default"
+        # a level registered before its test episodes are run has no board section to link
+        how = (f"[Leaderboard: {level.id}](leaderboard.md#{level.id.lower()})"
+               if level.id in on_board else
+               "not on the [Leaderboard](leaderboard.md) yet: its test episodes have not "
+               "been run")
         # the docs build fills in the level's spaces, reward and limits from its spec
         # (docs/hooks.py)
         lines += ["", f"## {level.id}", "", f"<!-- generated: level-summary {level.id} -->", "",
                   f"**What it models.** {level.models}", "",
                   f"**Why it is hard.** {level.why_hard}", "", f"**Options.** {opts}.", "",
-                  f"**How policies do on it.** [Leaderboard: {level.id}]"
-                  f"(leaderboard.md#{level.id.lower()})."]
+                  f"**How policies do on it.** {how}."]
     return "\n".join(lines) + "\n"
 
 
