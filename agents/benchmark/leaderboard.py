@@ -227,12 +227,20 @@ def write_markdown(results: dict[str, Any], path: Path, figures: dict[str, str],
 
 # Levels whose section on docs/levels.md states how feedback does against the best constant
 # speed, from the committed board: the real saddle (issue 57), whose question that is. Each
-# names the figure of a plotted test episode and the command that drew it.
-ANSWERED_LEVELS: dict[str, tuple[str, str]] = {
+# names the figure of plotted test episodes, the command that drew it and what it shows
+# (read off the episodes' traces: `run_episodes(record=2)` on the same seeds).
+ANSWERED_LEVELS: dict[str, tuple[str, str, str]] = {
     "SaddleTrap-RealSaddle-v0": (
         "figures/realsaddle_episodes.png",
         "saddle-eval --env SaddleTrap-RealSaddle-v0 --policy best-const --policy mpc "
-        "--episodes 4 --seed 2000000 --examples 2 --out DIR (its examples.png)"),
+        "--episodes 4 --seed 2000000 --examples 2 --out DIR (its examples.png)",
+        "By what means: in both episodes `mpc` swings the speed between about 5 and 12 rad/s "
+        "around 8 (a standard deviation of 1.2-1.5 rad/s in each 10 s) for the first 20-30 s, "
+        "which holds the ball about 11 mm from the centre on average, where at the constant "
+        "speed its orbit grows to the rim in 18-19 s; then it holds 7.5 +- 0.3 rad/s, just "
+        "above the rigid ball's threshold (7.43 rad/s), and the ball circles 45-52 mm out on "
+        "average until the episode ends at 60 s. Both balls are kept; the constant loses "
+        "both."),
 }
 
 
@@ -242,7 +250,7 @@ def _answer(level_id: str, on_board: dict[str, Any], date: str) -> list[str]:
     the level is on the board."""
     if level_id not in ANSWERED_LEVELS or level_id not in on_board:
         return []
-    figure, command = ANSWERED_LEVELS[level_id]
+    figure, command, means = ANSWERED_LEVELS[level_id]
     table = on_board[level_id]
     rows = {r["key"]: r for r in table["policies"]}
     if "best-const" not in rows or "mpc" not in rows:
@@ -271,7 +279,7 @@ def _answer(level_id: str, on_board: dict[str, Any], date: str) -> list[str]:
                  f"{100 * clair['doomed_ci']['high']:.1f}]")
     return ["", text + ".", "", f"![{level_id}: the saddle's speed and the ball's distance "
             f"from the centre in two test episodes, best-const against mpc]({figure})", "",
-            f"*Two test episodes (seeds 2,000,000 and 2,000,001): `{command}`, {date}.*"]
+            f"*Two test episodes (seeds 2,000,000 and 2,000,001): `{command}`, {date}.* {means}"]
 
 
 def levels_markdown() -> str:
