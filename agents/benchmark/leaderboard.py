@@ -233,7 +233,7 @@ ANSWERED_LEVELS: dict[str, tuple[str, str, str]] = {
     "SaddleTrap-RealSaddle-v0": (
         "figures/realsaddle_episodes.png",
         "saddle-eval --env SaddleTrap-RealSaddle-v0 --policy best-const --policy mpc "
-        "--episodes 4 --seed 2000000 --examples 2 --out DIR (its examples.png)",
+        "--episodes 4 --seed 2000000 --examples 2 --out DIR",
         "By what means: in both episodes `mpc` swings the speed between about 5 and 12 rad/s "
         "around 8 (a standard deviation of 1.2-1.5 rad/s in each 10 s) for the first 20-30 s, "
         "which holds the ball about 11 mm from the centre on average, where at the constant "
@@ -279,7 +279,8 @@ def _answer(level_id: str, on_board: dict[str, Any], date: str) -> list[str]:
                  f"{100 * clair['doomed_ci']['high']:.1f}]")
     return ["", text + ".", "", f"![{level_id}: the saddle's speed and the ball's distance "
             f"from the centre in two test episodes, best-const against mpc]({figure})", "",
-            f"*Two test episodes (seeds 2,000,000 and 2,000,001): `{command}`, {date}.* {means}"]
+            f"*Two test episodes (seeds 2,000,000 and 2,000,001): `{command}` (its "
+            f"examples.png), {date}.* {means}"]
 
 
 def levels_markdown() -> str:
