@@ -14,10 +14,9 @@ from saddle_env.envs.vector import SaddleTrapVectorEnv
 
 IDS = [level.id for level in LEVELS]
 # Registered, but the leaderboard (1,000 frozen test episodes per policy) has not been run on
-# it yet: its reward threshold is mpc's mean return on design episodes (docs/levels.md). The
-# real saddle (issue 57): mpc's mean return on 200 design episodes (DESIGN_SEED), 1926.9
-# [1793.1, 2058.3].
-NOT_YET_ON_THE_LEADERBOARD: set[str] = {"SaddleTrap-RealSaddle-v0"}
+# it yet: its reward threshold is mpc's mean return on design episodes (docs/levels.md). Every
+# level is on the board now.
+NOT_YET_ON_THE_LEADERBOARD: set[str] = set()
 
 
 def test_levels_are_registered_unique_and_documented():
