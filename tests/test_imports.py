@@ -156,11 +156,17 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
       "saddle_env.runner",
       "saddle_env.accuracy", "saddle_env.simulate", "saddle_env.prediction",
       "saddle_env.iontrap")),
+    # the lab's data and the calibrated real-saddle model: SaddleTrap-RealSaddle-v0 is built
+    # from them (issue 57); the calibration's tools stay with the tools
+    ("the real-saddle model: the lab's data and the calibrated model",
+     ("saddle_env.lifetimes",)),
     ("the environments", ("saddle_env.envs",)),
     ("saddle_env's public face", ("saddle_env",)),
     ("tools on the simulator and the environments",
      ("saddle_env.coldstart", "saddle_env.workprecision", "saddle_env.calibrate", "saddle_env.cli",
-      "saddle_env.deploy", "saddle_env.lifetimes", "saddle_env.reproduce", "saddle_env.rig")),
+      "saddle_env.deploy", "saddle_env.reproduce", "saddle_env.rig",
+      *(f"saddle_env.lifetimes.{m}" for m in ("cli", "coverage", "figure", "fit", "grid",
+                                              "report", "timing")))),
     ("agents: seeds, paths and shared command-line options",
      ("agents", "agents.seeds", "agents.paths", "agents.cli_args")),
     ("agents: controllers", ("agents.control",)),

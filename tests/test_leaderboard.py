@@ -20,6 +20,33 @@ def test_levels_page_is_generated_from_the_registry():
         assert f"## {level.id}" in text and level.why_hard in text
 
 
+def _board(best, mpc, episodes=1000):
+    def row(key, t, kept, **extra):
+        return {"key": key, "policy": key, "kind": "baseline", **extra,
+                "trapping_time": dict(zip(("mean", "low", "high"), t)),
+                "kept": dict(zip(("mean", "low", "high"), kept))}
+    return {"SaddleTrap-RealSaddle-v0": {
+        "episodes": episodes, "episode_length_s": 60.0,
+        "policies": [row("best-const", best, (0.0, 0.0, 0.004), omega=8.0),
+                     row("mpc", mpc, (0.4, 0.37, 0.43))]}}
+
+
+def test_the_real_saddle_section_answers_from_the_board():
+    """Feedback is said to beat the constant only where the intervals part; nothing is said
+    before the level is on the board."""
+    lid = "SaddleTrap-RealSaddle-v0"
+    assert lb._answer(lid, {}, "2026-11-28") == []
+    text = "\n".join(lb._answer(lid, _board((20.0, 19.5, 20.5), (38.0, 37.0, 39.0)),
+                                 "2026-11-28"))
+    assert "1,000 test episodes (60 s each" in text and "2026-11-28" in text
+    assert "20.00 [19.50, 20.50] s" in text and "38.00 [37.00, 39.00] s" in text
+    assert "1.90 times as long, its interval clear of the constant's" in text
+    assert "figures/realsaddle_episodes.png" in text
+    close = "\n".join(lb._answer(lid, _board((20.0, 19.0, 21.0), (20.5, 19.8, 21.2)), "d"))
+    assert "Not measurably" in close and "times as long" not in close
+    assert lb._answer("SaddleTrap-Lab-v0", _board((1, 0, 2), (3, 2, 4)), "d") == []
+
+
 def test_a_small_leaderboard_has_every_baseline_with_intervals(tmp_path):
     rc = lb.main(["--episodes", "3", "--seed", "5", "--levels", "SaddleTrap-v0", "--out",
                   str(tmp_path), "--no-progress"])

@@ -225,6 +225,64 @@ def write_markdown(results: dict[str, Any], path: Path, figures: dict[str, str],
     write_text_atomically(path, "\n".join(head) + "\n" + "\n".join(body))
 
 
+# Levels whose section on docs/levels.md states how feedback does against the best constant
+# speed, from the committed board: the real saddle (issue 57), whose question that is. Each
+# names the figure of plotted test episodes, the command that drew it and what it shows
+# (read off the episodes' traces: `run_episodes(record=2)` on the same seeds).
+ANSWERED_LEVELS: dict[str, tuple[str, str, str]] = {
+    "SaddleTrap-RealSaddle-v0": (
+        "figures/realsaddle_episodes.png",
+        "saddle-eval --env SaddleTrap-RealSaddle-v0 --policy best-const --policy mpc "
+        "--episodes 4 --seed 2000000 --examples 2 --out DIR",
+        "By what means: in both episodes `mpc` swings the speed between about 5 and 12 rad/s "
+        "around 8 (a standard deviation of 1.2-1.5 rad/s in each 10 s) for the first 20-30 s, "
+        "which holds the ball about 11 mm from the centre on average, where at the constant "
+        "speed its orbit grows to the rim in 18-19 s; then it holds 7.5 +- 0.3 rad/s, just "
+        "above the rigid ball's threshold (7.43 rad/s), and the ball circles 45-52 mm out on "
+        "average until the episode ends at 60 s. Both balls are kept; the constant loses "
+        "both."),
+}
+
+
+def _answer(level_id: str, on_board: dict[str, Any], date: str) -> list[str]:
+    """The paragraph `ANSWERED_LEVELS` asks for: best-const against mpc (and the clairvoyant
+    where measured) on the level's test episodes, with the command and the date; none until
+    the level is on the board."""
+    if level_id not in ANSWERED_LEVELS or level_id not in on_board:
+        return []
+    figure, command, means = ANSWERED_LEVELS[level_id]
+    table = on_board[level_id]
+    rows = {r["key"]: r for r in table["policies"]}
+    if "best-const" not in rows or "mpc" not in rows:
+        return []
+    best, mpc = rows["best-const"], rows["mpc"]
+    bt, mt = best["trapping_time"], mpc["trapping_time"]
+    length = table["episode_length_s"]
+    text = (f"**Does feedback keep the ball longer?** On the level's {table['episodes']:,} test "
+            f"episodes ({length:g} s each; `python -m agents.benchmark.leaderboard --levels "
+            f"{level_id} --resume`, {date}): the best constant speed, Ω = {best['omega']:g} "
+            f"rad/s (the lab's practice), keeps the ball {_cell(bt, '.2f')} s, "
+            f"{100 * best['kept']['mean']:.1f} % to the end; `mpc`, feedback on the speed with "
+            f"the level's own model, {_cell(mt, '.2f')} s, {_cell(mpc['kept'], '.1f', 100)} % "
+            f"to the end: {mt['mean'] / bt['mean']:.2f} times as long, its interval clear of "
+            f"the constant's" if mt["low"] > bt["high"] else "")
+    if not text:
+        text = (f"**Does feedback keep the ball longer?** Not measurably: on the level's "
+                f"{table['episodes']:,} test episodes `mpc` keeps the ball {_cell(mt, '.2f')} s "
+                f"against the best constant speed's {_cell(bt, '.2f')} s")
+    clair = clairvoyant_reference(level_id)
+    if clair is not None:
+        text += (f". The clairvoyant ceiling keeps it {clair['clairvoyant']:.2f} s "
+                 f"[{clair['clairvoyant_ci']['low']:.2f}, {clair['clairvoyant_ci']['high']:.2f}] "
+                 f"on the first {clair['episodes']:,} of these episodes, losing "
+                 f"{100 * clair['doomed']:.1f} % [{100 * clair['doomed_ci']['low']:.1f}, "
+                 f"{100 * clair['doomed_ci']['high']:.1f}]")
+    return ["", text + ".", "", f"![{level_id}: the saddle's speed and the ball's distance "
+            f"from the centre in two test episodes, best-const against mpc]({figure})", "",
+            f"*Two test episodes (seeds 2,000,000 and 2,000,001): `{command}` (its "
+            f"examples.png), {date}.* {means}"]
+
+
 def levels_markdown() -> str:
     """``docs/levels.md``: every registered level, what it models, why it is hard, and its
     options, from the registry itself (`saddle_env.LEVELS`)."""
@@ -248,16 +306,24 @@ def levels_markdown() -> str:
     for level in LEVELS:
         lines.append(f"| `{level.id}` | {level.summary} | {level.max_episode_steps} steps | "
                      f"{level.reward_threshold} |")
+    board = DOCS / "leaderboard.json"
+    committed = json.loads(board.read_text()) if board.is_file() else {}
+    on_board, date = committed.get("levels", {}), str(committed.get("date", ""))
     for level in LEVELS:
         opts = ", ".join(f"`{k}={v!r}`" for k, v in level.options.items()) or \
             "none: every option at its default"
+        # a level registered before its test episodes are run has no board section to link
+        answer = _answer(level.id, on_board, date)
+        how = (f"[Leaderboard: {level.id}](leaderboard.md#{level.id.lower()})"
+               if level.id in on_board else
+               "not on the [Leaderboard](leaderboard.md) yet: its test episodes have not "
+               "been run")
         # the docs build fills in the level's spaces, reward and limits from its spec
         # (docs/hooks.py)
         lines += ["", f"## {level.id}", "", f"<!-- generated: level-summary {level.id} -->", "",
                   f"**What it models.** {level.models}", "",
                   f"**Why it is hard.** {level.why_hard}", "", f"**Options.** {opts}.", "",
-                  f"**How policies do on it.** [Leaderboard: {level.id}]"
-                  f"(leaderboard.md#{level.id.lower()})."]
+                  f"**How policies do on it.** {how}.", *answer]
     return "\n".join(lines) + "\n"
 
 

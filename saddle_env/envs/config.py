@@ -9,6 +9,7 @@ from typing import Any, Literal
 import numpy as np
 
 from ..integrators import METHODS
+from ..lifetimes.model import MAX_SPEED_SPREAD
 from ..runner import check_rtol
 from ..scene import CONTACT_MODELS, Scene, finite_number
 
@@ -59,6 +60,8 @@ MAX_STEPS_PER_CONTROL_STEP = 100_000
 # overflows instead of answering.
 MAX_OMEGA = 1000.0  # [rad/s] about 160 revolutions per second
 MAX_AIR_FORCE = 1000.0  # [m/s^2] about 100 g
+# The drive's speed error (a fraction): the lifetimes model's own bound.
+MAX_SPEED_ERROR = MAX_SPEED_SPREAD
 
 
 @dataclass(frozen=True)
@@ -111,7 +114,17 @@ class EnvConfig:
     Episode start (the ball placed by hand near the centre): offset uniform in a disc of
     radius ``init_offset`` [m]; ``init_start`` ``"lab-rest"`` (placed at rest in the lab) or
     ``"rotating-rest"``, plus a random velocity of up to ``init_speed`` [m/s]; Ω₀ uniform in
-    ``omega0_range`` [rad/s]. Domain randomisation: ``ball_radii`` (a tuple to draw R from,
+    ``omega0_range`` [rad/s]. The lab's launcher (`saddle_env.lifetimes`): ``init_spread`` [m]
+    > 0 draws each coordinate of the release point from a normal of that standard deviation
+    in place of ``init_offset``'s disc, and ``init_spin`` ``"lab"`` releases the ball not
+    spinning in the laboratory (``"saddle"``, the default: spinning with the saddle). A real
+    rig's imperfections: ``speed_error`` σ (a fraction, at most 0.2) draws the drive's error
+    once per episode, as ``saddle-lifetimes`` does: the saddle turns at (1 + σz) times the
+    speed the action asks for (and the starting speed), z standard normal (in
+    ``"target"`` and ``"voltage"`` modes; the tachometer shows the true speed);
+    ``tilt_direction`` ``"random"`` draws the direction the axis leans in (``tilt``) each
+    episode, uniform around the vertical (``"x"``: toward the laboratory's x axis; random
+    needs ``air_force`` 0, whose lab-fixed force slot it uses). Domain randomisation: ``ball_radii`` (a tuple to draw R from,
     e.g. `PAPER_BALL_RADII`), ``a_range`` ((low, high) for the saddle length, b = a
     unless ``b`` is given), ``contact_models`` (a tuple to draw from) and ``mu_range``
     ((low, high): a coulomb ball's kinetic friction coefficient, uniform; its static one is
@@ -174,6 +187,10 @@ class EnvConfig:
     init_start: str = "lab-rest"
     init_speed: float = 0.0
     omega0_range: tuple[float, float] = (15.0, 25.0)
+    init_spread: float = 0.0
+    init_spin: str = "saddle"
+    speed_error: float = 0.0
+    tilt_direction: str = "x"
     ball_radii: tuple[float, ...] | None = None
     a_range: tuple[float, float] | None = None
     contact_models: tuple[str, ...] | None = None
@@ -302,6 +319,32 @@ class EnvConfig:
                              f"{self.motor_gain * self.voltage_max:g}] in voltage mode (the "
                              f"motor holds its start speed), got ({low}, {high})")
         self._set("omega0_range", (low, high))
+        self._check_lab_release()
+
+    def _check_lab_release(self) -> None:
+        """The lab's launcher and the rig's per-episode imperfections (issue 57)."""
+        self._set("init_spread", _positive("init_spread", self.init_spread, allow_zero=True))
+        # Ten standard deviations inside the rim: a release off the saddle is never drawn.
+        if self.init_spread > self.rim_radius / 10:
+            raise ValueError(f"init_spread must be <= rim_radius / 10 = "
+                             f"{self.rim_radius / 10:g} m, got {self.init_spread:g}")
+        if self.init_spin not in ("saddle", "lab"):
+            raise ValueError(f"init_spin must be 'saddle' or 'lab', got {self.init_spin!r}")
+        self._set("speed_error", _positive("speed_error", self.speed_error, allow_zero=True))
+        if self.speed_error > MAX_SPEED_ERROR:
+            raise ValueError(f"speed_error must be <= {MAX_SPEED_ERROR:g} (a fraction of the "
+                             f"speed), got {self.speed_error:g}")
+        if self.speed_error > 0 and self.action_mode == "acceleration":
+            raise ValueError("speed_error scales the speed an action asks for: it needs "
+                             "action_mode 'target' or 'voltage', not 'acceleration'")
+        if self.tilt_direction not in ("x", "random"):
+            raise ValueError(f"tilt_direction must be 'x' or 'random', got "
+                             f"{self.tilt_direction!r}")
+        if self.tilt_direction == "random" and self.air_force > 0:
+            # the drawn direction's share of the tilt rides in the lab-fixed force's slot,
+            # which the air current's process would decay
+            raise ValueError("tilt_direction 'random' needs air_force 0 (it carries the "
+                             "tilt's drawn direction in the lab-fixed force)")
 
     def _check_randomisation(self) -> None:
         """Domain randomisation; every randomised scene must be valid."""

@@ -29,7 +29,8 @@ from ..integrators import (
     state_scale,
     step_control,
 )
-from ..scene import N_PARAMS, P_RESIST, Scene
+from ..lifetimes.model import speed_factor
+from ..scene import N_PARAMS, P_RESIST, P_TILT_FORCE, Scene
 from ..simulate import SimulationError, default_max_step
 from . import control_step as S
 from .config import MAX_STEPS_PER_CONTROL_STEP, EnvConfig
@@ -147,6 +148,9 @@ class TrapEngine:
             np.zeros((self.n, self.obs_dim), dtype=np.float32)
         self.noise = np.zeros((self.n, self.frame_dim))
         self.scenes: list[Scene] = [config.scene()] * self.n
+        # Each ball's drive error (``speed_error``): its saddle turns at this factor times
+        # the speed its action asks for, drawn at reset.
+        self.speed_factor = np.ones(self.n)
         # The compiled step for the contact models the configuration draws from, and rolling
         # resistance if it has any (`compilation.specialise`: a rolling scene does not compile the
         # coulomb machinery); a reset that brings something else widens it.
@@ -213,9 +217,11 @@ class TrapEngine:
 
     @property
     def delay_arrays(self) -> tuple[str, ...]:
-        """Names of the per-ball arrays (rows by ball) the delays keep beside the ball rows:
-        what a copy of a ball's state must carry too (the clairvoyant reference's copies)."""
-        return ("_commands", "_in_force", "_samples") if self.delays.active else ()
+        """Names of the per-ball arrays (rows by ball) the delays and the drive's error keep
+        beside the ball rows: what a copy of a ball's state must carry too (the clairvoyant
+        reference's copies)."""
+        drive = ("speed_factor",) if self.config.speed_error > 0 else ()
+        return drive + (("_commands", "_in_force", "_samples") if self.delays.active else ())
 
     def frames_in_flight(self, ball: int) -> np.ndarray:
         """The frames of ``ball`` taken but not yet shown (the camera's latency), oldest
@@ -313,6 +319,10 @@ class TrapEngine:
         given_velocity = "vx" in opts or "vy" in opts
         start = opts.get("start", c.init_start)
         spin = float(opts.get("spin_normal", 0.0))
+        # The lab's launcher: a ball not spinning in the laboratory spins at -Ω about the
+        # normal relative to the saddle (as `saddle_env.lifetimes.release_times` starts it).
+        lab_spin = c.init_spin == "lab" and "spin_normal" not in opts
+        spins = np.full(k, spin)
         for j, i in enumerate(idx):
             rng = rngs[i]
             scene, params, scale = self._draw_scene(rng, opts)
@@ -322,8 +332,13 @@ class TrapEngine:
                                  f"{c.max_start_speed / scene.R:g} rad/s for R = "
                                  f"{scene.R:g} m), got {spin:g} rad/s")
             omega0 = opts["omega"] if "omega" in opts else rng.uniform(*c.omega0_range)
+            if c.speed_error > 0:   # drawn after the levels' older draws: theirs do not move
+                self.speed_factor[i] = float(speed_factor(c.speed_error, rng.standard_normal()))
+                omega0 *= self.speed_factor[i]
             if placed:
                 x[j], y[j] = opts.get("x", 0.0), opts.get("y", 0.0)
+            elif c.init_spread > 0:
+                x[j], y[j] = rng.normal(0.0, c.init_spread, size=2)
             else:
                 r = c.init_offset * math.sqrt(rng.uniform())
                 phi = rng.uniform(0.0, 2.0 * math.pi)
@@ -346,6 +361,14 @@ class TrapEngine:
             b[S.B_PHASE] = rng.uniform(0.0, 2.0 * math.pi) if c.ripple_amp > 0 else 0.0
             if c.air_force > 0:
                 b[S.B_FX], b[S.B_FY] = rng.normal(0.0, c.air_force, size=2)
+            if c.tilt_direction == "random":
+                # The scene leans the axis toward the laboratory's x axis (g·sin(tilt) along
+                # x); the lab-fixed force turns that share of gravity to the drawn direction.
+                psi = rng.uniform(0.0, 2.0 * math.pi)
+                lean = params[P_TILT_FORCE]
+                b[S.B_FX], b[S.B_FY] = lean * (math.cos(psi) - 1.0), lean * math.sin(psi)
+            if lab_spin:
+                spins[j] = -omega0
         mask = np.zeros(self.n, dtype=bool)
         mask[idx] = True
         self._draw_noise(rngs, mask)
@@ -357,9 +380,16 @@ class TrapEngine:
             self._S = specialise(*self._uses, S)
             self._entries = {}
             self._serial_call = None
-        args = (idx, self.models, self.P, self.Y, self.balls, self.cfg, x, y, vx, vy, lab_rest,
-                spin, self.noise, self.frame, self.out)
-        self._entry("place", args)(*args)
+        if lab_spin:  # one spin per ball: placed one by one
+            for j in range(k):
+                args = (idx[j:j + 1], self.models, self.P, self.Y, self.balls, self.cfg,
+                        x[j:j + 1], y[j:j + 1], vx[j:j + 1], vy[j:j + 1], lab_rest[j:j + 1],
+                        float(spins[j]), self.noise, self.frame, self.out)
+                self._entry("place", args)(*args)
+        else:
+            args = (idx, self.models, self.P, self.Y, self.balls, self.cfg, x, y, vx, vy,
+                    lab_rest, spin, self.noise, self.frame, self.out)
+            self._entry("place", args)(*args)
         if self.delays.active:
             self._reset_delays(idx)
         if self.obs is not self.frame:  # a new episode's history: its first frame, k times
@@ -456,6 +486,10 @@ class TrapEngine:
         c = self.config
         actions = self._per_ball("actions", actions, np.float64)
         active = self._per_ball("active", active, np.bool_)
+        if c.speed_error > 0:
+            # The speed an action asks for, (a + 1)/2 of the top (target or voltage mode),
+            # times the drive's error; the drive's top stays its limit.
+            actions = np.minimum(self.speed_factor * (actions + 1.0) - 1.0, 1.0)
         if c.air_force > 0:
             kick_std = c.air_force * math.sqrt(1 - self._air_decay ** 2)
             for i in np.flatnonzero(active):

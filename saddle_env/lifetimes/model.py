@@ -232,8 +232,8 @@ def release_times(model: LabModel, c_plus: float, c_minus: float, obj: str,
     kick = rng.normal(0.0, 1.0, size=(n, 2)) * model.launch_speed_spread
     omega = np.repeat(2.0 * math.pi * np.asarray(rps, dtype=float), releases)
     # The speed error has its own stream of the seed: the other draws do not move with it.
-    omega = omega * np.maximum(1.0 + model.speed_spread
-                               * np.random.default_rng([seed, 2]).standard_normal(n), 1e-3)
+    omega = omega * speed_factor(model.speed_spread,
+                                 np.random.default_rng([seed, 2]).standard_normal(n))
     point = scene.with_(R=0.0, contact="point", rolling_resistance=0.0, surface_drag=0.0)
     states = np.zeros((n, scene.state_size))
     for i in range(n):
@@ -259,6 +259,13 @@ def release_times(model: LabModel, c_plus: float, c_minus: float, obj: str,
     t_final = np.empty(n)
     t_final[order] = result.t_final
     return t_final.reshape(len(rps), releases)
+
+
+def speed_factor(speed_spread: float, z: np.ndarray | float) -> np.ndarray:
+    """The drive's speed error: the saddle turns at this factor times the stated speed,
+    1 + ``speed_spread``·z for standard normal draws ``z``, kept above 1e-3 (a speed stays
+    positive). `release_times` and the environment's ``speed_error`` both draw it here."""
+    return np.maximum(1.0 + speed_spread * np.asarray(z, dtype=float), 1e-3)
 
 
 def _to_saddle_axes(v: np.ndarray, angle: float) -> np.ndarray:
