@@ -124,7 +124,8 @@ class EnvConfig:
     ``"target"`` and ``"voltage"`` modes; the tachometer shows the true speed);
     ``tilt_direction`` ``"random"`` draws the direction the axis leans in (``tilt``) each
     episode, uniform around the vertical (``"x"``: toward the laboratory's x axis; random
-    needs ``air_force`` 0, whose lab-fixed force slot it uses). Domain randomisation: ``ball_radii`` (a tuple to draw R from,
+    needs ``air_force`` 0, whose lab-fixed force slot it uses). Domain randomisation:
+    ``ball_radii`` (a tuple to draw R from,
     e.g. `PAPER_BALL_RADII`), ``a_range`` ((low, high) for the saddle length, b = a
     unless ``b`` is given), ``contact_models`` (a tuple to draw from) and ``mu_range``
     ((low, high): a coulomb ball's kinetic friction coefficient, uniform; its static one is

@@ -301,6 +301,30 @@ class TrapEngine:
         return scale
 
     # -- reset ---------------------------------------------------------------------------
+    def _place(self, idx: np.ndarray, x: np.ndarray, y: np.ndarray, vx: np.ndarray,
+               vy: np.ndarray, lab_rest: np.ndarray, spin: float | np.ndarray) -> None:
+        """Set balls ``idx`` to their drawn starts in one compiled call (one per ball where
+        each has its own ``spin`` about the normal), first widening the compiled kernels to
+        any contact model or rolling resistance the draws brought."""
+        models, resist = self._uses
+        drawn = frozenset(int(m) for m in self.models[idx])
+        resisted = resist or bool((self.P[idx, P_RESIST] != 0.0).any())
+        if not drawn <= models or resisted != resist:   # widen only by what was drawn
+            self._uses = (models | drawn, resisted)
+            self._S = specialise(*self._uses, S)
+            self._entries = {}
+            self._serial_call = None
+        if isinstance(spin, np.ndarray):  # one spin per ball: placed one by one
+            for j in range(idx.size):
+                args = (idx[j:j + 1], self.models, self.P, self.Y, self.balls, self.cfg,
+                        x[j:j + 1], y[j:j + 1], vx[j:j + 1], vy[j:j + 1], lab_rest[j:j + 1],
+                        float(spin[j]), self.noise, self.frame, self.out)
+                self._entry("place", args)(*args)
+        else:
+            args = (idx, self.models, self.P, self.Y, self.balls, self.cfg, x, y, vx, vy,
+                    lab_rest, spin, self.noise, self.frame, self.out)
+            self._entry("place", args)(*args)
+
     def reset(self, idx: np.ndarray, rngs: Sequence[np.random.Generator],
               options: Mapping[str, object] | None = None) -> None:
         """Place balls ``idx`` at the start of a new episode (randomised from ``rngs[i]``, one
@@ -372,24 +396,7 @@ class TrapEngine:
         mask = np.zeros(self.n, dtype=bool)
         mask[idx] = True
         self._draw_noise(rngs, mask)
-        models, resist = self._uses
-        drawn = frozenset(int(m) for m in self.models[idx])
-        resisted = resist or bool((self.P[idx, P_RESIST] != 0.0).any())
-        if not drawn <= models or resisted != resist:   # widen only by what was drawn
-            self._uses = (models | drawn, resisted)
-            self._S = specialise(*self._uses, S)
-            self._entries = {}
-            self._serial_call = None
-        if lab_spin:  # one spin per ball: placed one by one
-            for j in range(k):
-                args = (idx[j:j + 1], self.models, self.P, self.Y, self.balls, self.cfg,
-                        x[j:j + 1], y[j:j + 1], vx[j:j + 1], vy[j:j + 1], lab_rest[j:j + 1],
-                        float(spins[j]), self.noise, self.frame, self.out)
-                self._entry("place", args)(*args)
-        else:
-            args = (idx, self.models, self.P, self.Y, self.balls, self.cfg, x, y, vx, vy,
-                    lab_rest, spin, self.noise, self.frame, self.out)
-            self._entry("place", args)(*args)
+        self._place(idx, x, y, vx, vy, lab_rest, spins if lab_spin else spin)
         if self.delays.active:
             self._reset_delays(idx)
         if self.obs is not self.frame:  # a new episode's history: its first frame, k times
