@@ -5,7 +5,8 @@ modules use (`jit`, `inline`, `ir_inline`, `jit_per_constant`, `python_entry`), 
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
+from typing import Any, cast
 
 import numba as nb
 from numba.core import cgutils, types
@@ -80,8 +81,7 @@ def python_entry(dispatcher):
     return dispatcher
 
 
-@intrinsic
-def unmanaged(typingctx, arr):
+def _unmanaged(typingctx, arr):
     """``arr`` without its reference count: the same data, shape and strides, with numba's
     memory record (meminfo) left empty. Every view compiled code takes of such an array, and
     every call it is passed to, is then free of the atomic increments and decrements a
@@ -102,3 +102,8 @@ def unmanaged(typingctx, arr):
         return dst._getvalue()
 
     return arr(arr), codegen
+
+
+# Called as unmanaged(arr) in compiled code (numba passes the typing context itself); typed
+# so for mypy, which sees numba's intrinsic wrapper's own signature.
+unmanaged = cast(Callable[[Any], Any], intrinsic(_unmanaged))

@@ -21,6 +21,7 @@ import math
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -93,14 +94,14 @@ def profile(rtol: float = 1e-10, rounds: int = 7) -> dict:
     from ..integrators import state_scale
     from ..omega import OmegaProfile, drive_row
     from ..simulate import simulate
-    from .peers import BY_KEY, build
+    from .peers import BY_KEY, Numbalsoda, build
 
     case = Case()
     sc = case.scene("rolling")
     s0 = case.state("rolling")
     grid = case.grid()
     peer = build(BY_KEY["numbalsoda-dop853"], sc, case.omega)
-    kw = dict(omega=case.omega, dt_out=case.dt_out, method="dop853", rtol=rtol)
+    kw: dict[str, Any] = dict(omega=case.omega, dt_out=case.dt_out, method="dop853", rtol=rtol)
     ours = simulate(sc, s0, case.t_end, **kw)
     # scipy's DOP853 on the same error test: its count of right-hand-side calls
     lean = build(BY_KEY["scipy-lean"], sc, case.omega)
@@ -112,7 +113,8 @@ def profile(rtol: float = 1e-10, rounds: int = 7) -> dict:
     dy = np.zeros(K.STATE_WIDTH)
     our_loop, peer_loop = _our_rhs_loop(), _peer_rhs_loop()
     u = np.asarray(s0) / state_scale(p, sc.model_code)[: sc.state_size]
-    data = peer.data
+    assert isinstance(peer, Numbalsoda)
+    data = peer.data  # numbalsoda's packed arguments
     first = np.array([0.0, case.dt_out])
     fns = {
         "ours": lambda: simulate(sc, s0, case.t_end, **kw),
