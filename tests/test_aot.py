@@ -368,7 +368,7 @@ def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(b
     manifest = json.loads((tmp_path / "saddle_env" / "_aot" / _aot.MANIFEST).read_text())
     assert {tuple(m["flags"]) for m in manifest["modules"]} == {
         ("ROLLING_ON",), ("SLIPPING_ON",), ("COULOMB_ON",), ("ROLLING_ON", "SLIPPING_ON"),
-        ("ION_ON",)}
+        ("ION_ON",), ("ROLLING_ON", "RESIST_ON")}
 
     code = _FIRST_CALLS % (list(LEVEL_IDS),)
     # the empty cache of a fresh install: only the build's modules
@@ -390,7 +390,7 @@ def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(b
         return json.loads(out.stdout.strip().splitlines()[-1])
 
     ahead, jit = run("1"), run("0")
-    assert ahead["status"].startswith("ahead-of-time kernels in use (5 modules")
+    assert ahead["status"].startswith("ahead-of-time kernels in use (6 modules")
     assert jit["status"].startswith("no ahead-of-time kernels: turned off")
     assert ahead["runs"].keys() == jit["runs"].keys()
     for key in jit["runs"]:
