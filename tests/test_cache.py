@@ -119,6 +119,23 @@ def test_another_tree_is_refreshed_only_by_its_own_call(tmp_path, monkeypatch):
     assert not _has_cache(other / "mpc.py")
 
 
+def test_a_tree_imported_under_another_name_drops_its_caches(tmp_path, monkeypatch):
+    """numba's cached code loads its module by the name it was compiled under: a tree
+    imported by another name than its stamp's (`agents` from a clone, `saddle_agents`
+    installed) drops all its caches, once; the same name again keeps them."""
+    pkg, other = _tree(tmp_path, monkeypatch)
+    _cache.refresh(pkg)
+    assert _cache.refresh(other, depends_on=[pkg], import_name="agents") == ["agents.mpc"]
+    _cached(other / "mpc.py")
+    assert _cache.refresh(other, depends_on=[pkg], import_name="agents") == []
+    assert _has_cache(other / "mpc.py")
+    assert _cache.refresh(other, depends_on=[pkg], import_name="saddle_agents") == ["agents.mpc"]
+    assert not _has_cache(other / "mpc.py")
+    _cached(other / "mpc.py")
+    assert _cache.refresh(other, depends_on=[pkg], import_name="saddle_agents") == []
+    assert _has_cache(other / "mpc.py")
+
+
 def test_only_a_changed_file_is_parsed_again_and_its_new_imports_count(tmp_path, monkeypatch):
     """The stamp keeps the import graph: an import parses no file whose content it knows
     (parsing all of them was a third of ``import saddle_env``), and a file whose imports

@@ -19,6 +19,12 @@ calls `refresh` for its own tree on its import, naming this package's tree as on
 depends on: its modules' digests then cover the kernels they import, and this module
 names no package above it.
 
+A tree that can be imported under two names (the repository's `agents/`: `agents` from a
+clone, `saddle_agents` once installed) passes the name it was imported by: numba's cached
+code names its module, and loads it by that name, so code cached under one name fails in a
+process that cannot import the other (a console script, after ``python train.py``). Its
+caches go whenever the name changes; recompiling them takes a second or two.
+
 Trees that cannot be written (numba then caches elsewhere, and an upgrade rewrites every
 file, which numba notices by itself) are skipped.
 """
@@ -37,6 +43,9 @@ _STAMP_FILE = Path("__pycache__") / "numba-sources.json"
 # The stamp's key for the import graph it was computed from (`_graph`); every other key is a
 # module's digest (a stamp written before the graph was kept has no such key).
 _GRAPH_KEY = "(import graph)"
+# The stamp's key for the name the tree's modules were last imported by (`refresh`'s
+# ``import_name``).
+_NAME_KEY = "(import name)"
 
 
 def _module_name(path: Path, tree: Path) -> str:
@@ -137,10 +146,13 @@ def _cache_files(path: Path) -> list[Path]:
     return [f for pattern in (f"{stem}.*.nbi", f"{stem}.*.nbc") for f in cache.glob(pattern)]
 
 
-def refresh(tree: Path = PACKAGE, depends_on: Sequence[Path] = ()) -> list[str]:
+def refresh(tree: Path = PACKAGE, depends_on: Sequence[Path] = (),
+            import_name: str | None = None) -> list[str]:
     """Drop the cache files of every module of ``tree`` whose sources changed since the
     tree's stamp was written, counting the sources it imports from the trees of
-    ``depends_on`` too; return those modules' names (empty if nothing was dropped)."""
+    ``depends_on`` too, and of all its modules if ``import_name`` (the name the tree is
+    imported by now) is not the one the stamp holds; return those modules' names (empty if
+    nothing was dropped)."""
     stamp_path = tree / _STAMP_FILE
     try:
         try:
@@ -149,19 +161,23 @@ def refresh(tree: Path = PACKAGE, depends_on: Sequence[Path] = ()) -> list[str]:
             stamp = {}
         stamp = stamp if isinstance(stamp, dict) else {}
         known = stamp.get(_GRAPH_KEY, {})
-        before = {m: d for m, d in stamp.items() if m != _GRAPH_KEY}
+        renamed = stamp.get(_NAME_KEY) != import_name
+        before = {} if renamed else {m: d for m, d in stamp.items()
+                                     if m not in (_GRAPH_KEY, _NAME_KEY)}
         modules = _sources([tree, *depends_on])
         graph = _graph(modules, known)
         own = {m for m, p in modules.items() if tree in p.parents}
         now = {m: d for m, d in digests(graph).items() if m in own}
-        if before == now and known == graph:
+        if before == now and known == graph and not renamed:
             return []
         stale = sorted(m for m in now if before.get(m) != now[m])
         for m in stale:
             for f in _cache_files(modules[m]):
                 f.unlink(missing_ok=True)
         stamp_path.parent.mkdir(exist_ok=True)
-        stamp_path.write_text(json.dumps({**now, _GRAPH_KEY: graph}, indent=0, sort_keys=True))
+        named = {} if import_name is None else {_NAME_KEY: import_name}
+        stamp_path.write_text(json.dumps({**now, _GRAPH_KEY: graph, **named}, indent=0,
+                                         sort_keys=True))
         return stale
     except OSError:  # read-only install: numba keeps its cache elsewhere
         return []
