@@ -55,6 +55,7 @@ STORE = REPO_ROOT / "docs" / "figures" / "figures.yml"
 LEADERBOARD = REPO_ROOT / "docs" / "leaderboard.json"
 LEADERBOARD_COMMAND = "python -m agents.benchmark.leaderboard --resume --no-progress"
 REQUIRED = ("unit", "date", "machine", "command")
+_INTERVAL = {"mean", "low", "high"}   # a figure with its 95 % interval
 
 # <!-- fig NAME [mean] [SPEC] -->old copy<!-- /fig -->
 MARKER = re.compile(r"<!-- fig (?P<name>[\w.@-]+)(?P<opts>(?: [^ >]+)*) -->(?P<copy>.*?)<!-- /fig -->",
@@ -285,8 +286,11 @@ def load_store(store: Path = STORE, leaderboard: Path = LEADERBOARD) -> dict[str
                 entry["value"] = sum(entry["value"].values())
             if "over" in entry:   # a ratio of two values of the same file
                 entry["value"] /= _lookup(REPO_ROOT / entry["source"], entry["over"])
-            if "scale" in entry:  # a table (a mapping of cells) is read as it is
-                entry["value"] *= entry["scale"]
+            if "scale" in entry:  # an interval's ends too; a table (other cells) as it is
+                value = entry["value"]
+                entry["value"] = ({k: v * entry["scale"] for k, v in value.items()}
+                                  if isinstance(value, dict) and set(value) == _INTERVAL
+                                  else value * entry["scale"])
         if name in figures:
             raise FigureError(f"{store.name}: {name!r} is a leaderboard figure already")
         figures[name] = entry

@@ -169,6 +169,16 @@ def test_a_ratio_and_a_list_position_of_a_results_file(tmp_path, monkeypatch):
     assert figures.load_store(store)["ratio"]["value"] == 3.0
 
 
+def test_a_scaled_interval_scales_its_mean_and_ends(tmp_path, monkeypatch):
+    (tmp_path / "r.json").write_text('{"kept": {"mean": 0.5, "low": 0.25, "high": 0.75}}')
+    store = tmp_path / "figures.yml"
+    store.write_text("kept:\n  source: r.json\n  key: kept\n  scale: 100\n  unit: '%'\n"
+                     "  date: 2026-01-01\n  machine: m\n  command: c\n")
+    monkeypatch.setattr(figures, "REPO_ROOT", tmp_path)
+    assert figures.load_store(store)["kept"]["value"] == {"mean": 50.0, "low": 25.0,
+                                                          "high": 75.0}
+
+
 def test_one_value_per_seed_reads_as_a_list():
     assert figures.format_figure({"value": [150, 85, 66]}, ["d"]) == "150, 85, 66"
 

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -177,7 +178,9 @@ def test_the_sbx_recipes_are_the_fast_recipe_but_for_the_budget_and_rollout_shap
     """Each SBX entry is ppo.yml's fast recipe but for its budget and how its rollout of
     n_envs x n_steps samples is shaped (Storm's: more balls, fewer steps), never its size;
     Capture's and Lab's also decay the learning rate to 0 and select their model on more
-    validation episodes; Lab's starts from the imitation of mpc, with a third of the step."""
+    validation episodes; Lab's starts from the imitation of mpc, with a third of the step;
+    RealSaddle's trains on whole episodes (its balls are lost late, not in the first
+    seconds)."""
     from agents.training.recipes import load_hyperparams
     from saddle_env.envs import LEVEL_IDS
 
@@ -197,6 +200,10 @@ def test_the_sbx_recipes_are_the_fast_recipe_but_for_the_budget_and_rollout_shap
             assert schedule.startswith("lin_") and float(schedule[4:]) == pytest.approx(step)
             assert (ours.pop("eval_freq"), ours.pop("eval_episodes")) == (499_200, 256)
             theirs = {k: v for k, v in theirs.items() if k != "learning_rate"}
+        if level == "SaddleTrap-RealSaddle-v0":
+            steps = ours.pop("train_episode_steps")
+            assert steps == gym.spec(level).max_episode_steps > theirs["train_episode_steps"]
+            theirs = {k: v for k, v in theirs.items() if k != "train_episode_steps"}
         assert {k: v for k, v in ours.items() if k not in free} == \
                {k: v for k, v in theirs.items() if k not in free}, level
         assert ours["n_envs"] * ours["n_steps"] == theirs["n_envs"] * theirs["n_steps"], level

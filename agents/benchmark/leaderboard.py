@@ -228,26 +228,32 @@ def write_markdown(results: dict[str, Any], path: Path, figures: dict[str, str],
 # Levels whose section on docs/levels.md states how feedback does against the best constant
 # speed, from the committed board: the real saddle (issue 57), whose question that is. Each
 # names the figure of plotted test episodes, the command that drew it and what it shows
-# (read off the episodes' traces: `run_episodes(record=2)` on the same seeds).
+# (agents.evaluation.speed_modulation's figures, on the first test episodes).
 ANSWERED_LEVELS: dict[str, tuple[str, str, str]] = {
     "SaddleTrap-RealSaddle-v0": (
         "figures/realsaddle_episodes.png",
         "saddle-eval --env SaddleTrap-RealSaddle-v0 --policy best-const --policy mpc "
-        "--episodes 4 --seed 2000000 --examples 2 --out DIR",
-        "By what means: in both episodes `mpc` swings the speed between about 5 and 12 rad/s "
-        "around 8 (a standard deviation of 1.2-1.5 rad/s in each 10 s) for the first 20-30 s, "
-        "which holds the ball about 11 mm from the centre on average, where at the constant "
-        "speed its orbit grows to the rim in 18-19 s; then it holds 7.5 +- 0.3 rad/s, just "
-        "above the rigid ball's threshold (7.43 rad/s), and the ball circles 45-52 mm out on "
-        "average until the episode ends at 60 s. Both balls are kept; the constant loses "
-        "both."),
+        "--policy agents/models/ppo_realsaddle.zip --episodes 4 --seed 2000000 --examples 2 "
+        "--out DIR",
+        "By what means: the agent swings the speed between about 6.6 and 10 rad/s (5th to "
+        "95th percentile) around 8.3 rad/s, a fifth of the time below the rigid ball's "
+        "threshold (7.43 rad/s), at 2.65-2.67 Hz: twice the saddle's turning frequency. The "
+        "speed follows the saddle's angle, fast in one orientation and slow in the other, "
+        "with a phase that stays put through each episode: a component at twice the angle, about "
+        "1.1 rad/s, explains 52-63 % of the speed's variance, and the ball stays about 6 mm "
+        "from the centre for the whole minute. `mpc` swings the speed as widely, but not "
+        "with the angle (that component explains none of its variance), for the first 20-30 "
+        "s, then holds about 7.5 rad/s and lets the ball circle 45-52 mm out; at the constant "
+        "speed the orbit grows to the rim in 18-19 s. The figures for the first four test "
+        "episodes: `python -m agents.evaluation.speed_modulation --policy "
+        "agents/models/ppo_realsaddle.zip --episodes 4` (and `--policy mpc`), 2026-11-29."),
 }
 
 
 def _answer(level_id: str, on_board: dict[str, Any], date: str) -> list[str]:
-    """The paragraph `ANSWERED_LEVELS` asks for: best-const against mpc (and the clairvoyant
-    where measured) on the level's test episodes, with the command and the date; none until
-    the level is on the board."""
+    """The paragraph `ANSWERED_LEVELS` asks for: best-const against mpc and the shipped agent
+    (and the clairvoyant where measured) on the level's test episodes, with the command and
+    the date; none until the level is on the board."""
     if level_id not in ANSWERED_LEVELS or level_id not in on_board:
         return []
     figure, command, means = ANSWERED_LEVELS[level_id]
@@ -270,15 +276,27 @@ def _answer(level_id: str, on_board: dict[str, Any], date: str) -> list[str]:
         text = (f"**Does feedback keep the ball longer?** Not measurably: on the level's "
                 f"{table['episodes']:,} test episodes `mpc` keeps the ball {_cell(mt, '.2f')} s "
                 f"against the best constant speed's {_cell(bt, '.2f')} s")
+    agents = [r for r in table["policies"] if r["kind"] != "baseline"]
+    for agent in agents:
+        at = agent["trapping_time"]
+        name = Path(agent["policy"]).stem
+        text += (f"; the shipped agent, `{name}` (PPO, [Shipped agents](shipped-agents.md)), "
+                 f"{_cell(at, '.2f')} s, {_cell(agent['kept'], '.1f', 100)} % to the end: "
+                 f"{at['mean'] / bt['mean']:.2f} times as long as the constant "
+                 + ("(the episode's length caps it)" if at["low"] >= length - 1e-6 else
+                    "its interval clear of the constant's" if at["low"] > bt["high"] else
+                    "not clear of the constant's interval"))
     clair = clairvoyant_reference(level_id)
     if clair is not None:
-        text += (f". The clairvoyant ceiling keeps it {clair['clairvoyant']:.2f} s "
+        text += (f". The clairvoyant reference, which starts from `mpc`'s and the shipped "
+                 f"agents' episodes and improves on them, keeps it {clair['clairvoyant']:.2f} s "
                  f"[{clair['clairvoyant_ci']['low']:.2f}, {clair['clairvoyant_ci']['high']:.2f}] "
                  f"on the first {clair['episodes']:,} of these episodes, losing "
                  f"{100 * clair['doomed']:.1f} % [{100 * clair['doomed_ci']['low']:.1f}, "
                  f"{100 * clair['doomed_ci']['high']:.1f}]")
+    shown = "best-const, mpc and the shipped agent" if agents else "best-const against mpc"
     return ["", text + ".", "", f"![{level_id}: the saddle's speed and the ball's distance "
-            f"from the centre in two test episodes, best-const against mpc]({figure})", "",
+            f"from the centre in two test episodes, {shown}]({figure})", "",
             f"*Two test episodes (seeds 2,000,000 and 2,000,001): `{command}` (its "
             f"examples.png), {date}.* {means}"]
 
