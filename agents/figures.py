@@ -6,7 +6,8 @@ command that remakes it. Its value is either typed into the store (``value:``), 
 results file a tool wrote (``source:`` a JSON file of the repository, ``key:`` a dotted path
 into it, list positions included, ``combine: sum`` to add up a mapping's values,
 ``over:`` a second key whose value divides the first, ``scale:`` a factor such as 1/3600,
-or ``derive:`` one of ``DERIVED``'s computations over the file's rows), or one of the
+or ``derive:`` one of ``DERIVED``'s computations over the file's content, which may also be
+a CSV file's rows), or one of the
 leaderboard's results, which are figures without a store entry:
 ``lb.LEVEL.POLICY`` is the mean trapping time [95 % interval] of a policy on a level
 (``LEVEL`` is the id without ``SaddleTrap-`` and ``-v0``, ``default`` for ``SaddleTrap-v0``;
@@ -37,6 +38,7 @@ unknown name.
 from __future__ import annotations
 
 import argparse
+import csv
 import datetime
 import json
 import math
@@ -140,6 +142,52 @@ def _paper_area_excess(summary: dict[str, Any], omega: int) -> float:
     return float(100 * (areas["paper_eom_cm2"] / areas["exact_cm2"] - 1))
 
 
+def _bench_row(rows: list[dict[str, Any]], tier: str, method: str, rtol: float = math.nan,
+               dt: float = math.nan) -> dict[str, Any]:
+    """saddle-bench's row (bench.csv) of the simulator on ``tier`` at an adaptive ``rtol``
+    under the default step cap, or at a fixed step ``dt``."""
+    def same(a: Any, b: float) -> bool:
+        return math.isnan(b) if math.isnan(a) else math.isclose(a, b)
+
+    return next(r for r in rows if r["solver"] == "saddle_env" and r["tier"] == tier
+                and r["method"] == method and same(r["rtol"], rtol) and same(r["dt"], dt)
+                and math.isnan(r["max_step"]))
+
+
+def coulomb_tier(rows: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """docs/accuracy.md's table of the coulomb tier against the rolling ball: error [m] and
+    wall time [µs per simulated s] per setting, from saddle-bench's bench.csv."""
+    table: dict[str, dict[str, float]] = {}
+    for name, method, rtol, dt in (("rtol-1e-8", "dop853", 1e-8, math.nan),
+                                   ("rtol-1e-10", "dop853", 1e-10, math.nan),
+                                   ("rtol-1e-11", "dop853", 1e-11, math.nan),
+                                   ("rk4-1ms", "rk4", math.nan, 1e-3),
+                                   ("rk4-500us", "rk4", math.nan, 5e-4),
+                                   ("rk4-100us", "rk4", math.nan, 1e-4)):
+        cells = table[name] = {}
+        for tier in ("coulomb", "rolling"):
+            row = _bench_row(rows, tier, method, rtol, dt)
+            cells[f"{tier}_error"], cells[f"{tier}_us"] = row["error_m"], row["us_per_sim_s"]
+    return table
+
+
+def coulomb_phases(rows: list[dict[str, Any]]) -> dict[str, float]:
+    """The coulomb tier's changes of phase at the default rtol 1e-10, the least and most at
+    rtol 1e-9 to 1e-13, and the share of the run it slips at 1e-10 [%]."""
+    at = {e: _bench_row(rows, "coulomb", "dop853", 10.0 ** -e) for e in range(9, 14)}
+    changes = [at[e]["phase_changes"] for e in at]
+    return {"changes": at[10]["phase_changes"], "changes_least": min(changes),
+            "changes_most": max(changes), "slipping_percent": 100 * at[10]["slipping_share"]}
+
+
+def coulomb_cost_ratio(rows: list[dict[str, Any]]) -> list[float]:
+    """The coulomb ball's wall time per simulated second over the rolling ball's at the same
+    rtol, least and most over 1e-8, 1e-10 and 1e-11."""
+    return _least_and_most(_bench_row(rows, "coulomb", "dop853", r)["us_per_sim_s"]
+                           / _bench_row(rows, "rolling", "dop853", r)["us_per_sim_s"]
+                           for r in (1e-8, 1e-10, 1e-11))
+
+
 def _damping_rates(summary: dict[str, Any]) -> list[tuple[str, float, float]]:
     """(drag key, simulated rate, theory's rate) of every point of the damping figure."""
     return [(k1, sim, theory) for panel in ("symmetric", "asymmetric")
@@ -216,7 +264,33 @@ DERIVED: dict[str, Any] = {
     "lifetimes-onset-early-19mm": lambda rows: _least_and_most(
         100 * (1 - r["onset_rps"] / r["lab_onset_rps"])
         for r in _variant(rows, "calibrated") if _steel(r) and "19 mm" in r["series"]),
+    # saddle-bench --tiers rolling,coulomb (docs/figures/coulomb_tier/bench.csv): the coulomb
+    # tier's table, phases, cost over the rolling ball's, and steps at the default rtol 1e-10
+    "coulomb-tier": coulomb_tier,
+    "coulomb-phases": coulomb_phases,
+    "coulomb-cost-ratio": coulomb_cost_ratio,
+    "coulomb-steps": lambda rows: {
+        "switching": _bench_row(rows, "coulomb", "dop853", 1e-10)["steps"],
+        "rolling": _bench_row(rows, "rolling", "dop853", 1e-10)["steps"]},
+    "coulomb-steps-ratio": lambda rows: (_bench_row(rows, "coulomb", "dop853", 1e-10)["steps"]
+                                         / _bench_row(rows, "rolling", "dop853", 1e-10)["steps"]),
 }
+
+
+def _number(text: str) -> Any:
+    try:
+        return float(text) if text != "" else math.nan
+    except ValueError:
+        return text
+
+
+def read_source(path: Path) -> Any:
+    """A results file's content for ``derive:``: a JSON file's value, or a CSV file's rows
+    as mappings (a cell that reads as a number as a float, a blank one as nan)."""
+    if path.suffix == ".csv":
+        with open(path, newline="", encoding="utf-8") as fh:
+            return [{k: _number(v) for k, v in row.items()} for row in csv.DictReader(fh)]
+    return json.loads(path.read_text())
 
 
 _MISSING = object()
@@ -278,7 +352,7 @@ def load_store(store: Path = STORE, leaderboard: Path = LEADERBOARD) -> dict[str
         if "derive" in entry:
             if entry["derive"] not in DERIVED:
                 raise FigureError(f"{store.name}: {name!r}: no derivation {entry['derive']!r}")
-            rows = json.loads((REPO_ROOT / entry["source"]).read_text())
+            rows = read_source(REPO_ROOT / entry["source"])
             entry["value"] = DERIVED[entry["derive"]](rows)
         elif "source" in entry:
             entry["value"] = _lookup(REPO_ROOT / entry["source"], entry["key"])

@@ -59,6 +59,10 @@ MEASUREMENTS: tuple[Measurement, ...] = (
     Measurement("bench-quick", ("{python}", "-m", "saddle_env.workprecision", "--quick",
                                 "--out", "{out}"),
                 "summary.json", "docs/figures/bench_quick_summary.json"),
+    # simulate(..., tol=...)'s pilot against one run at its pick (docs/accuracy.md)
+    Measurement("pilot-cost", ("{python}", "-m", "saddle_env.workprecision", "--pilot-cost",
+                               "--out", "{out}"),
+                "pilot_cost.json", "docs/figures/bench_pilot/pilot_cost.json"),
     # the environment against CartPole, made as users make both (docs/environment.md)
     Measurement("throughput", ("{python}", "-m", "saddle_env.envs.throughput", "--out", "{out}"),
                 "throughput.json", "docs/figures/env/throughput.json", timeout_s=900.0,
@@ -75,6 +79,12 @@ MEASUREMENTS: tuple[Measurement, ...] = (
                       ("bench_batch.png", "docs/figures/bench_batch.png"),
                       ("bench_single.png", "docs/figures/bench_peers_single.png"),
                       ("bench_batch.png", "docs/figures/bench_peers_batch.png")), long=True),
+    # the coulomb tier against the rolling ball in one run (docs/accuracy.md, docs/physics.md)
+    Measurement("coulomb-tier", ("{python}", "-m", "saddle_env.workprecision", "--tiers",
+                                 "rolling,coulomb", "--no-peers", "--no-batch", "--no-figures",
+                                 "--jacobi-periods", "0", "--quiet", "--out", "{out}"),
+                "bench.csv", "docs/figures/coulomb_tier/bench.csv", timeout_s=900.0,
+                also=(("summary.json", "docs/figures/coulomb_tier/summary.json"),), long=True),
     # where one ball's time goes, the simulator's DOP853 against numbalsoda's (docs/accuracy.md)
     Measurement("profile", ("{python}", "-m", "saddle_env.workprecision.profile", "--out",
                             "{out}"),

@@ -24,7 +24,8 @@ which resolve ``tol=`` with it:
 3. **Pick.** The passing candidate with the fewest right-hand-side evaluations in the pilot.
 
 `Choice.describe()` says what was picked and why; the Trajectory's ``settings`` string
-carries it. The pilot costs about as much as the run it calibrates (less for long runs),
+carries it. On a 10-s run the pilot costs a few times the run it calibrates (its measured
+cost is on docs/accuracy.md; long runs amortise it, since the pilot is at most 100 s long),
 so `tol` is for "how accurate is this and what does it cost", not for the inner loop of
 training: pick once with `choose`, then pass the chosen method/rtol/dt explicitly.
 """

@@ -17,20 +17,10 @@ from agents import figures
 
 NO_COMMAND = re.compile(r"not recorded|output not kept", re.IGNORECASE)
 
-# Quoted on a user page, measured without a kept command (2026-11-28). Each awaits a
-# re-measurement by the command the store names, into a results file, or leaves its page.
-KNOWN_WITHOUT_COMMAND = {
-    # docs/accuracy.md and docs/physics.md: one `saddle-bench --tiers rolling,coulomb
-    # --no-peers --jacobi-periods 0` run whose output was not kept
-    "accuracy-coulomb-cost-ratio", "accuracy-coulomb-phases", "accuracy-coulomb-steps",
-    "accuracy-coulomb-steps-ratio", "accuracy-coulomb-tier",
-    # docs/accuracy.md, docs/how-to/accuracy.md: the tolerance pilot's cost
-    "accuracy-pilot-cost",
-    # docs/accuracy.md: timed while writing saddle-bench
-    "bench-openblas-expm-ms",
-    # docs/physics.md: the runs of a test, their output not kept
-    "physics-crr-undoes-trap",
-}
+# Quoted on a user page, measured without a kept command. Each awaits a re-measurement by
+# the command the store names, into a results file, or leaves its page. (Empty: the last
+# eight were measured again or left their pages on 2026-11-29.)
+KNOWN_WITHOUT_COMMAND: set[str] = set()
 
 
 def _store_name(name: str) -> str:

@@ -234,3 +234,45 @@ def test_reproduce_figures_come_from_the_shipped_summary():
     assert store["paper-omega-crt-rolling-2.65"]["source"] == "docs/figures/reproduce_summary.json"
     assert figures.render_figure("paper-omega-crt-rolling-2.65") == "13.593"
     assert figures.render_figure("paper-precession-excess-1mm") == "14.8"   # 150.62 - 135.83
+
+
+def _bench_csv(path):
+    """A bench.csv of two tiers at rtol 1e-10 (default cap, and a capped row to skip)."""
+    cols = "tier,solver,method,rtol,dt,max_step,us_per_sim_s,steps,error_m,phase_changes," \
+           "slipping_share\n"
+    path.write_text(cols
+                    + "rolling,saddle_env,dop853,1e-10,,,40,500,2e-10,,\n"
+                    + "rolling,saddle_env,dop853,1e-10,,100,1,1,1,,\n"
+                    + "coulomb,saddle_env,dop853,1e-10,,,500,3000,3e-10,82,0.25\n")
+
+
+def test_a_derivation_reads_a_csv_results_file(tmp_path, monkeypatch):
+    _bench_csv(tmp_path / "bench.csv")
+    rows = figures.read_source(tmp_path / "bench.csv")
+    assert rows[0]["us_per_sim_s"] == 40.0 and rows[0]["tier"] == "rolling"
+    assert rows[0]["phase_changes"] != rows[0]["phase_changes"]   # a blank cell is nan
+    store = tmp_path / "figures.yml"
+    store.write_text("steps:\n  source: bench.csv\n  derive: coulomb-steps\n"
+                     "  unit: steps\n  date: 2026-01-01\n  machine: m\n  command: c\n"
+                     "ratio:\n  source: bench.csv\n  derive: coulomb-steps-ratio\n"
+                     "  unit: x\n  date: 2026-01-01\n  machine: m\n  command: c\n")
+    monkeypatch.setattr(figures, "REPO_ROOT", tmp_path)
+    loaded = figures.load_store(store)
+    assert loaded["steps"]["value"] == {"switching": 3000.0, "rolling": 500.0}
+    assert loaded["ratio"]["value"] == 6.0
+
+
+def test_the_coulomb_tier_derivations_pick_the_default_capped_rows(tmp_path):
+    _bench_csv(tmp_path / "bench.csv")
+    rows = figures.read_source(tmp_path / "bench.csv")
+    assert figures.DERIVED["coulomb-steps"](rows)["rolling"] == 500.0   # not the capped row
+    # the phases and the tables read tolerances the two-row file lacks: the shipped run has them
+    shipped = figures.read_source(figures.REPO_ROOT / "docs/figures/coulomb_tier/bench.csv")
+    phases = figures.DERIVED["coulomb-phases"](shipped)
+    assert phases["changes_least"] <= phases["changes"] <= phases["changes_most"]
+    assert 0 < phases["slipping_percent"] < 100
+    table = figures.DERIVED["coulomb-tier"](shipped)
+    low, high = figures.DERIVED["coulomb-cost-ratio"](shipped)
+    ratios = [table[k]["coulomb_us"] / table[k]["rolling_us"]
+              for k in ("rtol-1e-8", "rtol-1e-10", "rtol-1e-11")]
+    assert (low, high) == (min(ratios), max(ratios))

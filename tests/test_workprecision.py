@@ -96,6 +96,38 @@ def test_quick_bench_writes_csv_figures_and_summary(quick_run):
     assert summary["target_jacobi"]["jacobi_drift_relative"] < 1e-9
 
 
+@pytest.mark.slow  # reads the end-to-end run
+def test_a_coulomb_row_counts_its_phases(quick_run):
+    rows = read_rows(quick_run / "bench.csv")
+    coulomb = [r for r in rows if r["tier"] == "coulomb" and r["solver"] == "saddle_env"]
+    assert coulomb and all(r["phase_changes"] >= 0 and 0 <= r["slipping_share"] <= 1
+                           for r in coulomb)
+    others = [r for r in rows if r["tier"] == "rolling"]
+    assert all(math.isnan(r["phase_changes"]) for r in others)
+
+
+def test_slipping_share_is_the_time_between_located_changes():
+    from saddle_env.runner import Transition
+    from saddle_env.workprecision.core import slipping_share
+
+    class Run:   # what slipping_share reads of a Trajectory
+        t = np.array([0.0, 10.0])
+        phase = np.array([K.STICK, K.STICK])
+        transitions = [Transition(1.0, "slip"), Transition(3.0, "stick"), Transition(9.0, "slip")]
+
+    assert slipping_share(Run()) == pytest.approx(0.3)
+
+
+def test_pilot_cost_times_each_tolerance_and_gives_the_range():
+    from saddle_env.workprecision import pilot
+
+    out = pilot.pilot_cost(Case(t_end=1.0), tols=(1e-4, 1e-7), n_rounds=1)
+    assert set(out["tols"]) == {"0.0001", "1e-07"}
+    assert out["ratio"] == [min(r["ratio"] for r in out["tols"].values()),
+                            max(r["ratio"] for r in out["tols"].values())]
+    assert all(r["pilot_s"] > 0 and r["run_s"] > 0 for r in out["tols"].values())
+
+
 @pytest.mark.slow  # an end-to-end run: CI runs it with -m slow
 def test_summary_is_reproducible_from_the_csv(quick_run, tmp_path):
     before = json.loads((quick_run / "summary.json").read_text())

@@ -10,7 +10,9 @@ Writes, to ``--out DIR`` (default ``./bench_results``):
 * ``rounds.json`` — with compiled peers: the picked settings of the simulator and each peer
   timed again in alternating rounds (`core.rounds`), merged into the summary's ``peers``.
 
-``saddle-bench --replot DIR/bench.csv`` rebuilds the figures and the summary from a CSV.
+``saddle-bench --replot DIR/bench.csv`` rebuilds the figures and the summary from a CSV;
+``saddle-bench --pilot-cost`` runs no sweep and writes ``DIR/pilot_cost.json``, what
+``simulate(..., tol=...)``'s pilot costs against one run at its pick (`pilot.pilot_cost`).
 See docs/accuracy.md for what is measured and how to read it.
 """
 
@@ -243,14 +245,37 @@ def build_parser() -> argparse.ArgumentParser:
                          "--quick; 0 skips it)")
     ap.add_argument("--replot", default=None, metavar="CSV",
                     help="rebuild figures and summary.json from an existing bench.csv")
+    ap.add_argument("--pilot-cost", action="store_true",
+                    help="instead of the sweep: time simulate(..., tol=...)'s pilot against "
+                         "one run at the setting it picks (OUT/pilot_cost.json)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     return ap
+
+
+def _pilot_cost(out: Path) -> Summary:
+    """``--pilot-cost``: the pilot's timings in ``out/pilot_cost.json``, one line each."""
+    from .pilot import pilot_cost
+
+    out.mkdir(parents=True, exist_ok=True)
+    limit_blas_threads(1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", AccuracyWarning)  # a coarse candidate's is expected
+        result = pilot_cost()
+    with open(out / "pilot_cost.json", "w", encoding="utf-8") as fh:
+        json.dump(result, fh, indent=2)
+    for tol, r in result["tols"].items():
+        print(f"tol {tol} m: pilot {r['pilot_s'] * 1e3:.1f} ms, run {r['run_s'] * 1e3:.1f} ms "
+              f"({r['ratio']:.1f}x); {r['picked']}")
+    return result
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
     ap = build_parser()
     args = ap.parse_args(argv)
+    if args.pilot_cost:
+        _pilot_cost(Path(args.out))
+        return 0
     if args.replot is not None:
         csv_path = Path(args.replot)
         if not args.replot or not csv_path.is_file():

@@ -32,7 +32,7 @@ from .. import kernels as K
 from ..accuracy import IntegratorKwargs
 from ..integrators import STATUS_DONE
 from ..linear import abcd, linear_trajectory
-from ..runner import Start
+from ..runner import Start, Trajectory
 from ..scene import P_A, P_B, P_R, Scene
 from ..simulate import initial_state, simulate, simulate_batch
 from .peer import PeerModel
@@ -58,6 +58,9 @@ COLUMNS = (
     # single ball
     "wall_s", "repeats", "us_per_sim_s", "steps", "rhs_evals", "status",
     "error_m", "model_error_m",
+    # a coulomb ball: its changes between sticking and slipping, and the share of the run
+    # it slips (what its cost per simulated second depends on)
+    "phase_changes", "slipping_share",
     # batch
     "batch_n", "batch_t_end", "batch_wall_s", "batch_threads", "batch_us_per_ball_sim_s",
     "batch_ball_steps_per_s", "batch_alone_us_per_ball_sim_s",
@@ -277,9 +280,26 @@ def measure_ours(case: Case, tier: Tier, cfg: Config, refs: dict[str, np.ndarray
     row = _row(case, tier, cfg, wall_s=wall, repeats=reps, us_per_sim_s=wall / case.t_end * 1e6,
                steps=tr.stats.steps, rhs_evals=tr.stats.rhs_evaluations, status=status,
                error_m=max_distance(xy, refs[tier]), model_error_m=max_distance(xy, refs["rolling"]))
+    if tr.phase is not None:
+        row.update(phase_changes=tr.transitions_total, slipping_share=slipping_share(tr))
     if batch:
         row.update(measure_batch(case, tier, kw))
     return row
+
+
+def slipping_share(tr: Trajectory) -> float:
+    """The share of a coulomb ball's run that it slips, from its located changes of phase."""
+    if tr.phase is None:
+        raise ValueError("slipping_share: not a coulomb ball's run (it has no phase)")
+    slipping = bool(tr.phase[0] == K.SLIP)
+    since, slipped = float(tr.t[0]), 0.0
+    for change in tr.transitions:
+        if slipping:
+            slipped += change.t - since
+        slipping, since = change.phase == "slip", change.t
+    if slipping:
+        slipped += float(tr.t[-1]) - since
+    return slipped / (float(tr.t[-1]) - float(tr.t[0]))
 
 
 def measure_batch(case: Case, tier: Tier, kw: SimKwargs) -> dict[str, object]:

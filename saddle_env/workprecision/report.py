@@ -23,9 +23,9 @@ TARGET_JACOBI = 1e-9         # target 3: relative Jacobi drift over 1e4 saddle p
 
 NUMERIC = ("rtol", "dt", "max_step", "a", "R", "omega", "x0", "y0", "t_end", "dt_out",
            "wall_s", "repeats", "us_per_sim_s", "steps", "rhs_evals", "error_m",
-           "model_error_m", "batch_n", "batch_t_end", "batch_wall_s", "batch_threads",
-           "batch_us_per_ball_sim_s", "batch_ball_steps_per_s", "batch_alone_us_per_ball_sim_s",
-           "compile_s", "batch_compile_s")
+           "model_error_m", "phase_changes", "slipping_share", "batch_n", "batch_t_end",
+           "batch_wall_s", "batch_threads", "batch_us_per_ball_sim_s", "batch_ball_steps_per_s",
+           "batch_alone_us_per_ball_sim_s", "compile_s", "batch_compile_s")
 # The errors at which the peers are compared with the simulator [m], and their keys in the
 # summary (no dot: the figure store reads them as one step of a dotted path).
 PEER_ERRORS = {"1e-6": 1e-6, "1e-9": 1e-9}
