@@ -57,3 +57,36 @@ def test_the_other_passes_list_the_largest_and_count_the_rest(n_passes):
         assert rest[0].split()[:3] == [str(left), "more", f"{sum(range(1, left + 1)):.2f}"]
     else:
         assert rest == []
+
+
+def test_isolated_rows_are_written_with_the_build_named(tmp_path, monkeypatch, capsys):
+    """--isolated --aot --out: one fresh interpreter per scenario, the ahead-of-time build
+    left on for it, and the rows (with each process's kernels status) written as JSON;
+    --aot and --out without --isolated are refused."""
+    import json
+    import subprocess
+
+    from saddle_env.coldstart import profile
+    from saddle_env.compilation import aot
+
+    seen = []
+
+    def fake_run(cmd, **kw):
+        seen.append(kw["env"][aot.AOT_ENV])
+        return subprocess.CompletedProcess(
+            cmd, 0, stdout="ahead-of-time kernels in use (6 modules)\n0.5 0.4 0.0 0.7\n")
+
+    monkeypatch.setattr(profile.subprocess, "run", fake_run)
+    monkeypatch.setattr("saddle_env.compilation.cache.clear", lambda *a: None)
+    monkeypatch.delenv(aot.AOT_ENV, raising=False)
+    out = tmp_path / "first.json"
+    assert profile.main(["--isolated", "--aot", "--out", str(out), "simulate",
+                         "SaddleTrap-v0"]) == 0
+    data = json.loads(out.read_text())
+    assert seen == ["1", "1"] and data["aot"] is True
+    assert [r["scenario"] for r in data["rows"]] == ["simulate", "SaddleTrap-v0"]
+    assert data["rows"][0]["kernels"].startswith("ahead-of-time kernels in use")
+    assert data["first_call_s_least"] == data["first_call_s_most"] == 0.5
+    with pytest.raises(SystemExit):
+        profile.main(["--aot"])
+    assert "--aot and --out go with --isolated" in capsys.readouterr().err

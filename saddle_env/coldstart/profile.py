@@ -1,12 +1,17 @@
 """Where the first call's compile time goes: numba compiles, per function and signature.
 
-    python -m saddle_env.coldstart.profile [--fresh] [--isolated] [--top N] [--phases] [SCENARIO ...]
+    python -m saddle_env.coldstart.profile [--fresh] [--isolated [--aot] [--out FILE]]
+                                           [--top N] [--phases] [SCENARIO ...]
 
 A scenario is ``simulate`` (the README's rolling ball, 10 s) or a registered level id
 (``gym.make(ID).reset(seed=0); step()``); by default ``simulate`` and every level of
 `saddle_env.LEVELS`. In one process (the default) the scenarios run in order, so each one's
 row is what it adds to the ones before; with ``--isolated`` each runs in a fresh interpreter
-on an empty cache (the first step after a fresh install; implies ``--fresh``).
+on an empty cache (the first step after a fresh install; implies ``--fresh``). The JIT's
+compile is what is measured, so the install's ahead-of-time build is turned off, unless
+``--aot`` keeps it on: then the rows are what a user's first call costs after the install.
+``--out FILE`` writes the ``--isolated`` rows as JSON (the figures quoted on the docs' pages
+read it).
 
 ``--fresh`` empties the package's in-tree numba cache first (`saddle_env.compilation.cache.clear`):
 the numbers are then those of a fresh install. Without it they are what this machine's
@@ -34,6 +39,7 @@ import sys
 import time
 from collections import defaultdict
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, ClassVar
 
 from ..compilation import aot as _aot
@@ -285,8 +291,9 @@ def _profile_here(names: list[str], top: int, signatures: bool = False,
     return results
 
 
-def _isolated(names: list[str]) -> list[tuple[str, float, float]]:
-    """Each scenario in a fresh interpreter on an empty cache."""
+def _isolated(names: list[str]) -> list[dict[str, float | str]]:
+    """Each scenario in a fresh interpreter on an empty cache: its name, the import's and
+    the first call's wall seconds, the first call's CPU and compiling seconds."""
     from ..compilation import cache as _cache
 
     results = []
@@ -295,14 +302,19 @@ def _isolated(names: list[str]) -> list[tuple[str, float, float]]:
         code = ("import time; t0 = time.perf_counter(); import saddle_env; "
                 "t1 = time.perf_counter(); c1 = time.process_time(); "
                 "from saddle_env.coldstart.profile import run_scenario, CompileRecorder\n"
+                "from saddle_env.compilation import aot\n"
                 "with CompileRecorder() as r:\n"
                 f"    run_scenario({name!r})\n"
+                "print(aot.status())\n"
                 "print(time.perf_counter() - t1, time.process_time() - c1, "
                 "r.compiled_seconds(), t1 - t0)")
         out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                              check=True, env=dict(os.environ))
-        wall, cpu, compiled, imp = (float(v) for v in out.stdout.split()[-4:])
-        results.append((name, wall, compiled))
+        lines = out.stdout.strip().splitlines()
+        wall, cpu, compiled, imp = (float(v) for v in lines[-1].split())
+        results.append({"scenario": name, "import_s": imp, "first_call_s": wall,
+                        "first_call_cpu_s": cpu, "compiling_s": compiled,
+                        "kernels": lines[-2]})
         # CPU seconds: what the wall time is on an idle machine (numba compiles on one
         # thread); on a loaded one the wall time is longer.
         print(f"{name:<26} import {imp:5.2f} s, first call {wall:6.2f} s wall, "
@@ -320,6 +332,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="empty the in-tree numba cache first (a fresh install)")
     ap.add_argument("--isolated", action="store_true",
                     help="each scenario in a fresh process on an empty cache")
+    ap.add_argument("--aot", action="store_true",
+                    help="with --isolated: keep the install's ahead-of-time build on (a "
+                         "user's first call after the install)")
+    ap.add_argument("--out", default=None, metavar="FILE",
+                    help="with --isolated: also write the rows as JSON")
     ap.add_argument("--top", type=int, default=25, help="functions listed (default 25)")
     ap.add_argument("--signatures", action="store_true",
                     help="print the signatures of functions compiled more than once")
@@ -330,14 +347,29 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
-    args = build_parser().parse_args(argv)
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    if (args.aot or args.out) and not args.isolated:
+        ap.error("--aot and --out go with --isolated")
     # What numba's JIT compiles is measured here: the ahead-of-time build, which a first call
     # would use instead (`saddle_env.compilation.aot`), stays out (also in the --isolated
-    # processes).
-    os.environ[_aot.AOT_ENV] = "0"
+    # processes), unless --aot asks for a user's first call after the install.
+    os.environ[_aot.AOT_ENV] = "1" if args.aot else "0"
     names = _scenarios(args.scenarios)
     if args.isolated:
-        _isolated(names)
+        rows = _isolated(names)
+        if args.out:
+            import json
+            import platform
+
+            Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.out).write_text(json.dumps(
+                {"aot": args.aot,
+                 "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+                 "date": time.strftime("%Y-%m-%d"), "rows": rows,
+                 "first_call_s_least": min(r["first_call_s"] for r in rows),
+                 "first_call_s_most": max(r["first_call_s"] for r in rows)}, indent=1))
+            print(f"wrote {args.out}")
         return 0
     if args.fresh:
         from ..compilation import cache as _cache
