@@ -7,7 +7,9 @@ results file a tool wrote (``source:`` a JSON file of the repository, ``key:`` a
 into it, list positions included, ``combine: sum`` to add up a mapping's values,
 ``over:`` a second key whose value divides the first, ``scale:`` a factor such as 1/3600,
 or ``derive:`` one of ``DERIVED``'s computations over the file's content, which may also be
-a CSV file's rows), or one of the
+a CSV file's rows, with ``args:`` a mapping of its keyword arguments if it takes any, e.g.
+``derive: bench-cell`` with ``args: {column: us_per_sim_s, row: {tier: rolling, method:
+dop853, rtol: 1e-10}}`` for one cell of saddle-bench's CSV), or one of the
 leaderboard's results, which are figures without a store entry:
 ``lb.LEVEL.POLICY`` is the mean trapping time [95 % interval] of a policy on a level
 (``LEVEL`` is the id without ``SaddleTrap-`` and ``-v0``, ``default`` for ``SaddleTrap-v0``;
@@ -143,15 +145,42 @@ def _paper_area_excess(summary: dict[str, Any], omega: int) -> float:
 
 
 def _bench_row(rows: list[dict[str, Any]], tier: str, method: str, rtol: float = math.nan,
-               dt: float = math.nan) -> dict[str, Any]:
-    """saddle-bench's row (bench.csv) of the simulator on ``tier`` at an adaptive ``rtol``
-    under the default step cap, or at a fixed step ``dt``."""
-    def same(a: Any, b: float) -> bool:
+               dt: float = math.nan, solver: str = "saddle_env",
+               max_step: float = math.nan) -> dict[str, Any]:
+    """saddle-bench's row (bench.csv, bench_results.csv) of ``solver`` on ``tier`` at an
+    adaptive ``rtol`` or a fixed step ``dt``; the simulator's rows under the default step cap
+    unless ``max_step`` names another (100: uncapped). A field left out must be blank (nan)
+    in the row, so that one setting never matches two rows."""
+    def same(a: Any, b: Any) -> bool:
+        b = float(b)   # the store's YAML reads 1e-10 (no dot) as a string
         return math.isnan(b) if math.isnan(a) else math.isclose(a, b)
 
-    return next(r for r in rows if r["solver"] == "saddle_env" and r["tier"] == tier
-                and r["method"] == method and same(r["rtol"], rtol) and same(r["dt"], dt)
-                and math.isnan(r["max_step"]))
+    found = [r for r in rows if r["solver"] == solver and r["tier"] == tier
+             and r["method"] == method and same(r["rtol"], rtol) and same(r["dt"], dt)
+             and same(r["max_step"], max_step)]
+    if len(found) != 1:
+        raise FigureError(f"saddle-bench's rows hold {len(found)} rows of {solver} {method} on "
+                          f"{tier} at rtol {rtol}, dt {dt}, max_step {max_step}, not one")
+    return found[0]
+
+
+def bench_cell(rows: list[dict[str, Any]], column: str, row: dict[str, Any],
+               over: dict[str, Any] | None = None) -> float:
+    """``derive: bench-cell``: the ``column`` of saddle-bench's row picked by the fields
+    ``row`` (`_bench_row`'s arguments), or its ratio to the same column of the row ``over``;
+    the store's ``args:`` name them, so that each figure shows which row it quotes."""
+    value = float(_bench_row(rows, **row)[column])
+    return value / float(_bench_row(rows, **over)[column]) if over is not None else value
+
+
+# the rolling ball's rows of "Why the defaults" (docs/accuracy.md): dop853 under the default
+# step cap at the simulator's default rtol 1e-10, and the looser settings it is weighed against
+_ROLLING_DEFAULT = {"tier": "rolling", "method": "dop853", "rtol": 1e-10}
+_LOOSER_RTOLS = (1e-7, 1e-6, 1e-5, 1e-4)
+
+
+def _rolling_dop853(rows: list[dict[str, Any]], column: str, rtol: float) -> float:
+    return bench_cell(rows, column, {**_ROLLING_DEFAULT, "rtol": rtol})
 
 
 def coulomb_tier(rows: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
@@ -274,6 +303,27 @@ DERIVED: dict[str, Any] = {
         "rolling": _bench_row(rows, "rolling", "dop853", 1e-10)["steps"]},
     "coulomb-steps-ratio": lambda rows: (_bench_row(rows, "coulomb", "dop853", 1e-10)["steps"]
                                          / _bench_row(rows, "rolling", "dop853", 1e-10)["steps"]),
+    # saddle-bench --peers all (docs/figures/bench_results.csv): one column of one row, or a
+    # ratio of two rows, as the store's args: name them
+    "bench-cell": bench_cell,
+    # the default's cost at rtol 1e-11 over the default's, less one, %
+    "bench-dop853-rtol11-extra-percent": lambda rows: 100 * (
+        _rolling_dop853(rows, "us_per_sim_s", 1e-11)
+        / _rolling_dop853(rows, "us_per_sim_s", 1e-10) - 1),
+    # the default's wall time over the cheapest looser setting's (rtol 1e-7 ... 1e-4)
+    "bench-looser-max-saving": lambda rows: _rolling_dop853(rows, "us_per_sim_s", 1e-10) / min(
+        _rolling_dop853(rows, "us_per_sim_s", r) for r in _LOOSER_RTOLS),
+    # the looser settings' errors over the default's, least and most
+    "bench-looser-error-ratio": lambda rows: _least_and_most(
+        _rolling_dop853(rows, "error_m", r) / _rolling_dop853(rows, "error_m", 1e-10)
+        for r in _LOOSER_RTOLS),
+    # the linearised tier (matrix exponential, one row): the default's one-ball time over its
+    # own, and its time per ball in the batch
+    "bench-linear-tier-cost": lambda rows: {
+        "default_over_linear": _rolling_dop853(rows, "us_per_sim_s", 1e-10) / bench_cell(
+            rows, "us_per_sim_s", {"tier": "linear", "method": "expm"}),
+        "batch_us_per_ball": bench_cell(rows, "batch_us_per_ball_sim_s",
+                                        {"tier": "linear", "method": "expm"})},
 }
 
 
@@ -353,7 +403,7 @@ def load_store(store: Path = STORE, leaderboard: Path = LEADERBOARD) -> dict[str
             if entry["derive"] not in DERIVED:
                 raise FigureError(f"{store.name}: {name!r}: no derivation {entry['derive']!r}")
             rows = read_source(REPO_ROOT / entry["source"])
-            entry["value"] = DERIVED[entry["derive"]](rows)
+            entry["value"] = DERIVED[entry["derive"]](rows, **entry.get("args", {}))
         elif "source" in entry:
             entry["value"] = _lookup(REPO_ROOT / entry["source"], entry["key"])
             if entry.get("combine") == "sum":

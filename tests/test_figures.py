@@ -276,3 +276,53 @@ def test_the_coulomb_tier_derivations_pick_the_default_capped_rows(tmp_path):
     ratios = [table[k]["coulomb_us"] / table[k]["rolling_us"]
               for k in ("rtol-1e-8", "rtol-1e-10", "rtol-1e-11")]
     assert (low, high) == (min(ratios), max(ratios))
+
+
+def test_bench_cell_reads_one_row_or_a_ratio_of_two(tmp_path, monkeypatch):
+    """``derive: bench-cell`` takes its row from the store's args (YAML reads 1e-10 as a
+    string), skips the uncapped row, and divides by the ``over`` row."""
+    _bench_csv(tmp_path / "bench.csv")
+    store = tmp_path / "figures.yml"
+    common = "  unit: x\n  date: 2026-01-01\n  machine: m\n  command: c\n"
+    store.write_text(
+        "us:\n  source: bench.csv\n  derive: bench-cell\n"
+        "  args: {column: us_per_sim_s, row: {tier: rolling, method: dop853, rtol: 1e-10}}\n"
+        + common
+        + "ratio:\n  source: bench.csv\n  derive: bench-cell\n"
+        "  args: {column: error_m, row: {tier: coulomb, method: dop853, rtol: 1e-10},\n"
+        "         over: {tier: rolling, method: dop853, rtol: 1e-10}}\n" + common)
+    monkeypatch.setattr(figures, "REPO_ROOT", tmp_path)
+    loaded = figures.load_store(store)
+    assert loaded["us"]["value"] == 40.0   # the default-cap row, not the uncapped one
+    assert loaded["ratio"]["value"] == pytest.approx(1.5)
+    rows = figures.read_source(tmp_path / "bench.csv")
+    uncapped = {"tier": "rolling", "method": "dop853", "rtol": 1e-10, "max_step": 100}
+    assert figures.bench_cell(rows, "us_per_sim_s", uncapped) == 1.0
+
+
+def test_bench_cell_refuses_a_setting_without_exactly_one_row(tmp_path):
+    _bench_csv(tmp_path / "bench.csv")
+    rows = figures.read_source(tmp_path / "bench.csv")
+    with pytest.raises(figures.FigureError, match="0 rows"):
+        figures.bench_cell(rows, "us_per_sim_s", {"tier": "rolling", "method": "rk4", "dt": 1e-3})
+    with pytest.raises(figures.FigureError, match="2 rows"):
+        figures.bench_cell(rows + rows[:1], "us_per_sim_s",
+                           {"tier": "rolling", "method": "dop853", "rtol": 1e-10})
+
+
+def test_the_default_figures_read_the_shipped_bench_run():
+    """docs/accuracy.md's "Why the defaults" from bench_results.csv: the derived figures agree
+    with the rows they are made of."""
+    rows = figures.read_source(figures.REPO_ROOT / "docs/figures/bench_results.csv")
+    us = {r: figures._rolling_dop853(rows, "us_per_sim_s", r) for r in (1e-11, 1e-10, 1e-7)}
+    extra = figures.DERIVED["bench-dop853-rtol11-extra-percent"](rows)
+    assert extra == pytest.approx(100 * (us[1e-11] / us[1e-10] - 1))
+    saving = figures.DERIVED["bench-looser-max-saving"](rows)
+    assert saving >= us[1e-10] / us[1e-7]   # the cheapest looser row is at least as cheap
+    low, high = figures.DERIVED["bench-looser-error-ratio"](rows)
+    assert 1 < low <= high
+    linear = figures.DERIVED["bench-linear-tier-cost"](rows)
+    assert linear["default_over_linear"] > 1 and linear["batch_us_per_ball"] > 0
+    store = figures.figures()
+    for name in ("bench-dop853-default-us", "bench-env-default-saving", "coulomb-error-default"):
+        assert store[name]["source"] == "docs/figures/bench_results.csv"
