@@ -86,7 +86,7 @@ def test_isolated_rows_are_written_with_the_build_named(tmp_path, monkeypatch, c
     assert seen == ["1", "1"] and data["aot"] is True
     assert [r["scenario"] for r in data["rows"]] == ["simulate", "SaddleTrap-v0"]
     assert data["rows"][0]["kernels"].startswith("ahead-of-time kernels in use")
-    assert data["first_call_s_least"] == data["first_call_s_most"] == 0.5
+    assert data["level_first_step_s"] == [0.5, 0.5] and data["simulate_first_call_s"] == 0.5
     with pytest.raises(SystemExit):
         profile.main(["--aot"])
     assert "--aot and --out go with --isolated" in capsys.readouterr().err
