@@ -280,3 +280,24 @@ def test_the_profile_refuses_bad_arguments_by_name(argv, message, capsys):
     with pytest.raises(SystemExit) as err:
         profile.main(argv)
     assert err.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_a_diffrax_peer_solves_in_float64_and_leaves_jax_in_float32():
+    """The diffrax peer turns float64 on only inside its own calls: the process's other JAX
+    code (SBX's float32 networks) keeps its setting, before and after a solve."""
+    pytest.importorskip("diffrax", reason="diffrax is not installed (pip install 'saddle-env[peers]')")
+    import jax
+    import jax.numpy as jnp
+
+    from saddle_env import Scene
+    from saddle_env.workprecision import peers
+
+    jax.config.update("jax_enable_x64", False)
+    peer = next(p for p in peers.PEERS if p.key == "diffrax-tsit5")
+    solver = peers.build(peer, Scene(a=0.159, R=0.02, contact="rolling"), 30.0)
+    assert jnp.zeros(1).dtype == jnp.float32
+    y0 = np.zeros(len(solver.scale))
+    y0[:2] = 0.005, 0.0025                              # at rest, off the centre
+    ys, _ = solver.single(y0, np.linspace(0.0, 0.1, 3), 1e-10)
+    assert ys.dtype == np.float64 and np.all(np.isfinite(ys))
+    assert jnp.zeros(1).dtype == jnp.float32

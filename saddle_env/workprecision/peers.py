@@ -32,6 +32,7 @@ import importlib.util
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -341,14 +342,18 @@ class Diffrax(Solver):
         super().__init__(scene, omega)
         import diffrax  # first: a missing diffrax leaves JAX's settings alone
         import jax
-
-        # float64 for the whole process (JAX has no per-call setting): the benchmark's
-        # processes run no float32 JAX code; tests restore it (tests/test_peers.py)
-        jax.config.update("jax_enable_x64", True)
         import jax.numpy as jnp
 
         if method not in ("Dopri8", "Tsit5"):
             raise ValueError(f"method must be Dopri8 or Tsit5, got {method!r}")
+        # float64 only inside this solver's own calls (`jax.enable_x64` as a context): the
+        # process's other JAX code (SBX's float32 networks, say) keeps its setting
+        self._x64 = jax.enable_x64
+        with self._x64(True):
+            self._build(diffrax, jax, jnp, method)
+
+    def _build(self, diffrax: Any, jax: Any, jnp: Any, method: str) -> None:
+        """The jitted solves, built under float64."""
         f = jax_rhs(self.rolling)
         scale = jnp.asarray(self.scale)
         args = tuple(jnp.float64(v) for v in self.args)
@@ -368,13 +373,15 @@ class Diffrax(Solver):
 
     def single(self, y0, grid, rtol):
         """As `Solver.single`."""
-        ys, _ = self._one(np.asarray(y0, dtype=float) / self.scale, grid, rtol)
-        return np.asarray(ys) * self.scale, math.nan
+        with self._x64(True):
+            ys, _ = self._one(np.asarray(y0, dtype=float) / self.scale, grid, rtol)
+            return np.asarray(ys) * self.scale, math.nan
 
     def batch(self, Y0, grid, rtol):
         """As `Solver.batch`."""
-        ys, _ = self._many(np.asarray(Y0, dtype=float) / self.scale, grid, rtol)
-        return np.asarray(ys) * self.scale
+        with self._x64(True):
+            ys, _ = self._many(np.asarray(Y0, dtype=float) / self.scale, grid, rtol)
+            return np.asarray(ys) * self.scale
 
 
 def build(peer: Peer, scene: Scene, omega: float) -> Solver:
