@@ -154,15 +154,22 @@ def test_lab_best_constant_voltage_is_the_leaderboard_speed_over_the_motor_gain(
     assert "constant_voltage(rig.config, <!-- fig lab-best-const-voltage -->" in rig
 
 
-def test_a_ratio_and_a_list_position_of_a_results_file(tmp_path, monkeypatch):
-    results = tmp_path / "r.json"
-    results.write_text('{"paths": [{"x": 6.0}, {"x": 2.0}]}')
+def _store(tmp_path, monkeypatch, entries):
+    """A figure store in ``tmp_path`` (the repository root for its sources) holding
+    ``entries``, name -> the entry's own lines (its unit among them), each dated and
+    attributed alike; its path."""
     store = tmp_path / "figures.yml"
-    store.write_text("ratio:\n  source: r.json\n  key: paths.0.x\n  over: paths.1.x\n"
-                     "  unit: x\n  date: 2026-01-01\n  machine: m\n  command: c\n"
-                     "missing:\n  source: r.json\n  key: paths.2.x\n"
-                     "  unit: x\n  date: 2026-01-01\n  machine: m\n  command: c\n")
+    store.write_text("".join(f"{name}:\n{body}  date: 2026-01-01\n  machine: m\n  command: c\n"
+                             for name, body in entries.items()))
     monkeypatch.setattr(figures, "REPO_ROOT", tmp_path)
+    return store
+
+
+def test_a_ratio_and_a_list_position_of_a_results_file(tmp_path, monkeypatch):
+    (tmp_path / "r.json").write_text('{"paths": [{"x": 6.0}, {"x": 2.0}]}')
+    store = _store(tmp_path, monkeypatch, {
+        "ratio": "  source: r.json\n  key: paths.0.x\n  over: paths.1.x\n  unit: x\n",
+        "missing": "  source: r.json\n  key: paths.2.x\n  unit: x\n"})
     with pytest.raises(figures.FigureError, match="has no key 'paths.2.x'"):
         figures.load_store(store)
     store.write_text(store.read_text().split("missing:")[0])
@@ -171,10 +178,8 @@ def test_a_ratio_and_a_list_position_of_a_results_file(tmp_path, monkeypatch):
 
 def test_a_scaled_interval_scales_its_mean_and_ends(tmp_path, monkeypatch):
     (tmp_path / "r.json").write_text('{"kept": {"mean": 0.5, "low": 0.25, "high": 0.75}}')
-    store = tmp_path / "figures.yml"
-    store.write_text("kept:\n  source: r.json\n  key: kept\n  scale: 100\n  unit: '%'\n"
-                     "  date: 2026-01-01\n  machine: m\n  command: c\n")
-    monkeypatch.setattr(figures, "REPO_ROOT", tmp_path)
+    store = _store(tmp_path, monkeypatch,
+                   {"kept": "  source: r.json\n  key: kept\n  scale: 100\n  unit: '%'\n"})
     assert figures.load_store(store)["kept"]["value"] == {"mean": 50.0, "low": 25.0,
                                                           "high": 75.0}
 
@@ -251,12 +256,9 @@ def test_a_derivation_reads_a_csv_results_file(tmp_path, monkeypatch):
     rows = figures.read_source(tmp_path / "bench.csv")
     assert rows[0]["us_per_sim_s"] == 40.0 and rows[0]["tier"] == "rolling"
     assert rows[0]["phase_changes"] != rows[0]["phase_changes"]   # a blank cell is nan
-    store = tmp_path / "figures.yml"
-    store.write_text("steps:\n  source: bench.csv\n  derive: coulomb-steps\n"
-                     "  unit: steps\n  date: 2026-01-01\n  machine: m\n  command: c\n"
-                     "ratio:\n  source: bench.csv\n  derive: coulomb-steps-ratio\n"
-                     "  unit: x\n  date: 2026-01-01\n  machine: m\n  command: c\n")
-    monkeypatch.setattr(figures, "REPO_ROOT", tmp_path)
+    store = _store(tmp_path, monkeypatch, {
+        "steps": "  source: bench.csv\n  derive: coulomb-steps\n  unit: steps\n",
+        "ratio": "  source: bench.csv\n  derive: coulomb-steps-ratio\n  unit: x\n"})
     loaded = figures.load_store(store)
     assert loaded["steps"]["value"] == {"switching": 3000.0, "rolling": 500.0}
     assert loaded["ratio"]["value"] == 6.0
@@ -282,16 +284,12 @@ def test_bench_cell_reads_one_row_or_a_ratio_of_two(tmp_path, monkeypatch):
     """``derive: bench-cell`` takes its row from the store's args (YAML reads 1e-10 as a
     string), skips the uncapped row, and divides by the ``over`` row."""
     _bench_csv(tmp_path / "bench.csv")
-    store = tmp_path / "figures.yml"
-    common = "  unit: x\n  date: 2026-01-01\n  machine: m\n  command: c\n"
-    store.write_text(
-        "us:\n  source: bench.csv\n  derive: bench-cell\n"
-        "  args: {column: us_per_sim_s, row: {tier: rolling, method: dop853, rtol: 1e-10}}\n"
-        + common
-        + "ratio:\n  source: bench.csv\n  derive: bench-cell\n"
-        "  args: {column: error_m, row: {tier: coulomb, method: dop853, rtol: 1e-10},\n"
-        "         over: {tier: rolling, method: dop853, rtol: 1e-10}}\n" + common)
-    monkeypatch.setattr(figures, "REPO_ROOT", tmp_path)
+    store = _store(tmp_path, monkeypatch, {
+        "us": "  source: bench.csv\n  derive: bench-cell\n  unit: x\n"
+              "  args: {column: us_per_sim_s, row: {tier: rolling, method: dop853, rtol: 1e-10}}\n",
+        "ratio": "  source: bench.csv\n  derive: bench-cell\n  unit: x\n"
+                 "  args: {column: error_m, row: {tier: coulomb, method: dop853, rtol: 1e-10},\n"
+                 "         over: {tier: rolling, method: dop853, rtol: 1e-10}}\n"})
     loaded = figures.load_store(store)
     assert loaded["us"]["value"] == 40.0   # the default-cap row, not the uncapped one
     assert loaded["ratio"]["value"] == pytest.approx(1.5)
