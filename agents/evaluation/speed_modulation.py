@@ -62,8 +62,7 @@ def modulation(omega: np.ndarray, r: np.ndarray, dt: float, threshold: float) ->
 
 def analyse(env_id: str, policy_spec: str, episodes: int, seed: int) -> list[dict[str, Any]]:
     """`modulation` of each of ``episodes`` test episodes of ``policy_spec`` on ``env_id``."""
-    from saddle_env.linear import critical_omega
-
+    from ..control.controllers import critical_speed
     from ..control.rollout import policy_actor, run_episodes
     from .policies import load_policy
 
@@ -73,7 +72,7 @@ def analyse(env_id: str, policy_spec: str, episodes: int, seed: int) -> list[dic
     act, row_independent = policy_actor(policy)
     res = run_episodes(config, act, seed + np.arange(episodes), max_episode_steps=steps,
                        row_independent=row_independent, record=episodes)
-    threshold = critical_omega(config.scene())
+    threshold = critical_speed(config)
     return [{"seed": seed + i, **modulation(res["trace_omega"][i], res["trace_r"][i],
                                             config.control_period, threshold)}
             for i in range(episodes)]
