@@ -212,8 +212,9 @@ def coulomb_phases(rows: list[dict[str, Any]]) -> dict[str, float]:
 def coulomb_cost_ratio(rows: list[dict[str, Any]]) -> list[float]:
     """The coulomb ball's wall time per simulated second over the rolling ball's at the same
     rtol, least and most over 1e-8, 1e-10 and 1e-11."""
-    return _least_and_most(_bench_row(rows, "coulomb", "dop853", r)["us_per_sim_s"]
-                           / _bench_row(rows, "rolling", "dop853", r)["us_per_sim_s"]
+    return _least_and_most(bench_cell(rows, "us_per_sim_s", {**_ROLLING_DEFAULT, "rtol": r,
+                                                             "tier": "coulomb"},
+                                      over={**_ROLLING_DEFAULT, "rtol": r})
                            for r in (1e-8, 1e-10, 1e-11))
 
 
@@ -301,8 +302,8 @@ DERIVED: dict[str, Any] = {
     "coulomb-steps": lambda rows: {
         "switching": _bench_row(rows, "coulomb", "dop853", 1e-10)["steps"],
         "rolling": _bench_row(rows, "rolling", "dop853", 1e-10)["steps"]},
-    "coulomb-steps-ratio": lambda rows: (_bench_row(rows, "coulomb", "dop853", 1e-10)["steps"]
-                                         / _bench_row(rows, "rolling", "dop853", 1e-10)["steps"]),
+    "coulomb-steps-ratio": lambda rows: bench_cell(
+        rows, "steps", {**_ROLLING_DEFAULT, "tier": "coulomb"}, over=_ROLLING_DEFAULT),
     # saddle-bench --peers all (docs/figures/bench_results.csv): one column of one row, or a
     # ratio of two rows, as the store's args: name them
     "bench-cell": bench_cell,

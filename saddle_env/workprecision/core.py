@@ -566,19 +566,27 @@ def rounds(case: Case, comparison: dict, cache: PeerCache, n_rounds: int = 5) ->
                 fns[key] = (partial(solver.single, s0, grid, entry["setting"])
                             if form == "one_ball"
                             else partial(solver.batch, states, bgrid, entry["setting"]))
-            best = dict.fromkeys(fns, math.inf)
-            names = list(fns)
-            for i in range(n_rounds):
-                for name in names[i % len(names):] + names[: i % len(names)]:
-                    # Untimed once first: a call right after another solver's ran up to 40 %
-                    # slower (measured after diffrax and CVODE: their caches, XLA's threads),
-                    # which would charge each solver for the one before it in the round.
-                    fns[name]()
-                    t0 = time.perf_counter()
-                    fns[name]()
-                    best[name] = min(best[name], time.perf_counter() - t0)
+            best = best_of_rounds(fns, n_rounds)
             out.setdefault(form, {})[bound] = {k: v / per * 1e6 for k, v in best.items()}
     return out
+
+
+def best_of_rounds(fns: dict[str, Callable[[], object]], n_rounds: int,
+                   clock: Callable[[], float] = time.perf_counter) -> dict[str, float]:
+    """Each function's fastest call [s of ``clock``] over ``n_rounds`` rounds in which every
+    function runs in turn, in an order that rotates, so that all meet the same load on a
+    shared machine; each timed call follows an untimed one of the same function: a call
+    right after another solver's ran up to 40 % slower (measured after diffrax and CVODE:
+    their caches, XLA's threads), which would charge each for the one before it."""
+    best = dict.fromkeys(fns, math.inf)
+    names = list(fns)
+    for i in range(n_rounds):
+        for name in names[i % len(names):] + names[: i % len(names)]:
+            fns[name]()
+            t0 = clock()
+            fns[name]()
+            best[name] = min(best[name], clock() - t0)
+    return best
 
 
 def measure_jacobi(case: Case, periods: int, rtol: float = REFERENCE_RTOL) -> dict[str, object]:

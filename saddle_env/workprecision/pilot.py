@@ -7,33 +7,17 @@ benchmark's rolling ball (`core.Case`), for each tolerance of docs/accuracy.md's
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from functools import partial
 from typing import Any
 
 from ..accuracy import choose
 from ..omega import OmegaProfile
 from ..simulate import simulate
-from .core import Case
+from .core import Case, best_of_rounds
 
 # The tolerances [m] of docs/accuracy.md's table of simulate(..., tol=...)'s picks.
 PILOT_TOLS = (1e-3, 1e-4, 1e-6, 1e-7, 1e-9, 1e-10)
-
-
-def _best_of_rounds(fns: dict[str, Callable[[], object]], n_rounds: int) -> dict[str, float]:
-    """Each function's fastest call [s] over ``n_rounds`` rounds, after one untimed call each;
-    the order within a round rotates, so that both meet the same load on a shared machine."""
-    for fn in fns.values():
-        fn()
-    names = list(fns)
-    best = dict.fromkeys(names, float("inf"))
-    for k in range(n_rounds):
-        for name in names[k % len(names):] + names[:k % len(names)]:
-            t0 = time.perf_counter()
-            fns[name]()
-            best[name] = min(best[name], time.perf_counter() - t0)
-    return best
 
 
 def pilot_cost(case: Case | None = None, tols: Sequence[float] = PILOT_TOLS,
@@ -67,7 +51,7 @@ def pilot_cost(case: Case | None = None, tols: Sequence[float] = PILOT_TOLS,
         choice = pilot()
         run = partial(simulate, sc, s0, case.t_end, omega=case.omega, dt_out=case.dt_out,
                       **choice.kwargs())
-        best = _best_of_rounds({"pilot": pilot, "run": run}, n_rounds)
+        best = best_of_rounds({"pilot": pilot, "run": run}, n_rounds)
         per_tol[f"{tol:g}"] = {"picked": choice.describe(), "pilot_s": best["pilot"],
                                "run_s": best["run"], "ratio": best["pilot"] / best["run"]}
     ratios = [v["ratio"] for v in per_tol.values()]

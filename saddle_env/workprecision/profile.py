@@ -19,29 +19,15 @@ import argparse
 import json
 import math
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..jobs.files import write_text_atomically
-from .core import Case
+from .core import Case, best_of_rounds
 
 CALLS = 200_000  # right-hand-side calls per timing of the right-hand side alone
-
-
-def _best(fns: dict[str, Callable[[], object]], rounds: int) -> dict[str, float]:
-    """Each function's best CPU time over ``rounds`` rounds, called in turn, each call
-    after one untimed call (so that no function pays for the one before it)."""
-    best = dict.fromkeys(fns, math.inf)
-    for _ in range(rounds):
-        for name, fn in fns.items():
-            fn()
-            t0 = time.process_time()
-            fn()
-            best[name] = min(best[name], time.process_time() - t0)
-    return best
 
 
 def _our_rhs_loop():
@@ -126,7 +112,7 @@ def profile(rtol: float = 1e-10, rounds: int = 7) -> dict:
     }
     for fn in fns.values():  # compile
         fn()
-    t = _best(fns, rounds)
+    t = best_of_rounds(fns, rounds, clock=time.process_time)
     out: dict = {"rtol": rtol, "rounds": rounds, "t_end_s": case.t_end, "clock": "cpu"}
     for who, evals in (("ours", float(ours.stats.rhs_evaluations)), ("peer", peer_evals)):
         total = t[who] / case.t_end * 1e6                      # µs per simulated second
