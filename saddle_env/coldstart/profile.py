@@ -33,7 +33,9 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import os
+import platform
 import subprocess
 import sys
 import time
@@ -373,9 +375,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.isolated:
         rows = _isolated(names)
         if args.out:
-            import json
-            import platform
-
             Path(args.out).parent.mkdir(parents=True, exist_ok=True)
             Path(args.out).write_text(json.dumps(
                 {"aot": args.aot,

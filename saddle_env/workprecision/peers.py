@@ -32,7 +32,6 @@ import importlib.util
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -340,9 +339,8 @@ class Diffrax(Solver):
 
     def __init__(self, scene: Scene, omega: float, method: str) -> None:
         super().__init__(scene, omega)
-        import diffrax  # first: a missing diffrax leaves JAX's settings alone
+        import diffrax  # noqa: F401  first: a missing diffrax leaves JAX's settings alone
         import jax
-        import jax.numpy as jnp
 
         if method not in ("Dopri8", "Tsit5"):
             raise ValueError(f"method must be Dopri8 or Tsit5, got {method!r}")
@@ -350,10 +348,14 @@ class Diffrax(Solver):
         # process's other JAX code (SBX's float32 networks, say) keeps its setting
         self._x64 = jax.enable_x64
         with self._x64(True):
-            self._build(diffrax, jax, jnp, method)
+            self._build(method)
 
-    def _build(self, diffrax: Any, jax: Any, jnp: Any, method: str) -> None:
+    def _build(self, method: str) -> None:
         """The jitted solves, built under float64."""
+        import diffrax
+        import jax
+        import jax.numpy as jnp
+
         f = jax_rhs(self.rolling)
         scale = jnp.asarray(self.scale)
         args = tuple(jnp.float64(v) for v in self.args)
