@@ -19,8 +19,10 @@ A page asks for a generated section with an HTML comment on a line of its own:
 * ``<!-- generated: public-api -->``: every name of ``saddle_env.__all__``: its kind
   (function, class, constant), its docstring's first line or its value, and for a function
   or class a link to its entry below on the API page.
-* ``<!-- generated: lifetimes-calibration -->`` and ``lifetimes-validation``: the real-saddle
-  calibration and its held-out check, from the files the calibration ships.
+* ``<!-- generated: lifetimes-calibration -->``, ``lifetimes-validation``,
+  ``lifetimes-sizes`` and ``lifetimes-onset-budget``: the real-saddle calibration, its
+  held-out check, its size hold-out and its onset budget, from the files the calibration
+  ships.
 * ``<!-- generated: bench-rolling -->`` and ``bench-targets``: the work-precision benchmark's
   table of settings and of targets, from its shipped run (``docs/figures/bench_results.csv``,
   ``bench_summary.json``; ``saddle_env.workprecision.tables``).
@@ -462,7 +464,8 @@ def generate(what: str, arg: str | None, page_dir: str = "") -> str:
         return public_api_markdown()
     if what == "level-summary":
         return level_summary_markdown(arg)
-    if what in ("lifetimes-calibration", "lifetimes-validation"):
+    if what in ("lifetimes-calibration", "lifetimes-validation", "lifetimes-sizes",
+                "lifetimes-onset-budget"):
         return lifetimes_markdown(what)
     if what in ("bench-rolling", "bench-targets"):
         return bench_markdown(what)
@@ -480,6 +483,10 @@ def lifetimes_markdown(what: str) -> str:
     if what == "lifetimes-calibration":
         record = json.loads((ROOT / "saddle_env" / "lifetimes" / "calibration.json").read_text())
         return report.calibration_markdown(record)
+    if what in ("lifetimes-sizes", "lifetimes-onset-budget"):
+        sizes = json.loads((ROOT / "docs" / "figures" / "lifetimes_sizes.json").read_text())
+        return (report.size_holdout_markdown(sizes) if what == "lifetimes-sizes"
+                else report.onset_budget_markdown(sizes))
     rows = json.loads((ROOT / "docs" / "figures" / "lifetimes_validation.json").read_text())
     coverage = json.loads((ROOT / "docs" / "figures" / "lifetimes_coverage.json").read_text())
     return report.validation_markdown(rows, coverage)

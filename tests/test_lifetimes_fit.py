@@ -20,7 +20,15 @@ import pytest
 
 from saddle_env.lifetimes import grid as G
 from saddle_env.lifetimes.data import Series
-from saddle_env.lifetimes.fit import PRIORS, Fitter, bootstrap, calibration_record, validate
+from saddle_env.lifetimes.fit import (
+    PRIORS,
+    Fitter,
+    bootstrap,
+    calibration_record,
+    choice_dict,
+    choice_of,
+    validate,
+)
 from saddle_env.lifetimes.fit import main as fit_main
 from saddle_env.lifetimes.model import LabModel, lifetimes_of, load_calibration
 
@@ -243,22 +251,11 @@ def test_one_held_out_row_of_the_shipped_validation_is_remade_bit_for_bit():
 
     from saddle_env.lifetimes.data import load_lab_series
     from saddle_env.lifetimes.fit import validation_row
-    from saddle_env.lifetimes.model import release_times
 
     _, record = load_calibration()
     releases, seed = record["releases_per_speed"], record["seed"]
     series = load_lab_series()
-    cache: dict = {}
-
-    def escapes(i, point):
-        if (i, point) not in cache:
-            s = series[i]
-            cache[(i, point)] = release_times(G.point_model(s.obj, point), s.c_plus,
-                                              s.c_minus, s.obj, s.diameter_mm, s.rps,
-                                              releases, seed)
-        return cache[(i, point)]
-
-    fitter = Fitter(series, escapes, seed)
+    fitter = Fitter(series, G.OnDemand(series, releases, seed), seed)
     i = next(k for k, s in enumerate(series) if s.name == "2021-02-02 P4 steel 19 mm")
     row = validation_row(fitter, i, "rigid ball")
     shipped = json.loads((Path(__file__).resolve().parents[1] / "docs" / "figures"
@@ -297,3 +294,93 @@ def test_the_calibration_table_says_which_intervals_a_prior_clips():
     # a tilt inside the grid is not said to be clipped
     inside = dict(record, model=dict(record["model"], tilt=0.002))
     assert "clipped" not in calibration_markdown(inside).splitlines()[2]
+
+
+def _with_lives(s: Series, lives) -> Series:
+    return Series(s.date, s.saddle, s.c_plus, s.c_minus, s.obj, s.diameter_mm, s.rps,
+                  tuple(lives))
+
+
+def test_the_model_error_is_what_the_residuals_call_for(lab):
+    from saddle_env.lifetimes.fit import model_error
+
+    fitter = fitter_of(lab)
+    best = fitter.fit([0, 1, 2])
+    base = model_error(fitter, [0, 1, 2], best)
+    # a planted model error: every speed's lives scaled by a factor exp(0.4 z), z standard
+    # normal, which the synthetic model does not have; the estimate finds it again
+    rng = np.random.default_rng(11)
+    noisy = [_with_lives(s, (t * math.exp(0.4 * rng.standard_normal()) for t in s.lifetimes))
+             for s in lab]
+    fitter = fitter_of(noisy)
+    found = model_error(fitter, [0, 1, 2], fitter.fit([0, 1, 2]))
+    # what the residuals held before (the synthetic curves' own scatter about the lab's) and
+    # the planted error add in quadrature
+    assert base < found and math.isclose(math.sqrt(found ** 2 - base ** 2), 0.4, rel_tol=0.2), \
+        (base, found)
+
+
+def test_held_out_intervals_come_from_the_other_series_only(lab):
+    rows = validate(fitter_of(lab), draws=4, seed=3)
+    changed = list(lab)
+    changed[0] = _with_lives(lab[0], (10 * t for t in lab[0].lifetimes))
+    again = validate(fitter_of(changed), draws=4, seed=3)
+    mine = [(a, b) for a, b in zip(rows, again)
+            if a["series"] == lab[0].name and a["variant"] == "calibrated"]
+    assert len(mine) == 1
+    a, b = mine[0]
+    # its bootstrap fits are the other series' business alone
+    assert len(a["held_out_models"]) == 4
+    assert a["held_out_models"] == b["held_out_models"]
+    # and the rows it was part of saw the change
+    others = [(x["held_out_models"], y["held_out_models"]) for x, y in zip(rows, again)
+              if x["series"] != lab[0].name and x["variant"] == "calibrated"]
+    assert any(x != y for x, y in others)
+    # restricted variants keep no bootstrap of their own
+    assert all("held_out_models" not in r for r in rows if r["variant"] != "calibrated")
+    # a row's model is its Choice again (the model error's way in from a validation file)
+    for r in rows:
+        back = choice_of(r["fitted_on_others"], TINY)
+        assert choice_dict(back) == r["fitted_on_others"]
+        assert back.point("steel") in TINY.points("steel")
+
+
+def test_a_whole_ball_size_is_held_out_of_its_own_fit(lab):
+    from saddle_env.lifetimes.sizes import size_holdout
+
+    small = Series("2000-01-01", "A", 2.0, 2.0, "steel", 6.3, lab[0].rps, lab[0].lifetimes)
+    series = [lab[0], lab[1], lab[2], small]
+    rows = size_holdout(fitter_of(series))
+    sizes = {r["held_out_size_mm"] for r in rows}
+    assert sizes == {6.3, 19.0}
+    for r in rows:
+        held = [s.name for s in series if s.obj == "steel" and s.diameter_mm == r["held_out_size_mm"]]
+        assert r["series"] in held and not set(held) & set(r["fitted_on"])
+        assert math.isfinite(r["onset_rps"]) and r["median_abs_log_ratio"] >= 0
+    # the 19 mm rows: two series, two variants
+    assert sum(r["held_out_size_mm"] == 19.0 for r in rows) == 4
+    # the small ball's data cannot move the fit that predicts it
+    twice = _with_lives(small, (10 * t for t in small.lifetimes))
+    again = size_holdout(fitter_of([lab[0], lab[1], lab[2], twice]))
+    for a, b in zip(rows, again):
+        if a["held_out_size_mm"] == 6.3:
+            assert a["fitted"] == b["fitted"] and a["onset_rps"] == b["onset_rps"]
+
+
+def test_the_onset_budget_takes_one_effect_away_at_a_time(lab):
+    from saddle_env.lifetimes.sizes import critical_rps, onset_budget, spin_threshold
+
+    fitter = fitter_of(lab)
+    best = fitter.fit([0, 1, 2])
+    rows = onset_budget(fitter, best)
+    assert [r["series"] for r in rows] == [lab[0].name, lab[1].name]  # the steel series
+    for r in rows:
+        # the synthetic onset rises 20 % per rad of tilt: without the tilt it comes earlier
+        assert r["model_onset_without_pct"]["tilt"] < r["model_onset_pct"]
+        # effects already off in the fit are not listed
+        assert "rolling drag" not in r["model_onset_without_pct"]
+    # linear theory: a ball at rest in the laboratory spins at -Ω and needs a little more
+    # speed, more so the bigger it is
+    big = spin_threshold(2.67, 2.51, 19.0) / critical_rps(2.67, 2.51, 19.0) - 1
+    small = spin_threshold(2.67, 2.51, 6.3) / critical_rps(2.67, 2.51, 6.3) - 1
+    assert 0.005 < big < 0.02 and 0 < small < big

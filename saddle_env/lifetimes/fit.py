@@ -47,7 +47,14 @@ from ..linear import critical_omega, mass_point_band
 from ..scene import Scene
 from . import grid as G
 from .data import Series, cutoff, load_lab_series, median_log_error, onset
-from .model import CALIBRATION_FILE, MAX_RELEASES, STEEL_ALPHA, LabModel, lifetimes_of
+from .model import (
+    CALIBRATION_FILE,
+    MAX_RELEASES,
+    STEEL_ALPHA,
+    LabModel,
+    lifetimes_of,
+    load_calibration,
+)
 
 # Bounds the grid holds on purpose: a fitted value or an interval at one of them is clipped
 # by what is known of the rig, not by a grid too small. Each names its parameter (as
@@ -66,6 +73,7 @@ PRIORS: dict[str, dict[str, Any]] = {
         "that bound (a broader, skewed evaporation law would be the way past it)")},
 }
 MODEL_ERROR = 0.1  # the model's own error in ln(lifetime), added to the standard errors
+HELD_OUT_DRAWS = 40  # bootstrap fits per held-out series (`validate`)
 COMMAND = "python -m saddle_env.lifetimes.fit --out runs/lifetimes --ship"
 
 # The restricted models of the validation table: which grid values each may use.
@@ -251,32 +259,107 @@ def theory_threshold(s: Series, g: float = 9.81) -> float:
     return math.nan if band is None else band[0] / (2 * math.pi)
 
 
-def bootstrap(fitter: Fitter, draws: int, seed: int) -> list[Choice]:
-    """The fit repeated on ``draws`` resamplings of the lab's releases."""
+def bootstrap(fitter: Fitter, draws: int, seed: int, use: list[int] | None = None,
+              progress: bool = True) -> list[Choice]:
+    """The fit over the series ``use`` (default all) repeated on ``draws`` resamplings of
+    their lab releases."""
     rng = np.random.default_rng(seed)
-    everything = list(range(len(fitter.series)))
+    use = list(range(len(fitter.series))) if use is None else list(use)
     out = []
     for k in range(draws):
-        measured = {i: s.resampled(rng) for i, s in enumerate(fitter.series)}
-        out.append(fitter.fit(everything, measured=measured))
-        if (k + 1) % 20 == 0:
+        measured = {i: fitter.series[i].resampled(rng) for i in use}
+        out.append(fitter.fit(use, measured=measured))
+        if progress and (k + 1) % 20 == 0:
             print(f"bootstrap: {k + 1}/{draws}", flush=True)
     return out
 
 
-def validate(fitter: Fitter) -> list[dict[str, object]]:
-    """Leave-one-series-out rows: every series under every variant."""
-    return [validation_row(fitter, i, name) for i in range(len(fitter.series))
-            for name in VARIANTS]
+def free_parameters(fitter: Fitter, use: list[int]) -> int:
+    """How many parameters a fit over the series ``use`` chooses: the four shared ones, the
+    steel ball's two if a steel series is among them, a droplet's three if a droplet is."""
+    objects = {fitter.series[i].obj for i in use}
+    return 4 + 2 * ("steel" in objects) + 3 * ("ln2" in objects)
 
 
-def validation_row(fitter: Fitter, i: int, variant: str) -> dict[str, object]:
+def _residuals(fitter: Fitter, use: list[int], choice: Choice
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Over the series ``use`` and their speeds, under ``choice``: ln predicted − ln
+    measured, the squared standard error of the lab's log mean and of the model's."""
+    r, var_lab, var_sim = [], [], []
+    for i in use:
+        s = fitter.series[i]
+        log_p, v_sim = fitter.log_curve(i, choice.point(s.obj),
+                                        (choice.evaporation_mean, choice.evaporation_fraction))
+        log_m, v_lab = lab_terms(s)
+        r.append(log_p - log_m)
+        var_lab.append(v_lab)
+        var_sim.append(v_sim)
+    return np.concatenate(r), np.concatenate(var_lab), np.concatenate(var_sim)
+
+
+def objective_of(fitter: Fitter, use: list[int], choice: Choice) -> float:
+    """The fit's objective of ``choice`` over the series ``use`` (`objective_share`'s sum, in
+    another order of addition)."""
+    r, var_lab, var_sim = _residuals(fitter, use, choice)
+    return float(np.sum(r * r / (var_lab + var_sim + MODEL_ERROR ** 2)))
+
+
+def model_error(fitter: Fitter, use: list[int], choice: Choice) -> float:
+    """The model's own error in ln(lifetime) that ``choice``'s residuals on the series ``use``
+    call for: the s >= 0 at which Σ r² / (σ_lab² + σ_sim² + s²) equals the number of speeds
+    less the fitted parameters (a reduced χ² of one), 0 when the standard errors alone
+    explain the residuals.
+
+    The objective's 0.1 (`MODEL_ERROR`) is a weight chosen beforehand; this is what the
+    data say. A prediction's interval (`model.predict_lifetimes`' ``mean_s_95``) carries it,
+    and the held-out check estimates it from the training series only."""
+    r, var_lab, var_sim = _residuals(fitter, use, choice)
+    res, v = r * r, var_lab + var_sim
+    dof = res.size - free_parameters(fitter, use)
+
+    def excess(s: float) -> float:
+        return float(np.sum(res / (v + s * s))) - dof
+
+    if dof <= 0 or excess(0.0) <= 0.0:
+        return 0.0
+    lo, hi = 0.0, 1.0
+    while excess(hi) > 0.0:
+        lo, hi = hi, 2.0 * hi
+    for _ in range(60):  # bisection: the sum falls as s grows
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if excess(mid) > 0.0 else (lo, mid)
+    return hi
+
+
+def validate(fitter: Fitter, draws: int = 0, seed: int = 1,
+             progress: bool = False) -> list[dict[str, object]]:
+    """Leave-one-series-out rows: every series under every variant; the calibrated rows
+    with ``draws`` bootstrap fits of their own (on the other series' releases only)."""
+    rows = []
+    for i in range(len(fitter.series)):
+        for name in VARIANTS:
+            rows.append(validation_row(fitter, i, name,
+                                       draws if name == "calibrated" else 0, seed))
+        if progress:
+            print(f"held out: {i + 1}/{len(fitter.series)} series", flush=True)
+    return rows
+
+
+def validation_row(fitter: Fitter, i: int, variant: str, draws: int = 0,
+                   seed: int = 1) -> dict[str, object]:
     """Series ``i`` predicted by the model ``variant`` fitted on every other series: the fit
-    never sees series ``i``'s lifetimes (only `predicted` and the row's comparison do)."""
+    never sees series ``i``'s lifetimes (only `predicted` and the row's comparison do). With
+    ``draws``, the row keeps that many bootstrap fits on the other series
+    (``held_out_models``) for the held-out interval (`coverage`, which also estimates the
+    model's own error from the other series' residuals)."""
     s = fitter.series[i]
     others = [j for j in range(len(fitter.series)) if j != i]
     choice = fitter.fit(others, VARIANTS[variant])
     pred = fitter.predicted(i, choice)
+    extra: dict[str, object] = {}
+    if draws:
+        extra["held_out_models"] = [choice_dict(c) for c in
+                                    bootstrap(fitter, draws, seed + i, others, progress=False)]
     return {
         "series": s.name, "variant": variant, "lab_onset_rps": onset(s.rps, s.mean),
         "theory_threshold_rps": theory_threshold(s),
@@ -287,11 +370,29 @@ def validation_row(fitter: Fitter, i: int, variant: str) -> dict[str, object]:
         "predicted_s": [float(v) for v in pred],
         "rps": [float(v) for v in s.rps], "lab_mean_s": [float(v) for v in s.mean],
         "lab_std_s": [float(v) for v in s.std],
-        "fitted_on_others": _choice_dict(choice),
+        "fitted_on_others": choice_dict(choice),
+        **extra,
     }
 
 
-def _choice_dict(c: Choice) -> dict[str, float | None]:
+def choice_of(params: dict[str, Any], grid: G.Grid = G.DEFAULT) -> Choice:
+    """The `Choice` whose `choice_dict` is ``params`` (a validation row's or calibration.json's
+    model), its evaporation spread back as the grid's fraction of the mean."""
+    mean = math.inf if params["evaporation_mean"] is None else float(params["evaporation_mean"])
+    fraction = 0.0
+    if math.isfinite(mean):
+        spread = float(params["evaporation_spread"] or 0.0)
+        fraction = min(grid.evaporation_spreads, key=lambda f: abs(f * mean - spread))
+    own = {n: float(params[n]) for n in ("tilt", "launch_spread", "launch_speed_spread",
+                                         "speed_spread", "rolling_resistance", "rolling_drag",
+                                         "film_drag")}
+    return Choice(**own, evaporation_mean=mean, evaporation_fraction=fraction,
+                  objective=math.nan)
+
+
+def choice_dict(c: Choice) -> dict[str, float | None]:
+    """``c``'s model parameters as calibration.json's "model" holds them (an endless
+    evaporation as None)."""
     m = c.model().as_dict()
     return {k: (None if isinstance(v, float) and math.isinf(v) else v) for k, v in m.items()}
 
@@ -314,9 +415,12 @@ def calibration_record(fitter: Fitter, best: Choice, draws: list[Choice], releas
             [c.evaporation_fraction * c.evaporation_mean for c in draws
              if math.isfinite(c.evaporation_mean)] or [math.nan])
     return {
-        "model": _choice_dict(best),
+        "model": choice_dict(best),
         "intervals_95": intervals,
         "objective": best.objective,
+        # what the residuals say of the model's own error (`model_error`), for the
+        # predictions' intervals
+        "model_error_ln": model_error(fitter, list(range(len(fitter.series))), best),
         "objective_definition": ("sum over series and speeds of (ln predicted - ln measured)^2 "
                                  "/ (se_lab^2 + se_sim^2 + 0.1^2); se = standard error of the "
                                  "log of a mean lifetime"),
@@ -324,7 +428,7 @@ def calibration_record(fitter: Fitter, best: Choice, draws: list[Choice], releas
         "releases_per_speed": releases, "seed": seed, "bootstrap_draws": len(draws),
         # each draw's fitted parameters, so a prediction can carry the calibration's
         # uncertainty (`model.predict_lifetimes`'s mean_s_95) without refitting
-        "bootstrap_models": [_choice_dict(c) for c in draws],
+        "bootstrap_models": [choice_dict(c) for c in draws],
         "grid": _grid_record(fitter.grid),
         "priors": PRIORS,
         "command": COMMAND, "date": date.today().isoformat(),
@@ -365,6 +469,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0, help="seed of the simulated releases")
     p.add_argument("--bootstrap", type=int, default=200,
                    help="bootstrap draws for the intervals (0: none)")
+    p.add_argument("--held-out-draws", type=int, default=HELD_OUT_DRAWS,
+                   help="bootstrap draws of each held-out fit, for the held-out intervals "
+                        "(0: none)")
+    p.add_argument("--model-error-only", action="store_true",
+                   help="no fit: estimate the shipped calibration's model error again from its "
+                        "own curves (simulated, 8 curves) and write calibration.json with it")
     p.add_argument("--ship", action="store_true",
                    help="copy calibration.json into the package (what saddle-lifetimes uses)")
     p.add_argument("--no-progress", action="store_true", help="print no progress lines")
@@ -372,8 +482,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if not 2 <= args.releases <= MAX_RELEASES:
         p.error(f"--releases must lie in [2, {MAX_RELEASES}] (a spread needs two), got "
                 f"{args.releases}")
-    if args.bootstrap < 0:
-        p.error(f"--bootstrap must be >= 0, got {args.bootstrap}")
+    for name in ("bootstrap", "held_out_draws"):
+        if getattr(args, name) < 0:
+            p.error(f"--{name.replace('_', '-')} must be >= 0, got {getattr(args, name)}")
     if args.seed < 0:
         p.error(f"--seed must be >= 0, got {args.seed}")
     return args
@@ -391,6 +502,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.model_error_only:
+        return _refresh_model_error(args)
     series = load_lab_series()
     table = G.simulate_grid(series, args.out, releases=args.releases, seed=args.seed,
                             progress=not args.no_progress)
@@ -402,7 +515,7 @@ def _run(args: argparse.Namespace) -> int:
     calibrated = {s.name: [float(v) for v in fitter.predicted(i, best)]
                   for i, s in enumerate(series)}
     write_text_atomically(args.out / "calibrated.json", json.dumps(calibrated, indent=1) + "\n")
-    rows = validate(fitter)
+    rows = validate(fitter, args.held_out_draws, args.seed + 2, progress=not args.no_progress)
     write_validation(rows, args.out)
     from .figure import plot_validation  # matplotlib only when the figure is made
     plot_validation(series, rows, args.out / "lifetimes.png")
@@ -411,6 +524,39 @@ def _run(args: argparse.Namespace) -> int:
     print(json.dumps(record["model"], indent=1))
     print(f"wrote {args.out}/calibration.json, calibrated.json, validation.json, "
           "validation.csv, lifetimes.png")
+    return 0
+
+
+def with_model_error(record: dict[str, Any], series: list[Series]) -> dict[str, Any]:
+    """The calibration ``record`` with its model error (`model_error`) estimated from its own
+    curves, simulated afresh (a curve per series: no grid, no refit).
+
+    Raises
+    ------
+    RuntimeError
+        If those curves do not give the record's objective: they would not be the curves it
+        was fitted on.
+    """
+    releases, seed = int(record["releases_per_speed"]), int(record["seed"])
+    fitter = Fitter(series, G.OnDemand(series, releases, seed), seed)
+    everything = list(range(len(series)))
+    choice = choice_of(record["model"])
+    objective = objective_of(fitter, everything, choice)
+    if not math.isclose(objective, record["objective"], rel_tol=1e-9):
+        raise RuntimeError(f"the calibration's own curves give the objective {objective!r}, "
+                           f"not its {record['objective']!r}: the lab file, the grid or the "
+                           "physics changed since it was fitted; refit it")
+    return dict(record, model_error_ln=model_error(fitter, everything, choice))
+
+
+def _refresh_model_error(args: argparse.Namespace) -> int:
+    record = with_model_error(load_calibration()[1], load_lab_series())
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_text_atomically(args.out / CALIBRATION_FILE, json.dumps(record, indent=1) + "\n")
+    if args.ship:
+        shutil.copyfile(args.out / CALIBRATION_FILE, Path(__file__).parent / CALIBRATION_FILE)
+    print(f"model error {record['model_error_ln']:.3f} in ln(lifetime); wrote "
+          f"{args.out}/{CALIBRATION_FILE}" + (" and the package's" if args.ship else ""))
     return 0
 
 

@@ -205,3 +205,37 @@ def escapes_of(table: dict[str, np.ndarray], series: Series, point: Point, *, re
                seed: int) -> np.ndarray:
     """``series``' simulated escape times at grid ``point`` (`simulate_grid`'s table)."""
     return table[curve_key(series, point, releases, seed)]
+
+
+class OnDemand:
+    """Escape times read from a `simulate_grid` table where it has them, else simulated when
+    first asked for and kept in memory: ``escapes(i, point)`` as `fit.Fitter` takes it, for
+    checks that need some of the grid's curves, not all 60,000 (a curve simulated here is
+    the one `simulate_grid` would store: the same releases and seed)."""
+
+    def __init__(self, series: list[Series], releases: int, seed: int,
+                 table: dict[str, np.ndarray] | None = None):
+        self.series, self.releases, self.seed = series, releases, seed
+        self.table = table or {}
+        self.curves: dict[tuple[int, Point], np.ndarray] = {}
+
+    def __call__(self, i: int, point: Point) -> np.ndarray:
+        """Series ``i``'s escape times at grid ``point``, speeds × releases."""
+        if (i, point) not in self.curves:
+            s = self.series[i]
+            stored = self.table.get(curve_key(s, point, self.releases, self.seed))
+            self.curves[(i, point)] = stored if stored is not None else release_times(
+                point_model(s.obj, point), s.c_plus, s.c_minus, s.obj, s.diameter_mm, s.rps,
+                self.releases, self.seed)
+        return self.curves[(i, point)]
+
+
+def stored_curves(out: Path) -> dict[str, np.ndarray]:
+    """The curves ``out/escapes.npz`` holds (none if there is no such file), read without
+    pickle; `simulate_grid` checks a file's settings before it adds to it, `OnDemand` finds
+    curves by their keys, which hold the settings."""
+    path = Path(out) / "escapes.npz"
+    if not path.exists():
+        return {}
+    with np.load(path, allow_pickle=False) as f:
+        return {k: f[k] for k in f.files if k != "meta"}

@@ -154,7 +154,8 @@ class LifetimePrediction:
         The model's parameters, as ``--json`` prints them.
     mean_s_95 : numpy.ndarray
         Per speed, a 95 % interval for the mean trapping time [s], shape (speeds, 2): the
-        simulated releases' sampling error combined with the calibration's uncertainty
+        simulated releases' sampling error combined with the calibration's uncertainty and,
+        with the shipped calibration, the model's own error that its residuals call for
         (`mean_interval`); ``model["mean_s_95_covers"]`` says what it covers.
     """
 
@@ -292,7 +293,7 @@ def lifetimes_of(model: LabModel, obj: str, escapes: np.ndarray, seed: int) -> n
     return escapes
 
 
-def load_calibration() -> tuple[LabModel, dict[str, object]]:
+def load_calibration() -> tuple[LabModel, dict[str, Any]]:
     """The shipped calibration (`saddle_env.lifetimes.fit` writes it).
 
     Returns
@@ -338,7 +339,8 @@ def predict_lifetimes(c_plus: float, c_minus: float, object: str,  # noqa: A002
         The imperfections; by default the project's calibration (`load_calibration`).
     calibration_models : int
         Models of the calibration's uncertainty simulated for ``mean_s_95`` (`spread_models`;
-        0: the releases' sampling error only). A ``model`` given carries no calibration
+        the model's own error the calibration found is added with them; 0: the releases'
+        sampling error only). A ``model`` given carries no calibration
         uncertainty, so then none is simulated.
 
     Returns
@@ -355,6 +357,7 @@ def predict_lifetimes(c_plus: float, c_minus: float, object: str,  # noqa: A002
             or not 0 <= calibration_models <= 64:
         raise ValueError("calibration_models must be a whole number in [0, 64], got "
                          f"{calibration_models!r}")
+    calibration: dict[str, Any]
     if model is None:
         base, calibration = load_calibration()
     else:
@@ -367,6 +370,10 @@ def predict_lifetimes(c_plus: float, c_minus: float, object: str,  # noqa: A002
     others = [m if tilt is None else m.with_(tilt=base.tilt)
               for m in spread_models(calibration, base, calibration_models, int(seed))]
     curves = [life] + [_lifetimes(m, cp, cm, obj, d, speeds, n, int(seed)) for m in others]
+    # The model's own error, as the calibration's residuals put it: part of the calibration's
+    # uncertainty (none with calibration_models=0, a calibration of before that estimate, or
+    # a model of the user's own).
+    error = float(calibration.get("model_error_ln") or 0.0) if others else 0.0
     record: dict[str, Any] = {
         **{k: (None if isinstance(v, float) and math.isinf(v) else v)
            for k, v in base.as_dict().items()},
@@ -374,12 +381,23 @@ def predict_lifetimes(c_plus: float, c_minus: float, object: str,  # noqa: A002
         "seed": int(seed), "alpha": STEEL_ALPHA if obj == "steel" else None,
         "contact": "rolling" if obj == "steel" else "point",
         "release": "at rest in the laboratory, not spinning, at a random turn of the saddle",
-        "mean_s_95_covers": (f"the releases' sampling error and the calibration's uncertainty "
-                      f"({len(others)} models {calibration_source(calibration)})" if others
-                      else "the releases' sampling error only"),
+        "mean_s_95_covers": _covers(len(others), calibration, error),
     }
     return LifetimePrediction(speeds, life.mean(axis=1), life.std(axis=1, ddof=1), life, record,
-                              mean_interval(curves))
+                              mean_interval(curves, extra_var=np.full(len(speeds), error ** 2)))
+
+
+def _covers(models: int, calibration: dict[str, Any], error: float) -> str:
+    """What ``mean_s_95`` covers, in words."""
+    parts = ["the releases' sampling error"]
+    if models:
+        parts.append(f"the calibration's uncertainty ({models} models "
+                     f"{calibration_source(calibration)})")
+    if error:
+        parts.append(f"the model's own error ({error:.2f} in ln, from the calibration's "
+                     "residuals)")
+    return ", ".join(parts[:-1]) + " and " + parts[-1] if len(parts) > 1 \
+        else parts[0] + " only"
 
 
 def _lifetimes(model: LabModel, cp: float, cm: float, obj: str, d: float | None,

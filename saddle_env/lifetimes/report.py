@@ -100,6 +100,39 @@ def _inside(band: dict | None, variant: str) -> str:
     return f"{sum(band['inside'])}/{len(band['inside'])} ({100 * band['coverage']:.0f} %)"
 
 
+def size_holdout_markdown(result: dict) -> str:
+    """From ``lifetimes_sizes.json`` (`sizes`): each steel ball size predicted by models
+    fitted without it."""
+    lines = ["| held out | series | model | onset, lab | onset, predicted (gap) "
+             "| median \\|ln(pred/meas)\\| | longest mean, lab | longest mean, predicted |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in result["size_holdout"]:
+        lab_on, on = r["lab_onset_rps"], r["onset_rps"]
+        gap = f" ({100 * (on / lab_on - 1):+.1f} %)" if math.isfinite(on) else ""
+        lines.append(f"| {r['held_out_size_mm']:g} mm | {r['series']} "
+                     f"| {VARIANT_NAMES[r['variant']]} | {_num(lab_on)} | {_num(on)}{gap} "
+                     f"| {r['median_abs_log_ratio']:.2f} | {r['lab_longest_s']:.1f} s "
+                     f"| {r['longest_s']:.1f} s |")
+    return "\n".join(lines)
+
+
+def onset_budget_markdown(result: dict) -> str:
+    """From ``lifetimes_sizes.json``: each steel series' onset above Ω_crt in linear theory
+    with the release's spin, in the lab, under the calibrated model and with one of its
+    effects off."""
+    budget = result["onset_budget"]
+    effects = list(dict.fromkeys(e for r in budget for e in r["model_onset_without_pct"]))
+    lines = ["| series | linear theory, released spin | lab | calibrated model | "
+             + " | ".join(f"model without {e}" for e in effects) + " |",
+             "|---|---|---|---|" + "---|" * len(effects)]
+    for r in budget:
+        off = r["model_onset_without_pct"]
+        cells = " | ".join(f"{off[e]:+.1f} %" if e in off else "—" for e in effects)
+        lines.append(f"| {r['series']} | {r['spin_threshold_pct']:+.1f} % "
+                     f"| {r['lab_onset_pct']:+.1f} % | {r['model_onset_pct']:+.1f} % | {cells} |")
+    return "\n".join(lines)
+
+
 def summary(rows: list[dict]) -> dict[str, object]:
     """The held-out check's figures over every series, as the README and the page quote them:
     the worst onset error of the calibrated model (all series, then steel and droplets
