@@ -23,7 +23,7 @@ from collections import namedtuple
 import numpy as np
 
 from .compilation.jit import jit
-from .integrators import ERR_EMBEDDED, EVENT_DETACH, EVENT_ESCAPE, step_factor
+from .integrators import ERR_EMBEDDED, EVENT_DETACH, EVENT_ESCAPE, MAX_FACTOR, step_factor
 from .kernels import (
     DRIVE_AMP,
     DRIVE_DECAY,
@@ -298,6 +298,12 @@ def accepted(q, model, d, adaptive, events, ws):
 
 @jit
 def next_step(q, h, h_hint, err_order, max_step, ws):
-    """The step-size hint `integrate_h` leaves after accepting lane q's (clipped) step."""
+    """The step-size hint `integrate_h` leaves after accepting lane q's (clipped) step
+    (``h_hint`` ≤ ``max_step``: the step it started from)."""
     P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3 = ws
+    if min(h * MAX_FACTOR, max_step) <= h_hint:
+        # The hint wins whatever the error: `step_factor` is at most MAX_FACTOR, so the
+        # grown step is at most h·MAX_FACTOR ≤ h_hint, or the hint is max_step already.
+        # Most steps land here (the hint sits at max_step), and skip the factor's pow.
+        return h_hint
     return min(max(h * step_factor(Err[q], -1.0 / (err_order + 1.0)), h_hint), max_step)
