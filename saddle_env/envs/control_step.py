@@ -357,23 +357,32 @@ def _first_step(ball, ctl):
 # scales, state, ball columns, noise, observation (float64, stored as float32) and outputs.
 REC_WIDTH = PARAM_WIDTH + 2 * STATE_WIDTH + BALL_WIDTH + 2 * OBS_MAX + OUT_WIDTH
 
-# A block's lanes as `_finish_lanes` books them, a column per lane: which lanes' steps were
-# accepted (1.0) and are booked there; what the pass over their balls read for the pass over
-# the lanes (rows S_*: the action, the weight, the sensors' Ω, cos θ, sin θ, the commanded
-# Ω, then the noise of `_columns`' seven noisy columns); what that pass made (the
-# observation's columns in `_columns`' order, the reward, N/mg).
-LaneBook = namedtuple("LaneBook", "ok sensed cols reward normal")
-S_ACTION, S_WEIGHT, S_OMEGA, S_COS, S_SIN, S_COMMAND, S_NOISE = range(7)
-SENSED_WIDTH = S_NOISE + 7
-COLUMNS = 8  # `_columns`' columns
-BOOK_WIDTH = (3 + SENSED_WIDTH + COLUMNS) * LANES
+# A block's lanes as `_finish_lanes` books them: which lanes' steps were accepted (1.0, a
+# row of LANES) and, in a flat book of LANE_ROWS rows of LANES (lane q of row r at `_at`),
+# what the pass over their balls reads for the pass over the lanes (the action, the weight,
+# the sensors' Ω, cos θ, sin θ, the commanded Ω, then from L_NOISE the noise of `_columns`'
+# seven noisy columns) and what that pass makes (from L_COLUMNS the observation's columns
+# in `_columns`' order, the reward, N/mg).
+L_ACTION, L_WEIGHT, L_OMEGA, L_COS, L_SIN, L_COMMAND, L_NOISE = range(7)
+L_COLUMNS = L_NOISE + 7
+L_REWARD = L_COLUMNS + 8
+L_NORMAL = L_REWARD + 1
+LANE_ROWS = L_NORMAL + 1
+
+
+@inline
+def _at(row, q):
+    """Where lane q of ``row`` sits in the flat lane book. Flat, so that the compiler sees
+    the rows' distances (of a 2-D view's row length it knows nothing: it would have to
+    check every pair of rows for overlap at run time, and gave up vectorising)."""
+    return row * LANES + q
 
 
 @jit
 def scratch_size(stages):
     """Floats of scratch memory one `_step_range` call needs (method of ``stages`` stages)."""
     return (1 + 2 * STATE_WIDTH + DRIVE_WIDTH + (stages + 5) * STATE_WIDTH + LANES + REC_WIDTH
-            + BOOK_WIDTH + block_size(stages))
+            + (1 + LANE_ROWS) * LANES + block_size(stages))
 
 
 @ir_inline
@@ -405,18 +414,13 @@ def _carve_scalar(buf, ibuf, stages, dt):
 @jit
 def _carve(buf, ibuf, stages, dt):
     """Views into the caller's scratch buffers (floats: `scratch_size`; ints: 4 + LANES):
-    the scalar path's `ScalarScratch`, the ball record (see `_load`), the lane block, its
-    `LaneBook`, the lanes' Ω̇ and their ball indices."""
+    the scalar path's `ScalarScratch`, the ball record (see `_load`), the lane block, which
+    lanes are accepted and the lane book (`L_*`), the lanes' Ω̇ and their ball indices."""
     sc, record, rates, o = _carve_scalar(buf, ibuf, stages, dt)
     ok, o = take(buf, o, LANES)
-    reward, o = take(buf, o, LANES)
-    normal, o = take(buf, o, LANES)
-    sensed, o = take(buf, o, SENSED_WIDTH * LANES)
-    cols, o = take(buf, o, COLUMNS * LANES)
-    book = LaneBook(ok, sensed.reshape((SENSED_WIDTH, LANES)), cols.reshape((COLUMNS, LANES)),
-                    reward, normal)
+    book, o = take(buf, o, LANE_ROWS * LANES)
     ws = carve_block(buf[o:], stages)
-    return sc, record, ws, book, rates, ibuf[4:4 + LANES]
+    return sc, record, ws, ok, book, rates, ibuf[4:4 + LANES]
 
 
 @jit_per_constant
@@ -485,8 +489,8 @@ def _coulomb_balls(lo, hi, models, P, scales, Y, balls, cfg, actions, active, ta
 
 
 @ir_inline
-def _step_block(model, m, lanes, rates, ws, book, sc, record, P, scales, Y, balls, cfg, actions,
-                tab, ctl, noise, obs, out):
+def _step_block(model, m, lanes, rates, ws, ok, book, sc, record, P, scales, Y, balls, cfg,
+                actions, tab, ctl, noise, obs, out):
     """Finish lanes 0..m-1 (balls ``lanes``), gathered into ``ws``: one SIMD step for all;
     the lanes whose result is exactly what `integrate_h` would return are booked together
     (`_finish_lanes`), the others' balls are redone by the scalar path (error too large, an
@@ -498,12 +502,12 @@ def _step_block(model, m, lanes, rates, ws, book, sc, record, P, scales, Y, ball
         adaptive = ctl.dt <= 0.0
         d = rk_step_block(model, m, cfg[C_DT], tab, ctl, ws)
         for q in range(m):
-            book.ok[q] = 1.0 if accepted(q, model, d, adaptive, ctl.events, ws) else 0.0
-        _finish_lanes(model, m, lanes, rates, ws, book, P, Y, balls, cfg, actions, ctl,
+            ok[q] = 1.0 if accepted(q, model, d, adaptive, ctl.events, ws) else 0.0
+        _finish_lanes(model, m, lanes, rates, ws, ok, book, P, Y, balls, cfg, actions, ctl,
                       tab.err_order, noise, obs, out)
     failed = 0
     for q in range(m):
-        if use_block and book.ok[q] != 0.0:
+        if use_block and ok[q] != 0.0:
             continue
         i = lanes[q]
         _load(i, ROW_WIDTH, P, scales, Y, balls, noise, record)
@@ -513,33 +517,33 @@ def _step_block(model, m, lanes, rates, ws, book, sc, record, P, scales, Y, ball
 
 
 @jit
-def _finish_lanes(model, m, lanes, rates, ws, book, P, Y, balls, cfg, actions, ctl, err_order,
-                  noise, obs, out):
-    """Book the accepted lanes (``book.ok``) of a block whose step covered the control period,
-    as `_finish` books a ball (same operations, same order: bit-identical), writing to the
+def _finish_lanes(model, m, lanes, rates, ws, ok, book, P, Y, balls, cfg, actions, ctl,
+                  err_order, noise, obs, out):
+    """Book the accepted lanes (``ok``) of a block whose step covered the control period, as
+    `_finish` books a ball (same operations, same order: bit-identical), writing to the
     shared arrays straight. Done ball by ball, with each ball's rows copied into a record
     and back, this booking was about half of the vector environment's step (profile at
-    1,024 balls); here the geometry, observation and reward of the whole block are loops
+    1,024 balls); here the geometry, observation and reward of the whole block are one loop
     over the lanes, which the compiler vectorises. Three passes: over the lanes' balls for
     what needs a ball's row or a library call (`_read_lanes`), over the lanes
     (`_observe_lanes`), over the balls again to store (`_store_lanes`)."""
-    _read_lanes(m, lanes, rates, ws, book, P, balls, cfg, actions, ctl, err_order, noise)
+    _read_lanes(m, lanes, rates, ws, ok, book, P, balls, cfg, actions, ctl, err_order, noise)
     _observe_lanes(model, m, ws, book, cfg, (ctl.events & EVENT_DETACH) != 0)
-    _store_lanes(m, lanes, ws, book, Y, cfg, obs, out)
+    _store_lanes(m, lanes, ws, ok, book, Y, cfg, obs, out)
 
 
 @jit
-def _read_lanes(m, lanes, rates, ws, book, P, balls, cfg, actions, ctl, err_order, noise):
+def _read_lanes(m, lanes, rates, ws, ok, book, P, balls, cfg, actions, ctl, err_order, noise):
     """The accepted lanes' balls: move each one's drive on by the control period and leave
     its step-size hint (as `integrate_h` does), and put what the observation and reward need
     of its rows, and what the sensors read (`_measured`: trigonometry, a call per ball),
-    into ``book.sensed``."""
+    into the lane ``book``."""
     dt = cfg[C_DT]
     s = _obs_settings(cfg)
     adaptive = ctl.dt <= 0.0
-    D, sensed = ws.D, book.sensed
+    D = ws.D
     for q in range(m):
-        if book.ok[q] == 0.0:
+        if ok[q] == 0.0:
             continue
         i = lanes[q]
         ball = balls[i]
@@ -547,24 +551,24 @@ def _read_lanes(m, lanes, rates, ws, book, P, balls, cfg, actions, ctl, err_orde
         _advance_drive(ball, cfg, D[q], rates[q], dt)
         ball[B_H] = next_step(q, dt, h_first, err_order, ctl.max_step, ws) if adaptive \
             else h_first
-        sensed[S_OMEGA, q], sensed[S_COS, q], sensed[S_SIN, q] = _measured(ball, cfg)
-        sensed[S_COMMAND, q] = ball[B_OMEGA]
-        sensed[S_ACTION, q] = actions[i]
-        sensed[S_WEIGHT, q] = weight(P[i])
+        book[_at(L_OMEGA, q)], book[_at(L_COS, q)], book[_at(L_SIN, q)] = _measured(ball, cfg)
+        book[_at(L_COMMAND, q)] = ball[B_OMEGA]
+        book[_at(L_ACTION, q)] = actions[i]
+        book[_at(L_WEIGHT, q)] = weight(P[i])
         nz = _noise_of(s, noise[i])
         for k in range(7):
-            sensed[S_NOISE + k, q] = nz[k]
+            book[_at(L_NOISE + k, q)] = nz[k]
 
 
 @jit
 def _observe_lanes(model, m, ws, book, cfg, detach):
     """Observation columns, reward and N/mg (NaN without ``detach``ment events) of lanes
-    0..m-1 at the end of their step (`ws.Ynew`), from what `_read_lanes` left: a loop over
-    the lanes with no call in it, which the compiler vectorises (the lanes not accepted are
-    computed too, and not stored)."""
+    0..m-1 at the end of their step (`ws.Ynew`), from what `_read_lanes` left in the lane
+    ``book``: a loop over the lanes with no call in it, which the compiler vectorises (the
+    lanes not accepted are computed too, and not stored)."""
     s = _obs_settings(cfg)
     dist_cost, effort_cost = cfg[C_DIST_COST], cfg[C_EFFORT_COST]
-    P, Y, N, sensed, cols = ws.P, ws.Ynew, ws.Nend, book.sensed, book.cols
+    P, Y, N = ws.P, ws.Ynew, ws.Nend
     for q in range(m):
         R = P[P_R, q]
         g = geometry(P[P_A, q], P[P_B, q], R, Y[0, q], Y[1, q])
@@ -572,35 +576,39 @@ def _observe_lanes(model, m, ws, book, cfg, detach):
             vx, vy = rolling_contact_velocity(R, g, Y[2, q], Y[3, q], Y[4, q])
         else:
             vx, vy = Y[2, q], Y[3, q]
-        nz = (sensed[S_NOISE, q], sensed[S_NOISE + 1, q], sensed[S_NOISE + 2, q],
-              sensed[S_NOISE + 3, q], sensed[S_NOISE + 4, q], sensed[S_NOISE + 5, q],
-              sensed[S_NOISE + 6, q])
-        (cols[0, q], cols[1, q], cols[2, q], cols[3, q], cols[4, q], cols[5, q], cols[6, q],
-         cols[7, q]) = _columns(s, g, vx, vy, sensed[S_OMEGA, q], sensed[S_COS, q],
-                                sensed[S_SIN, q], sensed[S_COMMAND, q], nz)
-        book.reward[q] = _reward(1.0, Y[0, q], Y[1, q], P[P_RIM, q], sensed[S_ACTION, q],
-                                 dist_cost, effort_cost)
-        book.normal[q] = _per_weight(N[q], sensed[S_WEIGHT, q]) if detach else np.nan
+        nz = (book[_at(L_NOISE, q)], book[_at(L_NOISE + 1, q)], book[_at(L_NOISE + 2, q)],
+              book[_at(L_NOISE + 3, q)], book[_at(L_NOISE + 4, q)], book[_at(L_NOISE + 5, q)],
+              book[_at(L_NOISE + 6, q)])
+        cols = _columns(s, g, vx, vy, book[_at(L_OMEGA, q)], book[_at(L_COS, q)],
+                        book[_at(L_SIN, q)], book[_at(L_COMMAND, q)], nz)
+        for k in range(8):
+            book[_at(L_COLUMNS + k, q)] = cols[k]
+        book[_at(L_REWARD, q)] = _reward(1.0, Y[0, q], Y[1, q], P[P_RIM, q],
+                                         book[_at(L_ACTION, q)], dist_cost, effort_cost)
+        book[_at(L_NORMAL, q)] = _per_weight(N[q], book[_at(L_WEIGHT, q)]) if detach \
+            else np.nan
 
 
 @jit
-def _store_lanes(m, lanes, ws, book, Y, cfg, obs, out):
+def _store_lanes(m, lanes, ws, ok, book, Y, cfg, obs, out):
     """Store the accepted lanes' states, observations and outputs in their balls' rows."""
     s = _obs_settings(cfg)
     dt = cfg[C_DT]
-    Ynew, cols = ws.Ynew, book.cols
+    Ynew = ws.Ynew
     for q in range(m):
-        if book.ok[q] == 0.0:
+        if ok[q] == 0.0:
             continue
         i = lanes[q]
         for j in range(BLOCK_WIDTH):
             Y[i, j] = Ynew[j, q]
-        _put(s, (cols[0, q], cols[1, q], cols[2, q], cols[3, q], cols[4, q], cols[5, q],
-                 cols[6, q], cols[7, q]), obs[i])
+        c = L_COLUMNS
+        _put(s, (book[_at(c, q)], book[_at(c + 1, q)], book[_at(c + 2, q)],
+                 book[_at(c + 3, q)], book[_at(c + 4, q)], book[_at(c + 5, q)],
+                 book[_at(c + 6, q)], book[_at(c + 7, q)]), obs[i])
         out[i, O_STATUS] = 0.0
         out[i, O_TIME] = dt
-        out[i, O_NORMAL] = book.normal[q]
-        out[i, O_REWARD] = book.reward[q]
+        out[i, O_NORMAL] = book[_at(L_NORMAL, q)]
+        out[i, O_REWARD] = book[_at(L_REWARD, q)]
         out[i, O_TRAPPED] = 1.0
 
 
@@ -614,7 +622,7 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
     stepped together (`saddle_env.lockstep`); the rest take the scalar path."""
     stages = tab.B.shape[0]
     dt = cfg[C_DT]
-    sc, record, ws, book, rates, lanes = _carve(buf, ibuf, stages, dt)
+    sc, record, ws, ok, book, rates, lanes = _carve(buf, ibuf, stages, dt)
     Pl, D, Y0, Sc = ws.P, ws.D, ws.Y0, ws.Sc
     lockstep = cfg[C_LOCKSTEP] != 0.0
     failed = 0
@@ -638,7 +646,7 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
                     Sc[j, m] = scales[i, j]
                 m += 1
                 if m == LANES:
-                    failed += _step_block(model, m, lanes, rates, ws, book, sc, record, P,
+                    failed += _step_block(model, m, lanes, rates, ws, ok, book, sc, record, P,
                                           scales, Y, balls, cfg, actions, tab, ctl, noise, obs,
                                           out)
                     m = 0
@@ -647,7 +655,7 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
                 failed += _scalar_ball(i, model, ROW_WIDTH, Y, balls, cfg, actions, tab, ctl,
                                        obs, out, sc, record)
         if m > 0:
-            failed += _step_block(model, m, lanes, rates, ws, book, sc, record, P, scales, Y,
+            failed += _step_block(model, m, lanes, rates, ws, ok, book, sc, record, P, scales, Y,
                                   balls, cfg, actions, tab, ctl, noise, obs, out)
     return failed + _coulomb_balls(lo, hi, models, P, scales, Y, balls, cfg, actions, active,
                                    tab, ctl, noise, obs, out, sc, record)
