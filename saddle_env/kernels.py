@@ -126,6 +126,8 @@ def angle_at(prof, t):
         theta -= decay * math.expm1(-k * t) / k
     if freq != 0.0:
         return theta + amp / freq * (math.cos(phase) - math.cos(freq * t + phase))
+    if amp == 0.0 and theta != 0.0 and math.isfinite(phase) and math.isfinite(t):
+        return theta  # the term below is ±0, which leaves θ ≠ 0 as it is: spare the sin
     return theta + amp * math.sin(phase) * t
 
 

@@ -846,7 +846,10 @@ def weight(p):
     """Gravity per unit mass [m/s²], the unit of N/mg: the whole of it on a tilted saddle,
     whose packed row splits it into g·cos(tilt) along the axis and g·sin(tilt) across
     (`Scene.params`; hypot(g, 0) is g exactly on a level one)."""
-    return math.hypot(p[P_G], p[P_TILT_FORCE])
+    g, tilt = p[P_G], p[P_TILT_FORCE]
+    if tilt == 0.0 and math.isfinite(g):
+        return abs(g)  # what hypot gives (IEEE 754 / C99 Annex F: hypot(x, ±0) = |x|), sooner
+    return math.hypot(g, tilt)
 
 
 specialisable(__name__)
