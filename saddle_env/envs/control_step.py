@@ -94,7 +94,7 @@ from ..lockstep import (
     BLOCK_WIDTH,
     LANES,
     PARAM_WIDTH,
-    accepted,
+    accept_lanes,
     block_size,
     carve_block,
     next_step,
@@ -357,12 +357,11 @@ def _first_step(ball, ctl):
 # scales, state, ball columns, noise, observation (float64, stored as float32) and outputs.
 REC_WIDTH = PARAM_WIDTH + 2 * STATE_WIDTH + BALL_WIDTH + 2 * OBS_MAX + OUT_WIDTH
 
-# A block's lanes as `_finish_lanes` books them: which lanes' steps were accepted (1.0, a
-# row of LANES) and, in a flat book of LANE_ROWS rows of LANES (lane q of row r at `_at`),
-# what the pass over their balls reads for the pass over the lanes (the action, the weight,
-# the sensors' Ω, cos θ, sin θ, the commanded Ω, then from L_NOISE the noise of `_columns`'
-# seven noisy columns) and what that pass makes (from L_COLUMNS the observation's columns
-# in `_columns`' order, the reward, N/mg).
+# A block's accepted lanes as `_finish_lanes` books them, in a flat book of LANE_ROWS rows
+# of LANES (lane q of row r at `_at`): what the pass over their balls reads for the pass over
+# the lanes (the action, the weight, the sensors' Ω, cos θ, sin θ, the commanded Ω, then
+# from L_NOISE the noise of `_columns`' seven noisy columns) and what that pass makes (from
+# L_COLUMNS the observation's columns in `_columns`' order, the reward, N/mg).
 L_ACTION, L_WEIGHT, L_OMEGA, L_COS, L_SIN, L_COMMAND, L_NOISE = range(7)
 L_COLUMNS = L_NOISE + 7
 L_REWARD = L_COLUMNS + 8
@@ -382,7 +381,7 @@ def _at(row, q):
 def scratch_size(stages):
     """Floats of scratch memory one `_step_range` call needs (method of ``stages`` stages)."""
     return (1 + 2 * STATE_WIDTH + DRIVE_WIDTH + (stages + 5) * STATE_WIDTH + LANES + REC_WIDTH
-            + (1 + LANE_ROWS) * LANES + block_size(stages))
+            + LANE_ROWS * LANES + block_size(stages))
 
 
 @ir_inline
@@ -414,13 +413,12 @@ def _carve_scalar(buf, ibuf, stages, dt):
 @jit
 def _carve(buf, ibuf, stages, dt):
     """Views into the caller's scratch buffers (floats: `scratch_size`; ints: 4 + LANES):
-    the scalar path's `ScalarScratch`, the ball record (see `_load`), the lane block, which
-    lanes are accepted and the lane book (`L_*`), the lanes' Ω̇ and their ball indices."""
+    the scalar path's `ScalarScratch`, the ball record (see `_load`), the lane block, the
+    lane book (`L_*`), the lanes' Ω̇ and their ball indices."""
     sc, record, rates, o = _carve_scalar(buf, ibuf, stages, dt)
-    ok, o = take(buf, o, LANES)
     book, o = take(buf, o, LANE_ROWS * LANES)
     ws = carve_block(buf[o:], stages)
-    return sc, record, ws, ok, book, rates, ibuf[4:4 + LANES]
+    return sc, record, ws, book, rates, ibuf[4:4 + LANES]
 
 
 @jit_per_constant
@@ -489,7 +487,7 @@ def _coulomb_balls(lo, hi, models, P, scales, Y, balls, cfg, actions, active, ta
 
 
 @ir_inline
-def _step_block(model, m, lanes, rates, ws, ok, book, sc, record, P, scales, Y, balls, cfg,
+def _step_block(model, m, lanes, rates, ws, book, sc, record, P, scales, Y, balls, cfg,
                 actions, tab, ctl, noise, obs, out):
     """Finish lanes 0..m-1 (balls ``lanes``), gathered into ``ws``: one SIMD step for all;
     the lanes whose result is exactly what `integrate_h` would return are booked together
@@ -501,13 +499,12 @@ def _step_block(model, m, lanes, rates, ws, ok, book, sc, record, P, scales, Y, 
     if use_block:
         adaptive = ctl.dt <= 0.0
         d = rk_step_block(model, m, cfg[C_DT], tab, ctl, ws)
-        for q in range(m):
-            ok[q] = 1.0 if accepted(q, model, d, adaptive, ctl.events, ws) else 0.0
-        _finish_lanes(model, m, lanes, rates, ws, ok, book, P, Y, balls, cfg, actions, ctl,
+        accept_lanes(model, m, d, adaptive, ctl.events, ws)
+        _finish_lanes(model, m, lanes, rates, ws, book, P, Y, balls, cfg, actions, ctl,
                       tab.err_order, noise, obs, out)
     failed = 0
     for q in range(m):
-        if use_block and ok[q] != 0.0:
+        if use_block and ws.ok[q] != 0.0:
             continue
         i = lanes[q]
         _load(i, ROW_WIDTH, P, scales, Y, balls, noise, record)
@@ -517,23 +514,23 @@ def _step_block(model, m, lanes, rates, ws, ok, book, sc, record, P, scales, Y, 
 
 
 @jit
-def _finish_lanes(model, m, lanes, rates, ws, ok, book, P, Y, balls, cfg, actions, ctl,
-                  err_order, noise, obs, out):
-    """Book the accepted lanes (``ok``) of a block whose step covered the control period, as
-    `_finish` books a ball (same operations, same order: bit-identical), writing to the
-    shared arrays straight. Done ball by ball, with each ball's rows copied into a record
-    and back, this booking was about half of the vector environment's step (profile at
-    1,024 balls); here the geometry, observation and reward of the whole block are one loop
+def _finish_lanes(model, m, lanes, rates, ws, book, P, Y, balls, cfg, actions, ctl, err_order,
+                  noise, obs, out):
+    """Book the accepted lanes (``ws.ok``, `accept_lanes`) of a block whose step covered the
+    control period, as `_finish` books a ball (same operations, same order: bit-identical),
+    writing to the shared arrays straight. Done ball by ball, with each ball's rows copied
+    into a record and back, this booking was about half of the vector environment's step
+    (profile at 1,024 balls); here the geometry, observation and reward of the whole block are one loop
     over the lanes, which the compiler vectorises. Three passes: over the lanes' balls for
     what needs a ball's row or a library call (`_read_lanes`), over the lanes
     (`_observe_lanes`), over the balls again to store (`_store_lanes`)."""
-    _read_lanes(m, lanes, rates, ws, ok, book, P, balls, cfg, actions, ctl, err_order, noise)
+    _read_lanes(m, lanes, rates, ws, book, P, balls, cfg, actions, ctl, err_order, noise)
     _observe_lanes(model, m, ws, book, cfg, (ctl.events & EVENT_DETACH) != 0)
-    _store_lanes(m, lanes, ws, ok, book, Y, cfg, obs, out)
+    _store_lanes(m, lanes, ws, book, Y, cfg, obs, out)
 
 
 @jit
-def _read_lanes(m, lanes, rates, ws, ok, book, P, balls, cfg, actions, ctl, err_order, noise):
+def _read_lanes(m, lanes, rates, ws, book, P, balls, cfg, actions, ctl, err_order, noise):
     """The accepted lanes' balls: move each one's drive on by the control period and leave
     its step-size hint (as `integrate_h` does), and put what the observation and reward need
     of its rows, and what the sensors read (`_measured`: trigonometry, a call per ball),
@@ -541,7 +538,7 @@ def _read_lanes(m, lanes, rates, ws, ok, book, P, balls, cfg, actions, ctl, err_
     dt = cfg[C_DT]
     s = _obs_settings(cfg)
     adaptive = ctl.dt <= 0.0
-    D = ws.D
+    D, Err, ok = ws.D, ws.Err, ws.ok
     for q in range(m):
         if ok[q] == 0.0:
             continue
@@ -549,7 +546,7 @@ def _read_lanes(m, lanes, rates, ws, ok, book, P, balls, cfg, actions, ctl, err_
         ball = balls[i]
         h_first = _first_step(ball, ctl)
         _advance_drive(ball, cfg, D[q], rates[q], dt)
-        ball[B_H] = next_step(q, dt, h_first, err_order, ctl.max_step, ws) if adaptive \
+        ball[B_H] = next_step(Err[q], dt, h_first, err_order, ctl.max_step) if adaptive \
             else h_first
         book[_at(L_OMEGA, q)], book[_at(L_COS, q)], book[_at(L_SIN, q)] = _measured(ball, cfg)
         book[_at(L_COMMAND, q)] = ball[B_OMEGA]
@@ -590,11 +587,11 @@ def _observe_lanes(model, m, ws, book, cfg, detach):
 
 
 @jit
-def _store_lanes(m, lanes, ws, ok, book, Y, cfg, obs, out):
+def _store_lanes(m, lanes, ws, book, Y, cfg, obs, out):
     """Store the accepted lanes' states, observations and outputs in their balls' rows."""
     s = _obs_settings(cfg)
     dt = cfg[C_DT]
-    Ynew = ws.Ynew
+    Ynew, ok = ws.Ynew, ws.ok
     for q in range(m):
         if ok[q] == 0.0:
             continue
@@ -622,7 +619,7 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
     stepped together (`saddle_env.lockstep`); the rest take the scalar path."""
     stages = tab.B.shape[0]
     dt = cfg[C_DT]
-    sc, record, ws, ok, book, rates, lanes = _carve(buf, ibuf, stages, dt)
+    sc, record, ws, book, rates, lanes = _carve(buf, ibuf, stages, dt)
     Pl, D, Y0, Sc = ws.P, ws.D, ws.Y0, ws.Sc
     lockstep = cfg[C_LOCKSTEP] != 0.0
     failed = 0
@@ -646,7 +643,7 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
                     Sc[j, m] = scales[i, j]
                 m += 1
                 if m == LANES:
-                    failed += _step_block(model, m, lanes, rates, ws, ok, book, sc, record, P,
+                    failed += _step_block(model, m, lanes, rates, ws, book, sc, record, P,
                                           scales, Y, balls, cfg, actions, tab, ctl, noise, obs,
                                           out)
                     m = 0
@@ -655,7 +652,7 @@ def _step_range(lo, hi, models, P, scales, Y, balls, cfg, actions, active, tab, 
                 failed += _scalar_ball(i, model, ROW_WIDTH, Y, balls, cfg, actions, tab, ctl,
                                        obs, out, sc, record)
         if m > 0:
-            failed += _step_block(model, m, lanes, rates, ws, ok, book, sc, record, P, scales, Y,
+            failed += _step_block(model, m, lanes, rates, ws, book, sc, record, P, scales, Y,
                                   balls, cfg, actions, tab, ctl, noise, obs, out)
     return failed + _coulomb_balls(lo, hi, models, P, scales, Y, balls, cfg, actions, active,
                                    tab, ctl, noise, obs, out, sc, record)
