@@ -184,7 +184,7 @@ def rk_step_block(model, m, h, tab, ctl, ws):
     The caller has filled P, D (drive rows), Y0 and Sc. Fills the stages, Ynew, the normal
     forces and (adaptive) the error norms, exactly as `integrators.integrate_h` computes
     them for its first step. Returns the number of state slots integrated: the largest
-    `integrated_size` of the lanes (a lane with fewer is then not `accepted`)."""
+    `integrated_size` of the lanes (a lane with fewer is then not accepted: `accept_lanes`)."""
     P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3, ok = ws
     C, A, B = tab.C, tab.A, tab.B
     s = B.shape[0]

@@ -12,9 +12,11 @@ the motor's Ω̇ (or the voltage command) in force during the segment.
 
 Two paths, one result: a ball whose adaptive integrator will cover the control period in a
 single step (nearly every step after an episode's first) is gathered with others of its
-contact model into a block and stepped in SIMD lanes (`saddle_env.lockstep`); any other
-ball, and any lane whose step `integrate_h` would reject or end with an event, goes through
-`integrators.integrate_h`. Both give bit-identical results (tests/test_lockstep.py).
+contact model into a block and stepped in SIMD lanes (`saddle_env.lockstep`), and the lanes
+whose step `integrate_h` would accept as it stands are booked together (`_finish_lanes`);
+any other ball, and any lane whose step `integrate_h` would reject or end with an event,
+goes through `integrators.integrate_h` and is booked on its own (`_finish`). Both give
+bit-identical results (tests/test_lockstep.py).
 
 The engine keeps each ball in rows of float arrays, read and written only through the slot
 names below (the physics state ``Y`` is `kernels`'s, the method and the step settings
@@ -360,11 +362,13 @@ REC_WIDTH = PARAM_WIDTH + 2 * STATE_WIDTH + BALL_WIDTH + 2 * OBS_MAX + OUT_WIDTH
 # A block's accepted lanes as `_finish_lanes` books them, in a flat book of LANE_ROWS rows
 # of LANES (lane q of row r at `_at`): what the pass over their balls reads for the pass over
 # the lanes (the action, the weight, the sensors' Ω, cos θ, sin θ, the commanded Ω, then
-# from L_NOISE the noise of `_columns`' seven noisy columns) and what that pass makes (from
+# from L_NOISE the noise of `_columns`' noisy columns) and what that pass makes (from
 # L_COLUMNS the observation's columns in `_columns`' order, the reward, N/mg).
+COLUMNS = 8        # `_columns`' columns
+NOISY_COLUMNS = 7  # those with sensor noise (`_noise_of`): all but the commanded Ω
 L_ACTION, L_WEIGHT, L_OMEGA, L_COS, L_SIN, L_COMMAND, L_NOISE = range(7)
-L_COLUMNS = L_NOISE + 7
-L_REWARD = L_COLUMNS + 8
+L_COLUMNS = L_NOISE + NOISY_COLUMNS
+L_REWARD = L_COLUMNS + COLUMNS
 L_NORMAL = L_REWARD + 1
 LANE_ROWS = L_NORMAL + 1
 
@@ -553,7 +557,7 @@ def _read_lanes(m, lanes, rates, ws, book, P, balls, cfg, actions, ctl, err_orde
         book[_at(L_ACTION, q)] = actions[i]
         book[_at(L_WEIGHT, q)] = weight(P[i])
         nz = _noise_of(s, noise[i])
-        for k in range(7):
+        for k in range(NOISY_COLUMNS):
             book[_at(L_NOISE + k, q)] = nz[k]
 
 
@@ -578,7 +582,7 @@ def _observe_lanes(model, m, ws, book, cfg, detach):
               book[_at(L_NOISE + 6, q)])
         cols = _columns(s, g, vx, vy, book[_at(L_OMEGA, q)], book[_at(L_COS, q)],
                         book[_at(L_SIN, q)], book[_at(L_COMMAND, q)], nz)
-        for k in range(8):
+        for k in range(COLUMNS):
             book[_at(L_COLUMNS + k, q)] = cols[k]
         book[_at(L_REWARD, q)] = _reward(1.0, Y[0, q], Y[1, q], P[P_RIM, q],
                                          book[_at(L_ACTION, q)], dist_cost, effort_cost)
