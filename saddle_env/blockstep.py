@@ -52,7 +52,7 @@ from .lockstep import (
     _combine,
     _error_norms,
     _rates,
-    accepted,
+    accept_lanes,
     block_size,
     carve_block,
 )
@@ -120,7 +120,7 @@ def _one_drive(m, P, D):
 def _step(model, m, d, t, h, tab, ctl, ws, dragged, work, shared):
     """One step of ``h`` from ``t`` for lanes 0..m-1, f(t, Y0) already in K[0]: Ynew, K[s],
     the normal forces at the stage points and the end, and (adaptive) the error norms."""
-    P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3 = ws
+    P, D, Y0, Ynew, Ytmp, Sc, K, Fr, Nstart, Nstage, Nmin, Nend, Err, acc, a5, a3, ok = ws
     C, A, B = tab.C, tab.A, tab.B
     s = B.shape[0]
     for q in range(m):
@@ -283,8 +283,9 @@ def _run_block(model, idx, m, models, P, profiles, Y, t0, t_out, tab, ctl, scale
                 continue
         steps += 1
         # A ball the step cannot be accepted for as it stands leaves for the scalar loop.
+        accept_lanes(model, m, d, adaptive, ctl.events, ws)
         for q in range(m):
-            if live[q] and not accepted(q, model, d, adaptive, ctl.events, ws):
+            if live[q] and ws.ok[q] == 0.0:
                 n_live -= _leave(q, idx[q], k, t, hstep, steps - 1, rejected, live, models, P,
                                  profiles, Y, t_out, tab, ctl, scales, max_step, ws, Y_out,
                                  status, t_final, stats)

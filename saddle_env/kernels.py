@@ -126,6 +126,8 @@ def angle_at(prof, t):
         theta -= decay * math.expm1(-k * t) / k
     if freq != 0.0:
         return theta + amp / freq * (math.cos(phase) - math.cos(freq * t + phase))
+    if amp == 0.0 and theta != 0.0 and math.isfinite(phase) and math.isfinite(t):
+        return theta  # the term below is ±0, which leaves θ ≠ 0 as it is: spare the sin
     return theta + amp * math.sin(phase) * t
 
 
@@ -761,6 +763,16 @@ def rhs(model, p, prof, t, y, dy, want_normal):
     return normal if want_normal else 0.0
 
 
+@inline
+def rolling_contact_velocity(R, g, wx, wy, wz):
+    """Contact-point velocity (vx, vy) of a ball of radius ``R`` rolling with spin
+    (wx, wy, wz) at the contact point of `Geometry` ``g`` (the rolling constraint ċ = R w × n,
+    resolved along the Jacobian's columns)."""
+    nx, ny, nz = g.nx, g.ny, g.nz
+    return _solve_tangent(g.J1x, g.J1y, g.J1z, g.J2x, g.J2y, g.J2z,
+                          R * (wy * nz - wz * ny), R * (wz * nx - wx * nz), R * (wx * ny - wy * nx))
+
+
 @jit
 def contact_velocity(model, p, y):
     """Contact-point velocity (vx, vy) in the rotating frame [m/s]."""
@@ -769,11 +781,8 @@ def contact_velocity(model, p, y):
             return y[5], y[6]
     elif model != ROLLING:
         return y[2], y[3]
-    a, b, R = p[P_A], p[P_B], p[P_R]
-    s, nx, ny, nz, cx, cy, cz, J1x, J1y, J1z, J2x, J2y, J2z = geometry(a, b, R, y[0], y[1])
-    wx, wy, wz = y[2], y[3], y[4]
-    return _solve_tangent(J1x, J1y, J1z, J2x, J2y, J2z,
-                          R * (wy * nz - wz * ny), R * (wz * nx - wx * nz), R * (wx * ny - wy * nx))
+    R = p[P_R]
+    return rolling_contact_velocity(R, geometry(p[P_A], p[P_B], R, y[0], y[1]), y[2], y[3], y[4])
 
 
 @jit

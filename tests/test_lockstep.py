@@ -31,6 +31,14 @@ CONFIGS = {
     "rk4-substeps": dict(method="rk4", substep=0.005),
     "tight": dict(rtol=1e-12),
     "lab-frame": dict(obs_frame="lab", distance_cost=0.3, effort_cost=0.1),
+    # every observation column the layouts have, and a camera's (the lanes are booked
+    # together, `control_step._finish_lanes`: each layout's columns there too)
+    "observed-everything": dict(observe_command=True, observe_angle=True, position_noise=1e-4,
+                                velocity_noise=1e-3, omega_noise=0.1, position_quantum=1e-4),
+    "lab-camera-voltage": dict(obs_frame="lab", observe_velocity=False, position_quantum=2.5e-4,
+                               action_mode="voltage"),
+    "lab-frame-command": dict(obs_frame="lab", observe_command=True, velocity_noise=1e-3),
+    "tilted": dict(tilt=0.03, ripple_amp=1.0),
 }
 
 ARRAYS = ("Y", "balls", "out", "obs")
