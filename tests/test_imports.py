@@ -166,7 +166,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
      ("saddle_env.coldstart", "saddle_env.workprecision", "saddle_env.calibrate", "saddle_env.cli",
       "saddle_env.deploy", "saddle_env.reproduce", "saddle_env.rig",
       *(f"saddle_env.lifetimes.{m}" for m in ("cli", "coverage", "figure", "fit", "grid",
-                                              "report", "timing")))),
+                                              "report", "sizes", "timing")))),
     ("agents: seeds, paths and shared command-line options",
      ("agents", "agents.seeds", "agents.paths", "agents.cli_args")),
     ("agents: controllers", ("agents.control",)),
