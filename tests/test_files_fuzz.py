@@ -256,6 +256,48 @@ def test_the_honest_folder_reads(honest_folder, tmp_path):
     assert Controller.from_dir(honest_folder) is not None
 
 
+def _nan_weights(model) -> None:
+    from onnx import numpy_helper
+
+    weight = next(t for t in model.graph.initializer if len(t.dims) == 2)
+    nan = np.full_like(numpy_helper.to_array(weight), np.nan)
+    weight.CopyFrom(numpy_helper.from_array(nan, weight.name))
+
+
+def _gather_out_of_bounds(model) -> None:
+    # the index the batch size is read with (Gather of the input's shape) points past it
+    from onnx import numpy_helper
+
+    gather = next(n for n in model.graph.node if n.op_type == "Gather")
+    const = next(n for n in model.graph.node if n.output[0] == gather.input[1])
+    value = next(a for a in const.attribute if a.name == "value")
+    value.t.CopyFrom(numpy_helper.from_array(np.array(2, dtype=np.int64), value.t.name))
+
+
+@pytest.mark.parametrize("edit, words", [(_nan_weights, "non-finite action"),
+                                         (_gather_out_of_bounds, "does not run")])
+def test_a_graph_that_cannot_act_is_refused_when_read(honest_folder, tmp_path, edit, words):
+    # Found by the long fuzz test: a damaged graph can pass every static check and fail only
+    # when run, or act with NaN; the folder is refused by name when read, not at a first step
+    import onnx
+
+    from saddle_env.deploy import Controller, PolicyFolderError
+
+    model = onnx.load_model_from_string((honest_folder / "policy.onnx").read_bytes())
+    edit(model)
+    raw = model.SerializeToString()
+    folder = tmp_path / "edited"
+    shutil.copytree(honest_folder, folder)
+    (folder / "policy.onnx").write_bytes(raw)
+    data = json.loads((folder / "policy.json").read_text())
+    data["onnx"]["sha256"] = hashlib.sha256(raw).hexdigest()
+    (folder / "policy.json").write_text(json.dumps(data))
+    with pytest.raises(PolicyFolderError) as exc:
+        Controller.from_dir(folder)
+    message = str(exc.value)
+    assert words in message and str(folder) in message and "\n" not in message
+
+
 @settings(_FAST, max_examples=40)
 @given(data=st.data())
 def test_a_drawn_policy_json_reads_or_is_a_named_error(honest_folder, tmp_path, data):

@@ -15,7 +15,16 @@ from typing import Any
 import numpy as np
 
 from ..envs.observation import stack_frames
-from .folder import INPUT_NAME, OUTPUT_NAME, PolicySpec, _require, read_graph, read_spec
+from .folder import (
+    INPUT_NAME,
+    OUTPUT_NAME,
+    POLICY_ONNX,
+    PolicyFolderError,
+    PolicySpec,
+    _require,
+    read_graph,
+    read_spec,
+)
 
 
 class Controller:
@@ -80,7 +89,8 @@ class Controller:
         ValueError
             If ``threads`` is not a positive integer.
         PolicyFolderError
-            If the folder fails the check.
+            If the folder fails the check, onnxruntime cannot load its graph, or the graph
+            does not run (or gives a non-finite action) on an observation inside its box.
         """
         if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
             raise ValueError(f"threads must be a positive integer, got {threads!r}")
@@ -92,9 +102,32 @@ class Controller:
         options.inter_op_num_threads = threads
         options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         options.log_severity_level = 3   # errors only: the checks above speak for the folder
-        session = ort.InferenceSession(raw, sess_options=options,
-                                       providers=["CPUExecutionProvider"])
-        return cls(spec, session)
+        try:
+            session = ort.InferenceSession(raw, sess_options=options,
+                                           providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime's own errors, for a graph it cannot build
+            raise PolicyFolderError(f"{spec.folder}: {POLICY_ONNX} does not load in "
+                                    f"onnxruntime ({_one_line(exc)})") from None
+        controller = cls(spec, session)
+        controller._probe()
+        return controller
+
+    def _probe(self) -> None:
+        """Run the graph once on an observation inside its box (zeros, clipped into it): a
+        graph that passes every static check can still fail only when run (a damaged index
+        or shape), or give non-finite actions; such a folder is refused here, by name, not
+        at the first step of a rig."""
+        spec = self.spec
+        obs = np.clip(np.zeros(spec.observation_dim), spec.observation_low,
+                      spec.observation_high).astype(np.float32)
+        try:
+            action, _ = self.predict(obs)
+        except Exception as exc:  # onnxruntime's errors, or `_run`'s check of the output
+            raise PolicyFolderError(f"{spec.folder}: {POLICY_ONNX} does not run on an "
+                                    f"observation inside its box ({_one_line(exc)})") from None
+        if not np.all(np.isfinite(action)):
+            raise PolicyFolderError(f"{spec.folder}: {POLICY_ONNX} gives a non-finite action "
+                                    "for an observation inside its box")
 
     # -- the pipeline ---------------------------------------------------------------------
     def _normalise(self, obs: np.ndarray) -> np.ndarray:
@@ -195,6 +228,13 @@ class Controller:
             inputs = np.ascontiguousarray(batch, dtype=np.float32)
         actions = self._run(inputs)
         return (actions[0] if single else actions), state
+
+
+def _one_line(exc: BaseException, limit: int = 160) -> str:
+    """An exception's type and the first line of its message, cut to ``limit`` characters
+    (a `PolicyFolderError` is one line)."""
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0] if text else ''}"[:limit]
 
 
 __all__ = ["Controller"]
