@@ -298,10 +298,15 @@ def _residuals(fitter: Fitter, use: list[int], choice: Choice
 
 
 def objective_of(fitter: Fitter, use: list[int], choice: Choice) -> float:
-    """The fit's objective of ``choice`` over the series ``use`` (`objective_share`'s sum, in
-    another order of addition)."""
-    r, var_lab, var_sim = _residuals(fitter, use, choice)
-    return float(np.sum(r * r / (var_lab + var_sim + MODEL_ERROR ** 2)))
+    """The fit's objective of ``choice`` over the series ``use``: each series'
+    `objective_share`, summed (in `Fitter.fit`'s order within an object, not across)."""
+    total = 0.0
+    for i in use:
+        s = fitter.series[i]
+        total += objective_share(*fitter.log_curve(
+            i, choice.point(s.obj), (choice.evaporation_mean, choice.evaporation_fraction)),
+            *lab_terms(s))
+    return total
 
 
 def model_error(fitter: Fitter, use: list[int], choice: Choice) -> float:

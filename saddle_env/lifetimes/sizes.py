@@ -128,7 +128,8 @@ def onset_budget(fitter: Fitter, best: Choice) -> list[dict[str, Any]]:
             continue
         crt = critical_rps(s.c_plus, s.c_minus, s.diameter_mm)
         row: dict[str, Any] = {
-            "series": s.name, "diameter_mm": float(s.diameter_mm), "critical_rps": crt,
+            "series": s.name, "saddle_and_day": f"{s.date} {s.saddle}",
+            "diameter_mm": float(s.diameter_mm), "critical_rps": crt,
             "spin_threshold_pct": _above(spin_threshold(s.c_plus, s.c_minus, s.diameter_mm),
                                          crt),
             "lab_onset_pct": _above(onset(s.rps, s.mean), crt),
@@ -152,7 +153,7 @@ def size_gap(budget: list[dict[str, Any]]) -> dict[str, Any] | None:
     released spin."""
     by_day: dict[str, list[dict[str, Any]]] = {}
     for r in budget:
-        by_day.setdefault(str(r["series"]).rsplit(" steel", 1)[0], []).append(r)
+        by_day.setdefault(r["saddle_and_day"], []).append(r)
     for day, rows in by_day.items():
         if len({r["diameter_mm"] for r in rows}) > 1:
             big = max(rows, key=lambda r: float(r["diameter_mm"]))
