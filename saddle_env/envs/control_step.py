@@ -35,6 +35,7 @@ travel as the records `integrators.Tableau` and `integrators.StepControl`):
 | | ``O_NORMAL`` | N/(mg) at the step's end (0 at a detachment; NaN with detachment off) |
 | | ``O_REWARD`` | the step's reward |
 | | ``O_TRAPPED`` | fraction of the control period the ball stayed on |
+| | ``O_OMEGA``, ``O_CLOCK`` | ``B_OMEGA`` and ``B_TIME`` at the step's end (what the info reports) |
 | ``cfg`` (CFG_WIDTH,) | ``C_DT`` | control period [s] |
 | | ``C_MAX_ACCEL``, ``C_OMEGA_MAX`` | motor limits [rad/s², rad/s] |
 | | ``C_TARGET_MODE`` | 1: the action is a target speed; 0: an acceleration |
@@ -122,8 +123,13 @@ from .observation import OBS_MAX, OMEGA_HIGH, OMEGA_LOW, POS_BOUND, VEL_BOUND
 # and the block path gathers lanes from them.
 B_OMEGA, B_THETA, B_TIME, B_PHASE, B_FX, B_FY, B_H = range(7)
 BALL_WIDTH = 7
-O_STATUS, O_TIME, O_NORMAL, O_REWARD, O_TRAPPED = range(5)
-OUT_WIDTH = 5
+# O_OMEGA and O_CLOCK repeat two of the ball's slots for the environments' info. Reading
+# them from ``balls``, which the step reads before it writes, cost the vector environment a
+# third of its step: the other thread's rows were left shared with the main thread's cache
+# and each one's first write of the next step waited for them (measured at 1,024 balls, two
+# threads); ``out`` is only written by the step.
+O_STATUS, O_TIME, O_NORMAL, O_REWARD, O_TRAPPED, O_OMEGA, O_CLOCK = range(7)
+OUT_WIDTH = 7
 (C_DT, C_MAX_ACCEL, C_OMEGA_MAX, C_TARGET_MODE, C_LAB_FRAME, C_POS_SCALE, C_VEL_SCALE,
  C_RIPPLE_AMP, C_RIPPLE_FREQ, C_LOSS, C_DIST_COST, C_EFFORT_COST, C_LOCKSTEP, C_OBS_OMEGA,
  C_OBS_COMMAND, C_OBS_COS, C_VOLTAGE_MODE, C_MOTOR_TOP, C_MOTOR_RATE, C_GIVEN, C_OBS_VEL,
@@ -331,6 +337,7 @@ def _finish(model, p, y, ball, cfg, events, action, drive, rate, status, t_end, 
     if lost and status > 0:
         reward -= cfg[C_LOSS]
     out[O_REWARD] = reward
+    out[O_OMEGA], out[O_CLOCK] = ball[B_OMEGA], ball[B_TIME]
     observe_one(model, p, y, ball, cfg, noise, obs)
 
 
@@ -530,7 +537,7 @@ def _finish_lanes(model, m, lanes, rates, ws, book, P, Y, balls, cfg, actions, c
     (`_observe_lanes`), over the balls again to store (`_store_lanes`)."""
     _read_lanes(m, lanes, rates, ws, book, P, balls, cfg, actions, ctl, err_order, noise)
     _observe_lanes(model, m, ws, book, cfg, (ctl.events & EVENT_DETACH) != 0)
-    _store_lanes(m, lanes, ws, book, Y, cfg, obs, out)
+    _store_lanes(m, lanes, ws, book, Y, balls, cfg, obs, out)
 
 
 @jit
@@ -591,8 +598,9 @@ def _observe_lanes(model, m, ws, book, cfg, detach):
 
 
 @jit
-def _store_lanes(m, lanes, ws, book, Y, cfg, obs, out):
-    """Store the accepted lanes' states, observations and outputs in their balls' rows."""
+def _store_lanes(m, lanes, ws, book, Y, balls, cfg, obs, out):
+    """Store the accepted lanes' states, observations and outputs in their balls' rows
+    (``balls``, already moved on by `_read_lanes`, is only read: for the clock)."""
     s = _obs_settings(cfg)
     dt = cfg[C_DT]
     Ynew, ok = ws.Ynew, ws.ok
@@ -611,6 +619,8 @@ def _store_lanes(m, lanes, ws, book, Y, cfg, obs, out):
         out[i, O_NORMAL] = book[_at(L_NORMAL, q)]
         out[i, O_REWARD] = book[_at(L_REWARD, q)]
         out[i, O_TRAPPED] = 1.0
+        out[i, O_OMEGA] = book[_at(L_COMMAND, q)]
+        out[i, O_CLOCK] = balls[i, B_TIME]
 
 
 @jit
@@ -780,6 +790,7 @@ def place(idx, models, P, Y, balls, cfg, x, y, vx, vy, lab_rest, spin_normal, no
         state_from_velocity(models[i], p, x[j], y[j], u, v, spin_normal, Y[i])
         out[i, :] = 0.0
         out[i, O_TRAPPED] = 1.0
+        out[i, O_OMEGA], out[i, O_CLOCK] = balls[i, B_OMEGA], balls[i, B_TIME]
         out[i, O_NORMAL] = normal_over_mg(models[i], p, Y[i], balls[i], cfg)
         _observe_into(models[i], p, Y[i], balls[i], cfg, noise[i], obs[i], row)
 

@@ -20,7 +20,7 @@ if TYPE_CHECKING:
 
 # The slots `step` reads, as module constants (a module attribute costs a lookup per step)
 _O_STATUS, _O_REWARD, _O_NORMAL, _O_TRAPPED = S.O_STATUS, S.O_REWARD, S.O_NORMAL, S.O_TRAPPED
-_B_OMEGA, _B_TIME = S.B_OMEGA, S.B_TIME
+_O_OMEGA, _O_CLOCK = S.O_OMEGA, S.O_CLOCK
 
 
 def action_space() -> spaces.Box:
@@ -229,8 +229,7 @@ class SaddleTrapEnv(gym.Env):
         e = self.engine
         if out is None:
             out = e.out[0].tolist()
-        ball = e.balls[0].tolist()
-        info: dict[str, Any] = {"omega": ball[_B_OMEGA], "time": ball[_B_TIME],
+        info: dict[str, Any] = {"omega": out[_O_OMEGA], "time": out[_O_CLOCK],
                                 "N_over_mg": out[_O_NORMAL], "trapped_fraction": out[_O_TRAPPED]}
         if terminated:
             info["cause"] = e.cause(0)

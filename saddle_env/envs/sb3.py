@@ -96,7 +96,7 @@ class SaddleTrapSB3VecEnv(VecEnv):
                 infos[i] = {"terminal_observation": obs[i].copy(),
                             "TimeLimit.truncated": bool(truncated[i]),
                             "cause": e.cause(i) if terminated[i] else "time limit",
-                            "event_time": float(e.balls[i, S.B_TIME])}
+                            "event_time": float(e.out[i, S.O_CLOCK])}
             e.reset(done_idx, self._rngs)
             self._steps[done_idx] = 0
             obs[done_idx] = e.obs[done_idx]

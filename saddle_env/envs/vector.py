@@ -261,7 +261,8 @@ class SaddleTrapVectorEnv(VectorEnv):
         it: each key an array over all balls (0 or None where a ball has no entry) beside
         its ``_key`` mask; ``cause`` and ``event_time`` where ``terminated``."""
         e = self.engine
-        columns = (e.balls[:, S.B_OMEGA], e.balls[:, S.B_TIME], e.out[:, S.O_NORMAL],
+        # from ``out``, not ``balls`` (why: `control_step.O_OMEGA`)
+        columns = (e.out[:, S.O_OMEGA], e.out[:, S.O_CLOCK], e.out[:, S.O_NORMAL],
                    e.out[:, S.O_TRAPPED])
         every = rows is self._all
         info: dict[str, Any] = {}
@@ -273,7 +274,7 @@ class SaddleTrapVectorEnv(VectorEnv):
             for i in np.flatnonzero(terminated):
                 cause[i] = e.cause(i)
             info["cause"], info["_cause"] = cause, terminated.copy()
-            info["event_time"] = np.where(terminated, e.balls[:, S.B_TIME], 0.0)
+            info["event_time"] = np.where(terminated, e.out[:, S.O_CLOCK], 0.0)
             info["_event_time"] = terminated.copy()
         return info
 
