@@ -100,22 +100,57 @@ def test_a_build_for_the_level_runs_on_every_cpu_model_that_has_the_level():
     assert "CPU features" in _aot.unusable(model, {**here, "cpu": "haswell", "features": hidden})
 
 
-def test_the_build_is_for_the_level_where_the_machine_has_it_else_for_the_machine(
-        monkeypatch):
+@pytest.mark.parametrize("model", ["znver4", "haswell", "sandybridge"])
+def test_the_build_is_for_each_level_the_machine_has_else_for_the_machine(monkeypatch, model):
+    """`aot.build_targets`: x86-64-v3, then x86-64-v4 on a machine with AVX-512 (not with
+    ``baseline``); a machine below the baseline, another architecture or ``host`` builds
+    for the machine's own model."""
+    features = {"znver4": ZNVER4, "haswell": HASWELL, "sandybridge": SANDYBRIDGE}[model]
+    here = {**_aot.machine(), "cpu": model, "features": features}
+    monkeypatch.setattr(_aot, "machine", lambda: here)
     monkeypatch.delenv(_aot.AOT_CPU_ENV, raising=False)
-    here = _aot.machine()
-    has_level = _aot.unusable({**here, "cpu": _aot.BASELINE,
-                               "features": _aot.LEVEL_FEATURES[_aot.BASELINE]}, here) is None
-    own = {"cpu": here["cpu"], "features": here["features"]}
-    level = {"cpu": _aot.BASELINE, "features": _aot.LEVEL_FEATURES[_aot.BASELINE]}
-    assert _aot.build_target() == (level if has_level and os.uname().machine == "x86_64"
-                                   else own)
+    own = [{"cpu": model, "features": features}]
+    v3, v4 = ({"cpu": lv, "features": _aot.LEVEL_FEATURES[lv]} for lv in ("x86-64-v3",
+                                                                          "x86-64-v4"))
+    x86 = os.uname().machine == "x86_64"
+    want = {"znver4": [v3, v4], "haswell": [v3], "sandybridge": own}[model] if x86 else own
+    assert _aot.build_targets() == want
+    monkeypatch.setenv(_aot.AOT_CPU_ENV, "baseline")
+    assert _aot.build_targets() == want[:1]
     monkeypatch.setenv(_aot.AOT_CPU_ENV, "host")
-    assert _aot.build_target() == own
+    assert _aot.build_targets() == own
     monkeypatch.setenv(_aot.AOT_CPU_ENV, "native")
-    with pytest.raises(ValueError, match="SADDLE_ENV_AOT_CPU must be 'baseline' or 'host', "
-                                         "got 'native'"):
-        _aot.build_target()
+    with pytest.raises(ValueError, match="SADDLE_ENV_AOT_CPU must be 'levels', 'baseline' or "
+                                         "'host', got 'native'"):
+        _aot.build_targets()
+
+
+def test_an_upper_level_build_is_used_where_the_cpu_has_the_level(fake_build, tmp_path,
+                                                                   monkeypatch):
+    """A build for x86-64-v4 (its own folder) is preferred on a CPU with AVX-512 while it
+    is current; on a CPU without, or once it is not current, the baseline build serves."""
+    fake_build(cpu=_aot.BASELINE, features=_aot.LEVEL_FEATURES[_aot.BASELINE])
+    folder = tmp_path / "x86-64-v4"
+    folder.mkdir()
+    (folder / "fake.py").write_text("def integrate_h(*args):\n    return 'v4'\n")
+    top = json.loads((tmp_path / _aot.MANIFEST).read_text())
+    real = _aot.machine()
+
+    def upper(host_features, **changes):
+        manifest = {**top, "cpu": "x86-64-v4", "features": _aot.LEVEL_FEATURES["x86-64-v4"],
+                    **changes}
+        (folder / _aot.MANIFEST).write_text(json.dumps(manifest))
+        monkeypatch.setattr(_aot, "machine", lambda: {**real, "features": host_features})
+        monkeypatch.setattr(_aot, "_loaded", None)
+        return _aot.compiled(("ROLLING_ON",), "saddle_env.integrators")["integrate_h"]()
+
+    assert upper(ZNVER4) == "v4" and "x86-64-v4" in _aot.status()
+    assert upper(ZNVER4.replace("+avx512dq", "-avx512dq")) == "ahead"  # one missing
+    assert upper(HASWELL) == "ahead"
+    assert upper(ZNVER4, digest="0" * 64) == "ahead"  # built from other sources
+    assert upper(ZNVER4, numba="0.1.0") == "ahead"
+    assert upper(ZNVER4, cpu="x86-64-v3") == "ahead"  # not the folder's level
+    assert "x86-64-v4" not in _aot.status()
 
 
 def test_a_cpu_below_the_level_falls_back_to_the_jit_saying_so_once(fake_build, caplog,
@@ -392,9 +427,20 @@ def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(b
     ahead, jit = run("1"), run("0")
     assert ahead["status"].startswith("ahead-of-time kernels in use (6 modules")
     assert jit["status"].startswith("no ahead-of-time kernels: turned off")
-    assert ahead["runs"].keys() == jit["runs"].keys()
-    for key in jit["runs"]:
-        assert np.array_equal(np.array(ahead["runs"][key]), np.array(jit["runs"][key])), key
+    builds = [ahead]
+    upper = tmp_path / "saddle_env" / "_aot" / "x86-64-v4" / _aot.MANIFEST
+    if upper.exists():                      # an AVX-512 machine: that build ran; now the other
+        assert "x86-64-v4" in ahead["status"], ahead["status"]
+        upper.rename(upper.with_suffix(".off"))
+        try:
+            builds.append(run("1"))
+        finally:
+            upper.with_suffix(".off").rename(upper)
+        assert "x86-64-v4" not in builds[1]["status"], builds[1]["status"]
+    for build in builds:
+        assert build["runs"].keys() == jit["runs"].keys()
+        for key in jit["runs"]:
+            assert np.array_equal(np.array(build["runs"][key]), np.array(jit["runs"][key])), key
 
     engine = tmp_path / "saddle_env" / "envs" / "engine.py"
     source = engine.read_text()
@@ -410,7 +456,8 @@ def test_a_build_starts_every_level_and_simulate_without_compiling_bit_for_bit(b
 
 # What LLVM reports for two CPU models (numba's host features; abridged to the x86 ISA
 # extensions): Haswell, the first at x86-64-v3, and Sandy Bridge, with AVX but below it.
-ZNVER4 = _aot.LEVEL_FEATURES[_aot.BASELINE] + ",+avx512f,+avx512vl,+avx512bw,+adx,+sha"
+ZNVER4 = (_aot.LEVEL_FEATURES[_aot.BASELINE]
+          + ",+avx512f,+avx512vl,+avx512bw,+avx512cd,+avx512dq,+adx,+sha")
 HASWELL = ("+64bit,+avx,+avx2,+bmi,+bmi2,+cmov,+crc32,+cx16,+cx8,+f16c,+fma,+fsgsbase,+fxsr,"
            "+invpcid,+lzcnt,+mmx,+movbe,+pclmul,+popcnt,+rdrnd,+sahf,+sse,+sse2,+sse3,+sse4.1,"
            "+sse4.2,+ssse3,+xsave,+xsaveopt,-avx512f,-avx512vl,-adx,-rdseed,-sha")
@@ -431,12 +478,17 @@ def test_a_build_for_the_level_runs_under_another_cpu_model_and_only_at_the_leve
     assert (manifest["cpu"], manifest["features"]) == (
         _aot.BASELINE, _aot.LEVEL_FEATURES[_aot.BASELINE])
     assert manifest["cpu"] != _aot.machine()["cpu"]
+    here = _aot.machine()
+    v4 = {**here, "cpu": "x86-64-v4", "features": _aot.LEVEL_FEATURES["x86-64-v4"]}
+    upper = tmp_path / "saddle_env" / "_aot" / "x86-64-v4" / _aot.MANIFEST
+    assert upper.exists() == (_aot.unusable(v4, here) is None)  # built where it can run
     code = ("import numpy as np, gymnasium as gym, saddle_env\n"
             "from saddle_env.compilation import aot\n"
             "env = gym.make('SaddleTrap-Gusty-v0'); env.reset(seed=0); env.step(np.zeros(1))\n"
             "vec = gym.make_vec('SaddleTrap-Gusty-v0', num_envs=256); vec.reset(seed=0)\n"
             "vec.step(np.zeros((256, 1)))\n"
-            "assert aot.status().startswith('ahead-of-time kernels in use'), aot.status()\n")
+            "assert aot.status().startswith('ahead-of-time kernels in use'), aot.status()\n"
+            "assert 'x86-64-v4' not in aot.status(), aot.status()\n")
     haswell = {**env, "NUMBA_CACHE_DIR": str(tmp_path / "empty-haswell"),
                "NUMBA_CPU_NAME": "haswell", "NUMBA_CPU_FEATURES": HASWELL}
     compiled = compiled_in_fresh_process(code, haswell, cwd=str(tmp_path))
@@ -507,7 +559,7 @@ def test_an_editable_install_builds_for_its_own_cpu_and_a_wheel_for_the_level(tm
                                                                               monkeypatch):
     """An editable install's build is used only where it is made: it is compiled for the
     machine's CPU (`SADDLE_ENV_AOT_CPU=host`) unless the user says otherwise; a wheel's
-    build is left to the default, the level (`aot.build_target`)."""
+    build is left to the default, the levels (`aot.build_targets`)."""
     from setuptools.dist import Distribution
 
     setup = _setup_commands()

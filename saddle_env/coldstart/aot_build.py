@@ -13,8 +13,9 @@ those first calls once with the JIT (`compilation.specialise`'s copies), then li
 compiled code below each entry point into an extension module with `numba.pycc`, whose
 entry points take exactly the argument types the JIT was called with and release the GIL
 (the batch kernels run on several threads: `compilation.threads.in_threads`). The workers' JIT and pycc
-compile for `aot.build_target`'s CPU (on x86-64 the x86-64-v3 level, so that a wheel serves
-other CPU models), told to numba through its CPU variables. The threaded step's module
+compile for each of `aot.build_targets`' CPUs in turn (on x86-64 the x86-64-v3 level, so
+that a wheel serves other CPU models, and x86-64-v4 where the building machine has AVX-512),
+told to numba through its CPU variables. The threaded step's module
 carries `aot_threads`'s forwarders to numba's threading layer. `saddle_env.compilation.aot`
 loads the modules when they were built from the sources in place (a digest of them is in
 the manifest), on the same platform and a CPU that can run them, and otherwise leaves every
@@ -28,6 +29,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import shutil
 import tempfile
 import time
 import types
@@ -364,19 +366,27 @@ def _build_one(flags: tuple[str, ...], spec: BuildSpec, out_dir: str) -> dict:
             "seconds": round(time.perf_counter() - t0, 1)}
 
 
-def build(jobs: int, log=print) -> dict:
-    """Build every planned module into this package's ``_aot`` folder in up to ``jobs``
-    worker processes, from the sources in place (a source tree, or an install's build
-    folder), and write its manifest last, so a build stopped half-way is never used.
-    Returns the manifest."""
-    out_dir = _aot.AOT_DIR
+def build(jobs: int, log=print) -> list[dict]:
+    """Build every planned module for each of `aot.build_targets` into its folder of this
+    package's ``_aot`` (`aot.build_folder`) in up to ``jobs`` worker processes, from the
+    sources in place (a source tree, or an install's build folder). Each build's manifest
+    is written last, so a build stopped half-way is never used. Returns the manifests."""
+    targets = _aot.build_targets()
+    # every earlier build is retired until the new one is whole
+    (_aot.AOT_DIR / _aot.MANIFEST).unlink(missing_ok=True)
+    for level in _aot.UPPER_LEVELS:
+        shutil.rmtree(_aot.AOT_DIR / level, ignore_errors=True)
+    return [_build_for(target, jobs, log) for target in targets]
+
+
+def _build_for(target: dict[str, str], jobs: int, log) -> dict:
+    """`build` for one CPU ``target``; its manifest."""
+    out_dir = _aot.build_folder(target["cpu"])
     out_dir.mkdir(parents=True, exist_ok=True)
     plan = planned_builds()
     jobs = max(1, min(jobs, len(plan)))
-    target = _aot.build_target()
     log(f"  for CPU {target['cpu']} ({target['features'] or 'its own features'})")
     t0 = time.perf_counter()
-    (out_dir / _aot.MANIFEST).unlink(missing_ok=True)  # retired until the new one is whole
     # numba reads its CPU settings from the environment when it is first imported: the
     # spawned workers inherit these (this process's own JIT keeps its settings)
     saved = {k: os.environ.get(k) for k in _aot.CPU_VARIABLES}

@@ -165,7 +165,7 @@ def _build_aot(jobs: int) -> int:
 
     start = time.perf_counter()
     try:
-        manifest = aot_build.build(jobs, log=lambda m: print(m, file=sys.stderr))
+        manifests = aot_build.build(jobs, log=lambda m: print(m, file=sys.stderr))
     except KeyboardInterrupt:
         print("interrupted: no ahead-of-time build in place (the JIT is used)", file=sys.stderr)
         return 130
@@ -173,8 +173,10 @@ def _build_aot(jobs: int) -> int:
         print(f"ahead-of-time build failed ({type(exc).__name__}: {exc}); the kernels "
               "compile with numba's JIT on first use instead", file=sys.stderr)
         return 1
-    print(f"built {len(manifest['modules'])} ahead-of-time modules into "
-          f"{_aot.AOT_DIR} in {time.perf_counter() - start:.1f} s", file=sys.stderr)
+    for manifest in manifests:
+        print(f"built {len(manifest['modules'])} ahead-of-time modules for {manifest['cpu']} "
+              f"into {_aot.build_folder(manifest['cpu'])}", file=sys.stderr)
+    print(f"done in {time.perf_counter() - start:.1f} s", file=sys.stderr)
     return 0
 
 

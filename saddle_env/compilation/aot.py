@@ -9,9 +9,11 @@ back to the JIT and its on-disk cache, as without them). ``SADDLE_ENV_AOT=0`` tu
 off. The modules are used only under the numba and llvmlite that built them, and only on a
 CPU that has every instruction they may use (`unusable`): on x86-64 they are compiled for
 the x86-64-v3 instruction-set level (`BASELINE`), so a wheel built on one machine serves
-every CPU at that level; built with ``SADDLE_ENV_AOT_CPU=host``, or on a machine below the
-level, they are compiled for the building machine's CPU model and features alone, as numba's
-JIT compiles for the running one. Only the standard library at import here: `specialise`
+every CPU at that level, and, where the building machine has AVX-512, once more for
+x86-64-v4 (`UPPER_LEVELS`, in a folder of its own), which a CPU with AVX-512 runs instead;
+built with ``SADDLE_ENV_AOT_CPU=host``, or on a machine below the level, they are compiled
+for the building machine's CPU model and features alone, as numba's JIT compiles for the
+running one. Only the standard library at import here: `specialise`
 imports this module, and asks it on its first specialisation.
 """
 from __future__ import annotations
@@ -40,11 +42,20 @@ MANIFEST = "manifest.json"
 # level's name as a CPU name; the features are the level's own, spelled as LLVM reports a
 # host's (numba's ``_get_host_cpu_features``), so that a host's report can be compared.
 BASELINE = "x86-64-v3"
+_V3 = ",".join("+" + f for f in (
+    "64bit", "cmov", "cx8", "fxsr", "mmx", "sse", "sse2",               # x86-64
+    "cx16", "sahf", "popcnt", "crc32", "sse3", "ssse3", "sse4.1", "sse4.2",  # v2
+    "avx", "avx2", "bmi", "bmi2", "f16c", "fma", "lzcnt", "movbe", "xsave"))  # v3
+# The levels above the baseline a build adds where the building machine has them (it runs
+# the first calls it compiles), each a whole build in the folder named after it; a CPU that
+# has a level's features uses its build. x86-64-v4's "-prefer-256-bit" is a tuning, not an
+# instruction (`_enabled` counts only "+" features): LLVM's model of the level would keep
+# to 256-bit vectors, and the environment's SIMD blocks (`saddle_env.lockstep`) step a
+# fifth faster on 512-bit ones (docs/install.md, measured on AMD Zen 5).
+UPPER_LEVELS = ("x86-64-v4",)
 LEVEL_FEATURES = {
-    BASELINE: ",".join("+" + f for f in (
-        "64bit", "cmov", "cx8", "fxsr", "mmx", "sse", "sse2",               # x86-64
-        "cx16", "sahf", "popcnt", "crc32", "sse3", "ssse3", "sse4.1", "sse4.2",  # v2
-        "avx", "avx2", "bmi", "bmi2", "f16c", "fma", "lzcnt", "movbe", "xsave")),  # v3
+    BASELINE: _V3,
+    "x86-64-v4": _V3 + ",+avx512f,+avx512bw,+avx512cd,+avx512dq,+avx512vl,-prefer-256-bit",
 }
 # At build time: "host" compiles for the building machine's CPU model and features alone
 # (its own fastest code, used on that model only); "baseline" (the default) for `BASELINE`.
@@ -55,6 +66,7 @@ CPU_VARIABLES = ("NUMBA_CPU_NAME", "NUMBA_CPU_FEATURES")
 logger = logging.getLogger("saddle_env")
 _loaded: dict[str, dict[str, dict[str, Callable]]] | None = None  # flags tag → module → name → fn
 _why_not: str | None = None
+_folder: Path | None = None  # the folder of the build in use
 # id of an entry point → the argument types (numba's names) it was compiled for. An entry
 # point unboxes its arguments as those types without checking them: called with others it
 # reads memory wrongly, hence `matches`.
@@ -98,17 +110,27 @@ def _enabled(features: str) -> set[str]:
     return {f[1:] for f in features.split(",") if f.startswith("+")}
 
 
-def build_target() -> dict[str, str]:
-    """The CPU name and features a build here compiles for (`AOT_CPU_ENV`): `BASELINE`
-    on an x86-64 machine that has it, else this machine's own (`machine`)."""
-    choice = os.environ.get(AOT_CPU_ENV, "") or "baseline"
-    if choice not in ("baseline", "host"):
-        raise ValueError(f"{AOT_CPU_ENV} must be 'baseline' or 'host', got {choice!r}")
+def build_targets() -> list[dict[str, str]]:
+    """The CPU names and features a build here compiles for (`AOT_CPU_ENV`), the one that
+    goes into `AOT_DIR` first: on an x86-64 machine at `BASELINE`, that level and then each
+    of `UPPER_LEVELS` the machine has (``levels``, the default) or the baseline alone
+    (``baseline``); else, or with ``host``, this machine's own model (`machine`)."""
+    choice = os.environ.get(AOT_CPU_ENV, "") or "levels"
+    if choice not in ("levels", "baseline", "host"):
+        raise ValueError(f"{AOT_CPU_ENV} must be 'levels', 'baseline' or 'host', got {choice!r}")
     here = machine()
-    if (choice == "baseline" and platform.machine().lower() in ("x86_64", "amd64")
-            and _enabled(LEVEL_FEATURES[BASELINE]) <= _enabled(here["features"])):
-        return {"cpu": BASELINE, "features": LEVEL_FEATURES[BASELINE]}
-    return {"cpu": here["cpu"], "features": here["features"]}
+    has = _enabled(here["features"])
+    if (choice != "host" and platform.machine().lower() in ("x86_64", "amd64")
+            and _enabled(LEVEL_FEATURES[BASELINE]) <= has):
+        levels = [BASELINE] + ([lv for lv in UPPER_LEVELS if _enabled(LEVEL_FEATURES[lv]) <= has]
+                               if choice == "levels" else [])
+        return [{"cpu": lv, "features": LEVEL_FEATURES[lv]} for lv in levels]
+    return [{"cpu": here["cpu"], "features": here["features"]}]
+
+
+def build_folder(cpu: str) -> Path:
+    """Where the build for ``cpu`` goes: `AOT_DIR`, or its folder for an upper level."""
+    return AOT_DIR / cpu if cpu in UPPER_LEVELS else AOT_DIR
 
 
 def unusable(built: Mapping[str, object], here: Mapping[str, str]) -> str | None:
@@ -140,10 +162,11 @@ def flags_key(flags: tuple[str, ...]) -> str:
     return ",".join(flags)
 
 
-def read_manifest() -> dict | None:
-    """The ahead-of-time build's manifest, or None if it is missing or unreadable."""
+def read_manifest(folder: Path | None = None) -> dict | None:
+    """The manifest of the build in ``folder`` (default `AOT_DIR`), or None if it is
+    missing or unreadable."""
     try:
-        manifest = json.loads((AOT_DIR / MANIFEST).read_text())
+        manifest = json.loads(((folder or AOT_DIR) / MANIFEST).read_text())
     except (OSError, ValueError):
         return None
     return manifest if isinstance(manifest, dict) else None
@@ -157,13 +180,25 @@ def _folder_names(folders: object) -> TypeGuard[list[str]]:
 
 
 def _load() -> dict[str, dict[str, dict[str, Callable]]]:
-    """Import every module of a current build once; {} (and the reason in `_why_not`) when
-    there is none, it is off, or it was built from other sources or for another platform,
-    CPU or compiler."""
-    global _why_not
+    """Import every module of a current build once, an upper level's (`UPPER_LEVELS`,
+    highest first) where this CPU and its sources allow, else `AOT_DIR`'s; {} (and the
+    reason in `_why_not`) when there is none, it is off, or it was built from other sources
+    or for another platform, CPU or compiler."""
+    global _why_not, _folder
     if os.environ.get(AOT_ENV, "1") in ("0", ""):
         _why_not = f"turned off ({AOT_ENV}=0)"
         return {}
+    here = machine()
+    for level in reversed(UPPER_LEVELS):
+        upper = read_manifest(AOT_DIR / level)
+        if (upper is not None and upper.get("cpu") == level
+                and upper.get("platform") == platform_tag() and unusable(upper, here) is None
+                and _from_these_sources(upper)):
+            found = _import_modules(AOT_DIR / level, upper)
+            if found:
+                _why_not, _folder = None, AOT_DIR / level
+                return found
+    _folder = AOT_DIR
     manifest = read_manifest()
     if manifest is None:
         _why_not = f"none built (no {AOT_DIR / MANIFEST})"
@@ -171,23 +206,36 @@ def _load() -> dict[str, dict[str, dict[str, Callable]]]:
     if manifest.get("platform") != platform_tag():
         _why_not = f"built for {manifest.get('platform')}, not {platform_tag()}"
         return {}
-    why = unusable(manifest, machine())
+    why = unusable(manifest, here)
     if why is not None:
         _why_not = f"{why}; rebuild with python -m saddle_env.coldstart.precompile --aot"
         if manifest.get("cpu") in LEVEL_FEATURES:
             from .notice import announce_no_build
             announce_no_build(_why_not)   # a portable build that cannot serve here: said once
         return {}
-    folders = manifest.get("sources")
-    if not _folder_names(folders) or manifest.get("digest") != source_digest(folders):
+    if not _from_these_sources(manifest):
         _why_not = ("built from other sources (the package changed since; rebuild with "
                     "python -m saddle_env.coldstart.precompile --aot)")
         logger.info("saddle_env: ahead-of-time kernels not used: %s", _why_not)
         return {}
+    found = _import_modules(AOT_DIR, manifest)
+    _why_not = None if found else "no module of the build could be loaded"
+    return found
+
+
+def _from_these_sources(manifest: Mapping[str, object]) -> bool:
+    """Whether the build of ``manifest`` was made from the package's sources in place."""
+    folders = manifest.get("sources")
+    return _folder_names(folders) and manifest.get("digest") == source_digest(folders)
+
+
+def _import_modules(folder: Path, manifest: Mapping) -> dict[str, dict[str, dict[str, Callable]]]:
+    """Import the modules of the build in ``folder``: flags tag → module → name → entry
+    point ({} if none could be imported)."""
     found: dict[str, dict[str, dict[str, Callable]]] = {}
     for entry in manifest.get("modules", []):
         try:
-            path = AOT_DIR / entry["file"]
+            path = folder / entry["file"]
             spec = importlib.util.spec_from_file_location(
                 f"saddle_env.compilation.aot.{entry['name']}", path)
             module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
@@ -209,7 +257,6 @@ def _load() -> dict[str, dict[str, dict[str, Callable]]]:
         _argtypes.update(types)
         _threaded.update(threaded)
         found[key] = entries
-    _why_not = None if found else "no module of the build could be loaded"
     return found
 
 
@@ -255,5 +302,5 @@ def status() -> str:
     if _loaded is None:
         _loaded = _load()
     if _loaded:
-        return f"ahead-of-time kernels in use ({len(_loaded)} modules, {AOT_DIR})"
+        return f"ahead-of-time kernels in use ({len(_loaded)} modules, {_folder})"
     return f"no ahead-of-time kernels: {_why_not}"
