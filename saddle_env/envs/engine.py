@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from itertools import pairwise
-from typing import Literal, TypedDict, cast
+from typing import Literal, NamedTuple, TypedDict, cast
 
 import numba
 import numpy as np
@@ -83,6 +83,16 @@ def _whole_and_fraction(delay: float, period: float) -> tuple[int, float]:
 
 
 RESET_OPTION_KEYS = ("x", "y", "vx", "vy", "omega", "R", "a", "contact", "start", "spin_normal")
+
+
+class DrawnScene(NamedTuple):
+    """A ball's scene as a reset draws it (`TrapEngine._draw_scene`), with what the compiled
+    step reads of it: its packed parameters, state scales and contact model's code."""
+
+    scene: Scene
+    params: np.ndarray
+    scale: np.ndarray
+    model_code: int
 
 
 class ResetOptions(TypedDict, total=False):
@@ -158,7 +168,7 @@ class TrapEngine:
         self._S = specialise(*self._uses, S)
         self._entries: dict[str, object] = {}  # `_entry`
         self._serial_call: tuple | None = None  # `_run`'s last serial call, made again
-        self._scene_cache: dict[tuple, tuple[Scene, np.ndarray, np.ndarray]] = {}
+        self._scene_cache: dict[tuple, DrawnScene] = {}
         self._noise_scale = self._build_noise_scale(config)
         self._air_decay = math.exp(-config.control_period / config.air_force_tau)
         self.delays = DelayPlan(config)
@@ -337,13 +347,64 @@ class TrapEngine:
         k = idx.size
         # Draws per ball, from its own generator and in a fixed order; the states follow
         # in one compiled call (`control_step.place`).
-        placed = "x" in opts or "y" in opts
+        hits, omegas, xs, ys, vxs, vys, phases, forces = self._draw_starts(idx, rngs, opts)
         given_velocity = "vx" in opts or "vy" in opts
         start = opts.get("start", c.init_start)
         spin = float(opts.get("spin_normal", 0.0))
         # The lab's launcher: a ball not spinning in the laboratory spins at -Ω about the
         # normal relative to the saddle (as `saddle_env.lifetimes.release_times` starts it).
         lab_spin = c.init_spin == "lab" and "spin_normal" not in opts
+        for i, hit in zip(idx, hits):
+            self.scenes[i] = hit.scene
+        self.models[idx] = [hit.model_code for hit in hits]
+        self.P[idx] = [hit.params for hit in hits]
+        self.scales[idx] = [hit.scale for hit in hits]
+        b = np.zeros((k, S.BALL_WIDTH))
+        b[:, S.B_OMEGA] = omegas
+        b[:, S.B_PHASE] = phases
+        b[:, S.B_FX:S.B_FY + 1] = forces
+        self.balls[idx] = b
+        x, y, vx, vy = (np.array(v, dtype=np.float64) for v in (xs, ys, vxs, vys))
+        lab_rest = np.full(k, not given_velocity and start == "lab-rest")
+        spins = -b[:, S.B_OMEGA] if lab_spin else spin
+        mask = np.zeros(self.n, dtype=bool)
+        mask[idx] = True
+        self._draw_noise(rngs, mask)
+        self._place(idx, x, y, vx, vy, lab_rest, spins)
+        if self.delays.active:
+            self._reset_delays(idx)
+        if self.obs is not self.frame:  # a new episode's history: its first frame, k times
+            self.obs[idx] = np.tile(self.frame[idx], self.layout.frames)
+        bad = ~np.isfinite(self.Y[idx]).all(axis=1)
+        if bad.any():
+            j = int(np.flatnonzero(bad)[0])
+            raise ValueError(
+                f"initial state is not finite for x = {x[j]:g}, y = {y[j]:g}, vx = {vx[j]:g}, "
+                f"vy = {vy[j]:g} m: the position or velocity is too large for the saddle")
+        normal = self.out[idx, S.O_NORMAL]
+        lifted = ~(normal > 0)
+        if lifted.any():
+            # The ball would leave the surface at t = 0: no episode to play. The options (or
+            # the level's start ranges) asked for a start the physics does not allow.
+            j = int(np.flatnonzero(lifted)[0])
+            i = int(idx[j])
+            given = "reset options" if opts else ("the level's start options (init_offset, "
+                                                  "init_speed, omega0_range)")
+            raise ValueError(
+                f"{given} give a start where the normal force is N/mg = {normal[j]:.3g} <= 0 "
+                f"(x = {x[j]:g}, y = {y[j]:g} m, vx = {vx[j]:g}, vy = {vy[j]:g} m/s, omega = "
+                f"{self.balls[i, S.B_OMEGA]:g} rad/s): the ball would leave the surface at "
+                f"once; start nearer the centre, slower, or at a lower omega")
+
+    def _draw_starts(self, idx: np.ndarray, rngs: Sequence[np.random.Generator],
+                     opts: ResetOptions) -> tuple[list, ...]:
+        """Each ball's draws for a reset, from its own generator in a fixed order: its scene
+        (`_draw_scene`), Ω₀, the start's position and velocity, the ripple's phase and the
+        lab-fixed force, as lists over ``idx``."""
+        c = self.config
+        placed = "x" in opts or "y" in opts
+        given_velocity = "vx" in opts or "vy" in opts
+        spin = float(opts.get("spin_normal", 0.0))
         two_pi = 2.0 * math.pi
         # Each ball's draws go to lists, written to the rows after the loop: a numpy item
         # write per value was a third of a reset's cost (a vector env's 1,024 balls reset
@@ -353,7 +414,7 @@ class TrapEngine:
             rng = rngs[i]
             hit = self._draw_scene(rng, opts)
             hits.append(hit)
-            R = hit[0].R
+            R = hit.scene.R
             if spin and abs(spin) * R > c.max_start_speed:
                 raise ValueError(f"reset option 'spin_normal' must satisfy |spin_normal| R <= "
                                  f"{c.max_start_speed:g} m/s (|spin_normal| <= "
@@ -395,50 +456,10 @@ class TrapEngine:
                 # The scene leans the axis toward the laboratory's x axis (g·sin(tilt) along
                 # x); the lab-fixed force turns that share of gravity to the drawn direction.
                 psi = _uniform(rng, 0.0, two_pi)
-                lean = hit[1][P_TILT_FORCE]
+                lean = hit.params[P_TILT_FORCE]
                 fx, fy = lean * (math.cos(psi) - 1.0), lean * math.sin(psi)
             forces.append((fx, fy))
-        for i, hit in zip(idx, hits):
-            self.scenes[i] = hit[0]
-        self.models[idx] = [hit[3] for hit in hits]
-        self.P[idx] = [hit[1] for hit in hits]
-        self.scales[idx] = [hit[2] for hit in hits]
-        b = np.zeros((k, S.BALL_WIDTH))
-        b[:, S.B_OMEGA] = omegas
-        b[:, S.B_PHASE] = phases
-        b[:, S.B_FX:S.B_FY + 1] = forces
-        self.balls[idx] = b
-        x, y, vx, vy = (np.array(v, dtype=np.float64) for v in (xs, ys, vxs, vys))
-        lab_rest = np.full(k, not given_velocity and start == "lab-rest")
-        spins = -b[:, S.B_OMEGA] if lab_spin else spin
-        mask = np.zeros(self.n, dtype=bool)
-        mask[idx] = True
-        self._draw_noise(rngs, mask)
-        self._place(idx, x, y, vx, vy, lab_rest, spins)
-        if self.delays.active:
-            self._reset_delays(idx)
-        if self.obs is not self.frame:  # a new episode's history: its first frame, k times
-            self.obs[idx] = np.tile(self.frame[idx], self.layout.frames)
-        bad = ~np.isfinite(self.Y[idx]).all(axis=1)
-        if bad.any():
-            j = int(np.flatnonzero(bad)[0])
-            raise ValueError(
-                f"initial state is not finite for x = {x[j]:g}, y = {y[j]:g}, vx = {vx[j]:g}, "
-                f"vy = {vy[j]:g} m: the position or velocity is too large for the saddle")
-        normal = self.out[idx, S.O_NORMAL]
-        lifted = ~(normal > 0)
-        if lifted.any():
-            # The ball would leave the surface at t = 0: no episode to play. The options (or
-            # the level's start ranges) asked for a start the physics does not allow.
-            j = int(np.flatnonzero(lifted)[0])
-            i = int(idx[j])
-            given = "reset options" if opts else ("the level's start options (init_offset, "
-                                                  "init_speed, omega0_range)")
-            raise ValueError(
-                f"{given} give a start where the normal force is N/mg = {normal[j]:.3g} <= 0 "
-                f"(x = {x[j]:g}, y = {y[j]:g} m, vx = {vx[j]:g}, vy = {vy[j]:g} m/s, omega = "
-                f"{self.balls[i, S.B_OMEGA]:g} rad/s): the ball would leave the surface at "
-                f"once; start nearer the centre, slower, or at a lower omega")
+        return hits, omegas, xs, ys, vxs, vys, phases, forces
 
     def _reset_delays(self, idx: np.ndarray) -> None:
         """Empty queues for a new episode: no command given yet (a voltage-driven motor
@@ -455,7 +476,7 @@ class TrapEngine:
             self._samples[i] = self.frame[i]
 
     def _draw_scene(self, rng: np.random.Generator,
-                    opts: Mapping[str, object]) -> tuple[Scene, np.ndarray, np.ndarray, int]:
+                    opts: Mapping[str, object]) -> DrawnScene:
         """The ball's scene (drawn when randomised), its packed parameters, state scales and
         contact model's code.
 
@@ -482,7 +503,8 @@ class TrapEngine:
         if hit is None:
             scene = c.scene(**changes)
             params = scene.params()
-            hit = (scene, params, state_scale(params, scene.model_code), scene.model_code)
+            hit = DrawnScene(scene, params, state_scale(params, scene.model_code),
+                             scene.model_code)
             if len(self._scene_cache) >= 256:  # continuous randomisation: keep it bounded
                 self._scene_cache.clear()
             self._scene_cache[key] = hit
