@@ -6,8 +6,9 @@ fresh install starts in about a second instead of compiling with numba for 10-20
 The build runs in a separate process with a time limit and never fails the install: without
 a C compiler, or if anything in it goes wrong, the package installs without it and numba's
 JIT compiles on first use, as it always did. ``SADDLE_ENV_AOT=0`` at install time skips it.
-A wheel's build is compiled for the x86-64-v3 level, so that it serves other CPU models; an
-editable install's for the installing machine's CPU (``SADDLE_ENV_AOT_CPU`` chooses:
+A wheel's build is compiled for the x86-64-v3 level, so that it serves other CPU models, and
+where the building machine has AVX-512 once more for x86-64-v4, which CPUs with AVX-512 run;
+an editable install's for the installing machine's CPU (``SADDLE_ENV_AOT_CPU`` chooses:
 `saddle_env.compilation.aot`).
 """
 import os
@@ -65,7 +66,7 @@ class build_aot(Command):
                   "on first use (python -m saddle_env.coldstart.precompile --aot retries)")
             return
         if not self.editable_mode:
-            self._outputs = [str(p) for p in out.iterdir()]
+            self._outputs = [str(p) for p in sorted(out.rglob("*")) if p.is_file()]
         self._record(True)
 
     def _record(self, built: bool) -> None:

@@ -151,6 +151,14 @@ def test_an_upper_level_build_is_used_where_the_cpu_has_the_level(fake_build, tm
     assert upper(ZNVER4, numba="0.1.0") == "ahead"
     assert upper(ZNVER4, cpu="x86-64-v3") == "ahead"  # not the folder's level
     assert "x86-64-v4" not in _aot.status()
+    monkeypatch.setenv(_aot.AOT_LEVEL_ENV, "x86-64-v3")          # the user caps the level
+    assert upper(ZNVER4) == "ahead"
+    monkeypatch.setenv(_aot.AOT_LEVEL_ENV, "x86-64-v4")
+    assert upper(ZNVER4) == "v4"
+    monkeypatch.setenv(_aot.AOT_LEVEL_ENV, "v4")
+    with pytest.raises(ValueError, match="SADDLE_ENV_AOT_LEVEL must be one of x86-64-v3, "
+                                         "x86-64-v4 \\(or unset\\), got 'v4'"):
+        upper(ZNVER4)
 
 
 def test_a_cpu_below_the_level_falls_back_to_the_jit_saying_so_once(fake_build, caplog,

@@ -58,8 +58,13 @@ LEVEL_FEATURES = {
     "x86-64-v4": _V3 + ",+avx512f,+avx512bw,+avx512cd,+avx512dq,+avx512vl,-prefer-256-bit",
 }
 # At build time: "host" compiles for the building machine's CPU model and features alone
-# (its own fastest code, used on that model only); "baseline" (the default) for `BASELINE`.
+# (its own fastest code, used on that model only); "baseline" for `BASELINE` alone;
+# "levels" (the default) for it and the `UPPER_LEVELS` the machine has.
 AOT_CPU_ENV = "SADDLE_ENV_AOT_CPU"
+# At run time: the highest level whose build may be used (a level's name, e.g. x86-64-v3:
+# the baseline's build even on a CPU with AVX-512, whose 512-bit instructions some older
+# CPUs run at a lower clock); unset, the highest this CPU has.
+AOT_LEVEL_ENV = "SADDLE_ENV_AOT_LEVEL"
 # numba's settings of the CPU its JIT compiles for (read once, when numba is imported)
 CPU_VARIABLES = ("NUMBA_CPU_NAME", "NUMBA_CPU_FEATURES")
 
@@ -189,7 +194,7 @@ def _load() -> dict[str, dict[str, dict[str, Callable]]]:
         _why_not = f"turned off ({AOT_ENV}=0)"
         return {}
     here = machine()
-    for level in reversed(UPPER_LEVELS):
+    for level in reversed(_levels_allowed()):
         upper = read_manifest(AOT_DIR / level)
         if (upper is not None and upper.get("cpu") == level
                 and upper.get("platform") == platform_tag() and unusable(upper, here) is None
@@ -221,6 +226,19 @@ def _load() -> dict[str, dict[str, dict[str, Callable]]]:
     found = _import_modules(AOT_DIR, manifest)
     _why_not = None if found else "no module of the build could be loaded"
     return found
+
+
+def _levels_allowed() -> tuple[str, ...]:
+    """The `UPPER_LEVELS` whose builds this process may use (`AOT_LEVEL_ENV`); ValueError
+    naming the variable and the levels for a value that is none of them."""
+    cap = os.environ.get(AOT_LEVEL_ENV, "")
+    if not cap:
+        return UPPER_LEVELS
+    levels = (BASELINE, *UPPER_LEVELS)
+    if cap not in levels:
+        raise ValueError(f"{AOT_LEVEL_ENV} must be one of {', '.join(levels)} (or unset), "
+                         f"got {cap!r}")
+    return UPPER_LEVELS[:levels.index(cap)]
 
 
 def _from_these_sources(manifest: Mapping[str, object]) -> bool:
