@@ -196,9 +196,7 @@ def _load() -> dict[str, dict[str, dict[str, Callable]]]:
     here = machine()
     for level in reversed(_levels_allowed()):
         upper = read_manifest(AOT_DIR / level)
-        if (upper is not None and upper.get("cpu") == level
-                and upper.get("platform") == platform_tag() and unusable(upper, here) is None
-                and _from_these_sources(upper)):
+        if upper is not None and upper.get("cpu") == level and _why_stale(upper, here) is None:
             found = _import_modules(AOT_DIR / level, upper)
             if found:
                 _why_not, _folder = None, AOT_DIR / level
@@ -208,24 +206,32 @@ def _load() -> dict[str, dict[str, dict[str, Callable]]]:
     if manifest is None:
         _why_not = f"none built (no {AOT_DIR / MANIFEST})"
         return {}
-    if manifest.get("platform") != platform_tag():
-        _why_not = f"built for {manifest.get('platform')}, not {platform_tag()}"
-        return {}
-    why = unusable(manifest, here)
-    if why is not None:
-        _why_not = f"{why}; rebuild with python -m saddle_env.coldstart.precompile --aot"
-        if manifest.get("cpu") in LEVEL_FEATURES:
+    stale = _why_stale(manifest, here)
+    if stale is not None:
+        kind, _why_not = stale
+        if kind == "cpu" and manifest.get("cpu") in LEVEL_FEATURES:
             from .notice import announce_no_build
             announce_no_build(_why_not)   # a portable build that cannot serve here: said once
-        return {}
-    if not _from_these_sources(manifest):
-        _why_not = ("built from other sources (the package changed since; rebuild with "
-                    "python -m saddle_env.coldstart.precompile --aot)")
-        logger.info("saddle_env: ahead-of-time kernels not used: %s", _why_not)
+        elif kind == "sources":
+            logger.info("saddle_env: ahead-of-time kernels not used: %s", _why_not)
         return {}
     found = _import_modules(AOT_DIR, manifest)
     _why_not = None if found else "no module of the build could be loaded"
     return found
+
+
+def _why_stale(manifest: Mapping[str, object], here: Mapping[str, str]) -> tuple[str, str] | None:
+    """Why the build of ``manifest`` cannot serve this process, as (kind, reason) with kind
+    "platform", "cpu" or "sources"; None if it can (`here`: `machine`)."""
+    if manifest.get("platform") != platform_tag():
+        return "platform", f"built for {manifest.get('platform')}, not {platform_tag()}"
+    why = unusable(manifest, here)
+    if why is not None:
+        return "cpu", f"{why}; rebuild with python -m saddle_env.coldstart.precompile --aot"
+    if not _from_these_sources(manifest):
+        return "sources", ("built from other sources (the package changed since; rebuild "
+                           "with python -m saddle_env.coldstart.precompile --aot)")
+    return None
 
 
 def _levels_allowed() -> tuple[str, ...]:

@@ -347,10 +347,11 @@ class TrapEngine:
         k = idx.size
         # Draws per ball, from its own generator and in a fixed order; the states follow
         # in one compiled call (`control_step.place`).
-        hits, omegas, xs, ys, vxs, vys, phases, forces = self._draw_starts(idx, rngs, opts)
         given_velocity = "vx" in opts or "vy" in opts
-        start = opts.get("start", c.init_start)
         spin = float(opts.get("spin_normal", 0.0))
+        hits, omegas, xs, ys, vxs, vys, phases, forces = self._draw_starts(
+            idx, rngs, opts, given_velocity, spin)
+        start = opts.get("start", c.init_start)
         # The lab's launcher: a ball not spinning in the laboratory spins at -Ω about the
         # normal relative to the saddle (as `saddle_env.lifetimes.release_times` starts it).
         lab_spin = c.init_spin == "lab" and "spin_normal" not in opts
@@ -397,14 +398,14 @@ class TrapEngine:
                 f"once; start nearer the centre, slower, or at a lower omega")
 
     def _draw_starts(self, idx: np.ndarray, rngs: Sequence[np.random.Generator],
-                     opts: ResetOptions) -> tuple[list, ...]:
+                     opts: ResetOptions, given_velocity: bool,
+                     spin: float) -> tuple[list, ...]:
         """Each ball's draws for a reset, from its own generator in a fixed order: its scene
-        (`_draw_scene`), Ω₀, the start's position and velocity, the ripple's phase and the
-        lab-fixed force, as lists over ``idx``."""
+        (`_draw_scene`), Ω₀, the start's position and velocity (``given_velocity``: the
+        options hold it), the ripple's phase and the lab-fixed force, as lists over ``idx``;
+        ``spin`` (the options' spin about the normal) is checked against each scene."""
         c = self.config
         placed = "x" in opts or "y" in opts
-        given_velocity = "vx" in opts or "vy" in opts
-        spin = float(opts.get("spin_normal", 0.0))
         two_pi = 2.0 * math.pi
         # Each ball's draws go to lists, written to the rows after the loop: a numpy item
         # write per value was a third of a reset's cost (a vector env's 1,024 balls reset
